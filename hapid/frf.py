@@ -1,0 +1,114 @@
+"""The FRF value object passed from the experiment stage to the fit stage.
+
+``Z_H``, ``Z_T`` are the empirical hand and total impedances ``(N, n, n)`` complex at the
+excited angular frequencies ``omega`` (rad/s); ``Z_H_std``, ``Z_T_std`` are the standard
+deviations of each element estimate, ``sqrt(E|Ẑ − Z|²)`` (real and imaginary parts together),
+or ``None`` when unknown. ``cond_L`` is the condition number of the stacked displacement
+matrix 𝓛(jω) per frequency (``None`` when not measured).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Complex, Float
+
+from . import _config  # noqa: F401
+from .impedance import plant
+
+TWO_PI = 2.0 * np.pi
+
+
+class FRF(eqx.Module):
+    omega: Float[Array, " N"]
+    Z_H: Complex[Array, "N n n"]
+    Z_T: Complex[Array, "N n n"]
+    Z_H_std: Float[Array, "N n n"] | None = None
+    Z_T_std: Float[Array, "N n n"] | None = None
+    cond_L: Float[Array, " N"] | None = None
+
+    def __check_init__(self):
+        check_frf_arrays(self.omega, self.Z_H, self.Z_T, self.Z_H_std, self.Z_T_std)
+
+    @property
+    def n(self) -> int:
+        return int(np.shape(self.Z_H)[-1])
+
+    @property
+    def freq_hz(self):
+        return self.omega / TWO_PI
+
+    @property
+    def P(self) -> Complex[Array, "N n n"]:
+        """Empirical plant ``P = Z_H Z_T⁻¹``."""
+        return plant(self.Z_H, self.Z_T)
+
+    def select(self, mask) -> FRF:
+        """A new FRF restricted to the frequencies where ``mask`` (``(N,)`` bool) is true."""
+        mask = np.asarray(mask, dtype=bool)
+        pick = lambda a: None if a is None else a[..., mask, :, :] if a.ndim >= 3 else a[..., mask]  # noqa: E731
+        return FRF(
+            omega=self.omega[..., mask],
+            Z_H=pick(self.Z_H),
+            Z_T=pick(self.Z_T),
+            Z_H_std=pick(self.Z_H_std),
+            Z_T_std=pick(self.Z_T_std),
+            cond_L=None if self.cond_L is None else self.cond_L[..., mask],
+        )
+
+    def band(self, f_min_hz: float = 0.0, f_max_hz: float = np.inf) -> FRF:
+        """A new FRF restricted to ``f_min_hz ≤ f ≤ f_max_hz``."""
+        f = np.asarray(self.freq_hz)
+        return self.select((f >= f_min_hz) & (f <= f_max_hz))
+
+
+def check_frf_arrays(omega, Z_H, Z_T, Z_H_std=None, Z_T_std=None) -> None:
+    """Validate FRF arrays with clear errors; a no-op on traced values' contents.
+
+    Shapes are always checked. Values (finite, positive, increasing frequencies) are checked
+    only when concrete (outside ``jit``); batched FRFs (leading batch axes) are allowed.
+    """
+    omega_shape = np.shape(omega)
+    zs = np.shape(Z_H)
+    if len(zs) < 3 or zs[-1] != zs[-2]:
+        raise ValueError(f"FRF: Z_H must be (N, n, n), got shape {zs}")
+    if np.shape(Z_T) != zs:
+        raise ValueError(f"FRF: Z_T has shape {np.shape(Z_T)}, Z_H has {zs}; they must match")
+    if omega_shape[-1:] != zs[-3:-2]:
+        raise ValueError(f"FRF: {omega_shape[-1:]} frequencies but Z_H has {zs[-3]} frequency rows")
+    for name, std in (("Z_H_std", Z_H_std), ("Z_T_std", Z_T_std)):
+        if std is not None and np.shape(std) != zs:
+            raise ValueError(f"FRF: {name} has shape {np.shape(std)}, expected {zs}")
+    if _is_concrete(omega) and _is_concrete(Z_H) and _is_concrete(Z_T):
+        w = np.asarray(omega)
+        if not np.all(np.isfinite(w)):
+            raise ValueError("FRF: frequencies contain NaN or inf")
+        if np.any(w <= 0):
+            raise ValueError("FRF: frequencies must be > 0")
+        if np.any(np.diff(w, axis=-1) <= 0):
+            raise ValueError("FRF: frequencies must be strictly increasing")
+        for name, a in (("Z_H", Z_H), ("Z_T", Z_T), ("Z_H_std", Z_H_std), ("Z_T_std", Z_T_std)):
+            if a is not None and _is_concrete(a) and not np.all(np.isfinite(np.asarray(a))):
+                bad = np.argwhere(~np.isfinite(np.asarray(a)))[0]
+                raise ValueError(f"FRF: {name} contains NaN or inf (first at index {tuple(bad)})")
+
+
+def _is_concrete(x) -> bool:
+    import jax
+
+    return x is not None and not isinstance(x, jax.core.Tracer)
+
+
+def as_frf(freq_hz, Z_H, Z_T, Z_H_std=None, Z_T_std=None, cond_L=None) -> FRF:
+    """Build an FRF from Hz frequencies and arrays (the file contract's units)."""
+    f = jnp.asarray(freq_hz, dtype=jnp.float64)
+    opt = lambda a, dt: None if a is None else jnp.asarray(a, dtype=dt)  # noqa: E731
+    return FRF(
+        omega=TWO_PI * f,
+        Z_H=jnp.asarray(Z_H, dtype=jnp.complex128),
+        Z_T=jnp.asarray(Z_T, dtype=jnp.complex128),
+        Z_H_std=opt(Z_H_std, jnp.float64),
+        Z_T_std=opt(Z_T_std, jnp.float64),
+        cond_L=opt(cond_L, jnp.float64),
+    )
