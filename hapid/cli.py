@@ -1,0 +1,190 @@
+"""The ``hapid`` command. Each subcommand is a thin shell over the library: parse, call,
+write files, print a short report. Errors are one clear line (exit code 2), not a traceback;
+set ``HAPID_DEBUG=1`` for the traceback."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import warnings
+from pathlib import Path
+
+EXAMPLES = """examples:
+  hapid simulate --device cu5 --out run.npz            # the paper's protocol on cu5
+  hapid frf run.npz --out frf.npz --plot frf.png       # empirical Z_H, Z_T (+ std)
+  hapid demo --out out/demo                            # simulate → FRF → σ plots
+"""
+
+
+class CLIError(Exception):
+    pass
+
+
+def _protocol_args(p):
+    g = p.add_argument_group("protocol")
+    g.add_argument("--freqs", default="paper",
+                   help="excited frequencies in Hz: 'paper' (1..10, 15..100) or a comma list")  # fmt: skip
+    g.add_argument("--fs", type=float, default=1000.0, help="sampling rate (Hz), default 1000")
+    g.add_argument("--period", type=int, default=1000, help="period length in samples (default 1000)")
+    g.add_argument("--periods", type=int, default=4, help="measured periods per experiment (default 4)")
+    g.add_argument("--transient", type=int, default=1, help="discarded periods (time domain)")
+    g.add_argument("--pattern", default="paper", choices=["paper", "one_at_a_time", "hadamard"])
+    g.add_argument("--phases", default="random", choices=["random", "schroeder", "min_crest"])
+    g.add_argument("--amplitude", type=float, default=0.3, help="component amplitude a (N)")
+    g.add_argument("--seed", type=int, default=0, help="seed of phases and noise")
+    g.add_argument("--noise", type=float, default=5e-3, help="force-sensor noise std (N)")
+    g.add_argument("--position-noise", type=float, default=0.0, help="encoder noise std (m)")
+    g.add_argument("--encoder-res", type=float, default=2e-6, help="encoder resolution (m), 0 = off")
+
+
+def _protocol(a):
+    from .experiment import Protocol, paper_frequencies
+
+    freqs = paper_frequencies() if a.freqs == "paper" else [float(x) for x in a.freqs.split(",")]
+    return Protocol(
+        freq_hz=tuple(freqs), fs_hz=a.fs, period_samples=a.period, n_periods=a.periods,
+        transient_periods=a.transient, pattern=a.pattern, amplitude=a.amplitude,
+        phases=a.phases, seed=a.seed, force_noise=a.noise, position_noise=a.position_noise,
+        encoder_resolution=a.encoder_res,
+    )  # fmt: skip
+
+
+def _device(a):
+    from .device import Pose, preset
+
+    pose = Pose().moved(*(a.move or [0.0, 0.0, 0.0])) if getattr(a, "move", None) else None
+    return preset(a.device, pose=pose, fs_hz=a.fs)
+
+
+def cmd_simulate(a):
+    from . import io
+    from .experiment import periodic_run, time_domain_run
+
+    dev, prot = _device(a), _protocol(a)
+    if a.time_domain or a.friction:
+        run = time_domain_run(dev, prot, friction=a.friction)
+        how = "time-domain" + (" with Coulomb friction" if a.friction else "")
+    else:
+        run = periodic_run(dev, prot)
+        how = "periodic steady state"
+    out = io.save_run(a.out, run)
+    E, T, n = run.R_A.shape
+    print(f"simulated {a.device} ({how}): E={E} experiments × {T} samples × n={n} rods, "
+          f"{len(run.freq_hz)} frequencies {run.freq_hz.min():g}–{run.freq_hz.max():g} Hz → {out}")  # fmt: skip
+
+
+def cmd_frf(a):
+    import numpy as np
+
+    from . import io
+    from .experiment import estimate_frf
+
+    run = io.load_run(a.run)
+    frf = estimate_frf(run, cond_warn=a.cond_warn)
+    out = io.save_frf(a.out, frf)
+    rel = np.asarray(frf.Z_H_std) / np.abs(np.asarray(frf.Z_H)) if frf.Z_H_std is not None else None
+    print(f"FRF: {frf.Z_H.shape[0]} frequencies, n={frf.n}; cond(𝓛) "
+          f"{float(np.min(frf.cond_L)):.3g}–{float(np.max(frf.cond_L)):.3g}" +
+          (f"; median relative std of Z_H {np.median(rel):.2e}" if rel is not None else "") +
+          f" → {out}")  # fmt: skip
+    if a.plot:
+        from . import plot
+
+        fig, _ = plot.frf_overview(frf)
+        plot.save(fig, a.plot)
+        print(f"figure → {a.plot}")
+
+
+def cmd_demo(a):
+    import numpy as np
+
+    from . import io, plot
+    from .device import preset
+    from .experiment import Protocol, estimate_frf, periodic_run
+
+    out = Path(a.out)
+    dev = preset(a.device)
+    run = periodic_run(dev, Protocol())
+    frf = estimate_frf(run)
+    io.save_run(out / "run.npz", run)
+    io.save_frf(out / "frf.npz", frf)
+    fig, _ = plot.frf_overview(frf, title_prefix=f"{a.device}: ")
+    plot.save(fig, out / "frf_singular_values.png")
+    sv = np.linalg.svd(np.asarray(frf.P), compute_uv=False)
+    span = 20 * np.log10(sv[:, 0] / sv[:, -1])
+    f = np.asarray(frf.freq_hz)
+    band = f <= 30
+    print(f"{a.device}: plant singular-value span over {f[band].min():g}–{f[band].max():g} Hz: "
+          f"{span[band].min():.1f}–{span[band].max():.1f} dB (paper: 25–50 dB)")  # fmt: skip
+    print(f"wrote {out / 'run.npz'}, {out / 'frf.npz'}, {out / 'frf_singular_values.png'}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="hapid",
+        description="Differentiable system identification and force control of multi-DOF "
+        "haptic interfaces (Lee, Lawrence & Pao), on simulated devices or measured files.",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    s = sub.add_parser("simulate", help="run the multisine experiments on a simulated device",
+                       description="Run the paper's multisine experiments on a simulated device "
+                       "and write a run file (.npz/.csv/.mat).",
+                       epilog="example: hapid simulate --device cu5 --periods 8 --out run.npz")  # fmt: skip
+    s.add_argument("--device", default="cu5", help="preset: cu5 (default), tripod3, hexapod6")
+    s.add_argument("--move", type=float, nargs=3, metavar=("DX", "DY", "DZ"),
+                   help="move the stylus from home by DX DY DZ metres")  # fmt: skip
+    s.add_argument("--time-domain", action="store_true", help="lax.scan simulation instead of "
+                   "the exact periodic steady state")  # fmt: skip
+    s.add_argument("--friction", action="store_true", help="time domain with Coulomb friction")
+    s.add_argument("--out", required=True, help="output run file")
+    _protocol_args(s)
+    s.set_defaults(func=cmd_simulate)
+
+    f = sub.add_parser("frf", help="estimate Z_H, Z_T (and their std) from a run file",
+                       description="Empirical impedances Z_H = −𝓡_I 𝓛⁻¹, Z_T = −𝓡_A 𝓛⁻¹ per "
+                       "excited frequency (paper section 4.1), with element std.",
+                       epilog="example: hapid frf run.npz --out frf.npz --plot frf.png")  # fmt: skip
+    f.add_argument("run", help="run file (.npz, .csv or .mat)")
+    f.add_argument("--out", required=True, help="output FRF file")
+    f.add_argument("--plot", help="also write a figure of σ(Z_H), σ(Z_T), σ(P)")
+    f.add_argument("--cond-warn", type=float, default=1e3, help="warn where cond(𝓛) exceeds this")
+    f.set_defaults(func=cmd_frf)
+
+    d = sub.add_parser("demo", help="simulate the default device, estimate its FRF, plot σ",
+                       epilog="example: hapid demo --out out/demo")  # fmt: skip
+    d.add_argument("--device", default="cu5")
+    d.add_argument("--out", default="out/demo")
+    d.set_defaults(func=cmd_demo)
+
+    for register in _EXTRA:
+        register(sub)
+    return p
+
+
+_EXTRA: list = []  # later stages register their subcommands here
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    a = parser.parse_args(argv)
+    if not getattr(a, "command", None):
+        parser.print_help()
+        return 0
+    warnings.simplefilter("default")
+    warnings.formatwarning = lambda m, c, *_: f"hapid: warning: {m}\n"
+    try:
+        a.func(a)
+    except (ValueError, FileNotFoundError, CLIError, OSError) as e:
+        if os.environ.get("HAPID_DEBUG"):
+            raise
+        print(f"hapid: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

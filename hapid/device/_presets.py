@@ -1,0 +1,60 @@
+"""Preset devices: ``cu5`` (DEVICE.md), a 3-rod tripod and a 6-rod hexapod."""
+
+from __future__ import annotations
+
+from ._device import ParallelDevice
+from ._geometry import Pose, cu5_geometry, hexapod_geometry, tripod_geometry
+from ._parts import default_modes, nominal_hand, nominal_mechanism, no_modes
+
+
+def cu5(pose: Pose | None = None, *, extra_modes: bool = True, delay_samples: int = 1,
+        fs_hz: float = 1000.0) -> ParallelDevice:  # fmt: skip
+    """The default 5-rod device of DEVICE.md (3 translations + 2 rotations of the stylus)."""
+    return ParallelDevice(
+        geometry=cu5_geometry(),
+        pose=pose if pose is not None else Pose(),
+        hand=nominal_hand(3, (1, 2)),
+        mechanism=nominal_mechanism(5),
+        modes=default_modes() if extra_modes else no_modes(),
+        fs_hz=fs_hz,
+        delay_samples=delay_samples,
+    )
+
+
+def tripod3(pose: Pose | None = None, *, extra_modes: bool = True, delay_samples: int = 1,
+            fs_hz: float = 1000.0) -> ParallelDevice:  # fmt: skip
+    """A 3-rod translational device with cu5's chain and the nominal hand's translations."""
+    return ParallelDevice(
+        geometry=tripod_geometry(),
+        pose=pose if pose is not None else Pose(),
+        hand=nominal_hand(3, ()),
+        mechanism=nominal_mechanism(3),
+        modes=default_modes() if extra_modes else no_modes(),
+        fs_hz=fs_hz,
+        delay_samples=delay_samples,
+    )
+
+
+def hexapod6(pose: Pose | None = None, *, extra_modes: bool = True, delay_samples: int = 1,
+             fs_hz: float = 1000.0) -> ParallelDevice:  # fmt: skip
+    """A 6-rod, 6-DOF device (roll about the stylus controlled too)."""
+    return ParallelDevice(
+        geometry=hexapod_geometry(),
+        pose=pose if pose is not None else Pose(),
+        hand=nominal_hand(3, (0, 1, 2)),
+        mechanism=nominal_mechanism(6),
+        modes=default_modes() if extra_modes else no_modes(),
+        fs_hz=fs_hz,
+        delay_samples=delay_samples,
+    )
+
+
+PRESETS = {"cu5": cu5, "tripod3": tripod3, "hexapod6": hexapod6}
+
+
+def preset(name: str, **kwargs) -> ParallelDevice:
+    """A preset device by name (``cu5``, ``tripod3``, ``hexapod6``)."""
+    try:
+        return PRESETS[name](**kwargs)
+    except KeyError:
+        raise ValueError(f"unknown device preset {name!r}; choose one of {sorted(PRESETS)}") from None

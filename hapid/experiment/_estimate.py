@@ -1,0 +1,166 @@
+"""Empirical impedances from measured signals (paper section 4.1), with noise std.
+
+Periodic runs: average the periods, take the DFT at the excited bins, stack the ``E``
+experiments into ``𝓡_I, 𝓡_A, 𝓛`` (``n × E`` per frequency) and solve
+``Z_H = −𝓡_I 𝓛⁺``, ``Z_T = −𝓡_A 𝓛⁺`` (``𝓛⁺ = 𝓛⁻¹`` when ``E = n``, least squares when
+``E > n``).
+
+Noise std: per period ``p`` the equation error ``ε_p = R_p + Ẑ L_p`` (``n × E``) scatters with
+the measurement noise; its sample variance over periods divided by the number of periods is
+the variance of the averaged equation error, and to first order
+``var(Ẑ_ij) = Σ_e var(ε̄_ie) |𝓛⁺_ej|²`` (experiments independent). The reported std is
+``sqrt(E|Ẑ_ij − Z_ij|²)`` (real and imaginary parts together); it needs ≥ 2 periods.
+
+Non-periodic records (chirps, noise, lab data): ``estimate_frf_h1`` averages cross-spectra
+over Welch segments and experiments.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from ..frf import FRF, as_frf
+from ._protocol import Run, validate_run
+
+#: 𝓛 with a condition number above this is treated as rank deficient (an error).
+COND_ERROR = 1e10
+
+
+def _dft_bins(x: np.ndarray, bins: np.ndarray, Tp: int) -> np.ndarray:
+    """Complex amplitudes at ``bins`` of ``x`` (``(..., Tp, n)``) scaled so a cosine of
+    amplitude ``a`` and phase ``α`` gives ``a e^{jα}``."""
+    return np.fft.rfft(x, axis=-2)[..., bins, :] * (2.0 / Tp)
+
+
+def _solve_frf(R: np.ndarray, Lm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``Z = −R 𝓛⁺`` and ``𝓛⁺`` per frequency. R, Lm: ``(K, n, E)``."""
+    Lpinv = np.linalg.pinv(Lm)  # (K, E, n)
+    return -R @ Lpinv, Lpinv
+
+
+def estimate_frf(run: Run, *, cond_warn: float = 1e3) -> FRF:
+    """Empirical ``Z_H, Z_T`` (``(K, n, n)``) with element std from a periodic run.
+
+    Warns where ``cond(𝓛)`` exceeds ``cond_warn`` (poorly excited directions: the paper's
+    one-rod-at-a-time failure) and raises ``ValueError`` where 𝓛 is rank deficient.
+    """
+    validate_run(run)
+    Tp, E, n = run.period_samples, run.R_A.shape[0], run.n
+    P = run.n_periods
+    bins = np.round(np.asarray(run.freq_hz) * Tp / run.fs_hz).astype(int)
+
+    def spectra(x):  # (E, P*Tp, n) → per period (E, P, K, n)
+        return _dft_bins(x.reshape(E, P, Tp, n), bins, Tp)
+
+    SL, SI, SA = spectra(run.L), spectra(run.R_I), spectra(run.R_A)
+    # stack experiments as columns: (K, n, E)
+    col = lambda S: np.transpose(S.mean(axis=1), (1, 2, 0))  # noqa: E731
+    Lm, RI, RA = col(SL), col(SI), col(SA)
+    sv = np.linalg.svd(Lm, compute_uv=False)
+    cond = sv[:, 0] / np.maximum(sv[:, -1], np.finfo(float).tiny)
+    f = np.asarray(run.freq_hz)
+    bad = cond > COND_ERROR
+    if np.any(bad):
+        raise ValueError(
+            f"rank-deficient displacement matrix 𝓛 at {', '.join(f'{x:g}' for x in f[bad][:5])} Hz "
+            f"(cond up to {cond[bad].max():.3g}): the experiments do not move the rods in n "
+            "independent directions there; change the excitation patterns"
+        )
+    poor = cond > cond_warn
+    if np.any(poor):
+        warnings.warn(
+            f"poorly conditioned 𝓛 (cond > {cond_warn:g}) at {int(poor.sum())} frequencies "
+            f"({', '.join(f'{x:g}' for x in f[poor][:5])} Hz …; max {cond.max():.3g}): the "
+            "empirical impedances are sensitive to noise there",
+            stacklevel=2,
+        )
+    Z_H, Lpinv = _solve_frf(RI, Lm)
+    Z_T, _ = _solve_frf(RA, Lm)
+    std_H = std_T = None
+    if P >= 2:
+        std_H = _std(SI, SL, Z_H, Lpinv)
+        std_T = _std(SA, SL, Z_T, Lpinv)
+    return as_frf(f, Z_H, Z_T, std_H, std_T, cond)
+
+
+def _std(SR, SL, Z, Lpinv):
+    """First-order std of ``Ẑ = −R̄ 𝓛⁺`` from period-to-period scatter (see module doc)."""
+    E, P = SR.shape[:2]
+    # equation error per period: ε = R_p + Z L_p, shapes (E, P, K, n)
+    eps = SR + np.einsum("kij,epkj->epki", Z, SL)
+    var_mean = np.var(eps, axis=1, ddof=1) / P  # (E, K, n): var of the averaged ε (complex)
+    w = np.abs(Lpinv) ** 2  # (K, E, n)
+    var = np.einsum("eki,kej->kij", var_mean, w)
+    return np.sqrt(var)
+
+
+def estimate_frf_h1(
+    fs_hz: float,
+    R_A: np.ndarray,
+    R_I: np.ndarray,
+    L: np.ndarray,
+    *,
+    nperseg: int,
+    freq_hz: np.ndarray | None = None,
+    f_band_hz: tuple[float, float] | None = None,
+    reference: str = "L",
+) -> FRF:
+    """Averaged cross-spectral estimate for non-periodic records (chirp, noise, lab data).
+
+    Signals ``(E, T, n)``; Welch segments of ``nperseg`` samples (Hann window, 50 % overlap)
+    over all experiments. ``reference="L"`` is the classic H1 estimator
+    ``Z = −S_{R L} S_{L L}⁻¹`` (assumes noise-free ``L``); ``reference="R_A"`` uses the
+    known command as instrument, ``Z = −S_{R A} S_{L A}⁻¹``, which is not biased by encoder
+    noise. Returns the FRF at the Welch bins nearest to ``freq_hz`` (or all bins in
+    ``f_band_hz``, excluding DC). Std from segment-to-segment equation-error scatter
+    (segments treated as independent, which is optimistic with overlap).
+    """
+    R_A, R_I, L = (np.asarray(a, dtype=float) for a in (R_A, R_I, L))
+    if not (R_A.shape == R_I.shape == L.shape) or R_A.ndim != 3:
+        raise ValueError(f"R_A, R_I, L must be equal (E, T, n) arrays, got {R_A.shape}, {R_I.shape}, {L.shape}")
+    for name, a in (("R_A", R_A), ("R_I", R_I), ("L", L)):
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{name} contains NaN or inf")
+    E, T, n = R_A.shape
+    if nperseg > T or nperseg < 8:
+        raise ValueError(f"nperseg = {nperseg} must be between 8 and the record length {T}")
+    step = nperseg // 2
+    starts = np.arange(0, T - nperseg + 1, step)
+    if len(starts) * E < n:
+        raise ValueError(f"only {len(starts) * E} segments for n = {n} rods: record too short")
+    win = np.hanning(nperseg)
+    seg = lambda x: np.stack([x[:, s : s + nperseg] for s in starts], 1) * win[:, None]  # noqa: E731
+    fft = lambda x: np.fft.rfft(seg(x), axis=2)  # noqa: E731  (E, S, F, n)
+    XL, XI, XA = fft(L), fft(R_I), fft(R_A)
+    fgrid = np.fft.rfftfreq(nperseg, 1.0 / fs_hz)
+    if freq_hz is not None:
+        idx = np.unique(np.argmin(np.abs(fgrid[None, :] - np.asarray(freq_hz)[:, None]), axis=1))
+    else:
+        lo, hi = f_band_hz if f_band_hz is not None else (fgrid[1], fgrid[-1])
+        idx = np.nonzero((fgrid >= lo) & (fgrid <= hi) & (fgrid > 0))[0]
+    if reference == "L":
+        X = XL
+    elif reference == "R_A":
+        X = XA
+    else:
+        raise ValueError(f"reference must be 'L' or 'R_A', got {reference!r}")
+    flat = lambda Y: Y[:, :, idx, :].reshape(-1, len(idx), n)  # noqa: E731  (E·S, F, n)
+    YL, YI, YA, YX = flat(XL), flat(XI), flat(XA), flat(X)
+    S = lambda Y: np.einsum("sfi,sfj->fij", Y, YX.conj())  # noqa: E731
+    S_LX = S(YL)
+    cond = np.linalg.cond(S_LX)
+    if np.any(cond > COND_ERROR**2):
+        raise ValueError("rank-deficient cross-spectrum S_LX: too few independent experiments/segments")
+    inv = np.linalg.inv(S_LX)
+    Z_H = -S(YI) @ inv
+    Z_T = -S(YA) @ inv
+
+    def std(YR, Z):
+        eps = YR + np.einsum("fij,sfj->sfi", Z, YL)  # (S, F, n)
+        w = np.einsum("sfj,fjk->sfk", YX.conj(), inv)  # (S, F, n)
+        var = np.einsum("sfi,sfk->fik", np.abs(eps) ** 2, np.abs(w) ** 2)
+        return np.sqrt(var)
+
+    return as_frf(fgrid[idx], Z_H, Z_T, std(YI, Z_H), std(YA, Z_T), np.sqrt(cond))
