@@ -11,6 +11,8 @@ afterwards.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -110,6 +112,11 @@ def time_domain_response(device: Device, R_A, *, friction: bool = False,
 
 
 def _simulate(device, ss_sub, ss_lin, applied, m, friction, periodic_init, Tp):
+    return _simulate_jit(device, ss_sub, ss_lin, applied, m, friction, periodic_init, Tp)
+
+
+@functools.partial(jax.jit, static_argnums=(4, 5, 6, 7))
+def _simulate_jit(device, ss_sub, ss_lin, applied, m, friction, periodic_init, Tp):
     n = device.n
     A, B, C, D = ss_sub.A, ss_sub.B, ss_sub.C, ss_sub.D
     nx = A.shape[0]
@@ -118,10 +125,7 @@ def _simulate(device, ss_sub, ss_lin, applied, m, friction, periodic_init, Tp):
         y = C @ x + D[:, :n] @ u
 
         def sub(x, _):
-            if friction:
-                uu = jnp.concatenate([u, device.coulomb_force(x)])
-            else:
-                uu = u
+            uu = jnp.concatenate([u, device.coulomb_force(x)]) if friction else u
             return A @ x + B @ uu, None
 
         x, _ = jax.lax.scan(sub, x, None, length=m)
@@ -138,7 +142,7 @@ def _simulate(device, ss_sub, ss_lin, applied, m, friction, periodic_init, Tp):
         _, ys = jax.lax.scan(step, x0, u_seq)
         return ys
 
-    return jax.jit(jax.vmap(one))(applied)
+    return jax.vmap(one)(applied)
 
 
 def _measure(y, R_A, n, protocol: Protocol, noise_seed) -> Run:
