@@ -15,3 +15,4 @@ from ._protocol import validate_run as validate_run
 from ._synthesis import periodic_run as periodic_run
 from ._synthesis import time_domain_run as time_domain_run
 from ._synthesis import time_domain_response as time_domain_response
+from ._fast import simulate_frf as simulate_frf
