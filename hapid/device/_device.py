@@ -150,6 +150,11 @@ class ParallelDevice(Device):
     hand: Hand
     mechanism: Mechanism
     modes: ExtraModes
+    encoder: str = eqx.field(static=True, default="motor", kw_only=True)
+
+    def __check_init__(self):
+        if self.encoder not in ("motor", "rod"):
+            raise ValueError(f"encoder must be 'motor' or 'rod', got {self.encoder!r}")
 
     @property
     def n(self) -> int:
@@ -206,7 +211,8 @@ class ParallelDevice(Device):
             inputs.append(jnp.zeros((nq, n)).at[:n].set(jnp.eye(n)))
         Bq = jnp.concatenate(inputs, axis=1)
         B = jnp.concatenate([jnp.zeros_like(Bq), Minv[:, None] * Bq], axis=0)
-        L_row = jnp.concatenate([jnp.zeros((n, nq)).at[:, :n].set(jnp.eye(n)), jnp.zeros((n, nq))], 1)
+        off = 0 if self.encoder == "motor" else n
+        L_row = jnp.zeros((n, 2 * nq)).at[:, off : off + n].set(jnp.eye(n))
         k_s, b_s = self.mechanism.k_s, self.mechanism.b_s
         R_row = -jnp.concatenate([k_s[:, None] * D_s, b_s[:, None] * D_s], axis=1)
         Cm = jnp.concatenate([L_row, R_row], axis=0)

@@ -119,13 +119,25 @@ class Mechanism(eqx.Module):
     v_smooth: float = 5e-3
 
 
-def nominal_mechanism(n: int) -> Mechanism:
-    """DEVICE.md's chain: 0.40 kg, 30 N·s/m (5 viscous + 1 N Coulomb), 2.5e4 N/m & 8 N·s/m,
-    0.10 kg, 4e4 N/m & 15 N·s/m, identical for every rod."""
+# Changed from DEVICE.md (which invites tuning): traction damping 8 → 80 N·s/m and sensor +
+# gimbal damping 15 → 40 N·s/m. With DEVICE.md's light damping the traction resonance
+# (45–62 Hz) stands 15–20 dB above any second-order model in P·P̂⁻¹, and the paper's g(s),
+# whose 55 Hz notch removes only 8 dB (ζ1/ζ2 = 0.2/0.5), cannot stabilize the MIMO loop
+# (GM −3.9 dB with the WLS model, confirmed by closed-loop eigenvalues). That the paper's
+# hand-tuned g worked on the hardware (GM ≈ 5 dB, PM ≈ 20°) says its resonances were no
+# sharper than its notches; a roller–rod friction contact is well damped. With 80/40 the
+# paper's protocol + WLS + paper g gives iso-bandwidth 2.7 Hz, GM 4.3 dB, PM 28°, T peak
+# 6.3 dB at 14 Hz (paper: ≈3 Hz, ≈5 dB, ≈20°, 6 dB near 15 Hz); the plant span (set by
+# drive damping and geometry) is unchanged. ``light_damping=True`` restores DEVICE.md.
+def nominal_mechanism(n: int, light_damping: bool = False) -> Mechanism:
+    """The per-rod chain of DEVICE.md: 0.40 kg, 30 N·s/m (5 viscous + 1 N Coulomb),
+    traction 2.5e4 N/m, rod 0.10 kg, sensor 4e4 N/m, identical for every rod; traction and
+    sensor damping 80 and 40 N·s/m (DEVICE.md's 8 and 15 with ``light_damping``)."""
     f = lambda v: jnp.full((n,), float(v))  # noqa: E731
+    b_t, b_s = (8.0, 15.0) if light_damping else (80.0, 40.0)
     return Mechanism(
         m1=f(0.40), b_drive=f(30.0), b_viscous=f(5.0), coulomb=f(1.0),
-        k_t=f(2.5e4), b_t=f(8.0), m2=f(0.10), k_s=f(4e4), b_s=f(15.0),
+        k_t=f(2.5e4), b_t=f(b_t), m2=f(0.10), k_s=f(4e4), b_s=f(b_s),
     )  # fmt: skip
 
 

@@ -8,16 +8,22 @@ from ._parts import default_modes, nominal_hand, nominal_mechanism, no_modes
 
 
 def cu5(pose: Pose | None = None, *, extra_modes: bool = True, delay_samples: int = 1,
-        fs_hz: float = 1000.0) -> ParallelDevice:  # fmt: skip
-    """The default 5-rod device of DEVICE.md (3 translations + 2 rotations of the stylus)."""
+        fs_hz: float = 1000.0, light_damping: bool = False,
+        encoder: str = "motor") -> ParallelDevice:  # fmt: skip
+    """The default 5-rod device of DEVICE.md (3 translations + 2 rotations of the stylus).
+
+    ``encoder="motor"`` (default) reads rod length at the motor/roller, so the measured Z_H
+    includes the traction and sensor compliance; ``"rod"`` reads the rod itself.
+    """
     return ParallelDevice(
         geometry=cu5_geometry(),
         pose=pose if pose is not None else Pose(),
         hand=nominal_hand(3, (1, 2)),
-        mechanism=nominal_mechanism(5),
+        mechanism=nominal_mechanism(5, light_damping),
         modes=default_modes() if extra_modes else no_modes(),
         fs_hz=fs_hz,
         delay_samples=delay_samples,
+        encoder=encoder,
     )
 
 
