@@ -16,7 +16,7 @@ setup: $(BIN)/hapid
 
 ## main job: reproduce the paper's figures on the default simulated device
 paper: setup
-	$(BIN)/hapid demo --out $(OUT)
+	$(BIN)/hapid paper --out $(OUT)
 
 ## the test suite (what CI runs)
 test: setup

@@ -63,6 +63,122 @@ def frf_overview(frf, *, title_prefix: str = ""):
     return fig, axes
 
 
+ISO = 1 - 1 / np.sqrt(2)
+
+
+def sigma_T_minus_I(reports: dict, *, title: str = "", f_max_hz: float = 100.0):
+    """σ(T(jω) − I) on a linear magnitude axis (as the paper's Figs. 5 and 10), one panel
+    per loop; the isotropic-bandwidth threshold 1 − 1/√2 dashed and the bandwidth marked."""
+    k = len(reports)
+    fig, axes = plt.subplots(1, k, figsize=(6.2 * k, 4.2), squeeze=False, sharey=True)
+    for ax, (label, rep) in zip(axes[0], reports.items(), strict=True):
+        f = np.asarray(rep.freq_hz)
+        m = (f >= 0.1) & (f <= f_max_hz)
+        sv = np.asarray(rep.sv_T_minus_I)
+        ax.semilogx(f[m], sv[m], lw=1.3)
+        ax.axhline(ISO, color="k", ls="--", lw=1, label="1 − 1/√2 ≈ 0.293")
+        bw = float(rep.iso_bandwidth_hz)
+        stable = bool(rep.stable)
+        if stable and np.isfinite(bw):
+            ax.axvline(bw, color="C3", ls=":", lw=1.2, label=f"iso-bandwidth {bw:.2f} Hz")
+        ttl = label if stable else f"{label} — UNSTABLE (no bandwidth)"
+        ax.set_title(ttl, fontsize=9)
+        ax.set_xlabel("frequency (Hz)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[0][0].set_ylabel("σ(T(jω) − I)  (magnitude, not dB)")
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig, axes
+
+
+def impedance_fit(f, Z, f_model, models: dict, *, title: str = "", name: str = "Z"):
+    """Singular values of a measured impedance (solid, markers) and of its models (dashed,
+    dotted) in dB re 1 N/m — the paper's Figs. 6 and 7."""
+    fig, ax = plt.subplots(figsize=(7.0, 4.6))
+    sv = _sv(Z)
+    for k in range(sv.shape[1]):
+        ax.semilogx(f, 20 * np.log10(sv[:, k]), "-", marker=".", color="k", lw=1.2,
+                    label=f"measured {name}" if k == 0 else None)  # fmt: skip
+    for i, (label, Zm) in enumerate(models.items()):
+        svm = _sv(Zm)
+        for k in range(svm.shape[1]):
+            ax.semilogx(f_model, 20 * np.log10(svm[:, k]), ("--", ":")[i % 2], color=f"C{i}",
+                        lw=1.4, label=label if k == 0 else None)  # fmt: skip
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel(f"singular values of {name} (dB re 1 N/m)")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig, ax
+
+
+def pphat(f, curves: dict, *, title: str = "", band_db: float = 7.0, f_band_hz: float = 30.0):
+    """Singular values of P·P̂⁻¹ (ideally 0 dB) with the paper's ±7 dB band to 30 Hz shaded
+    — the paper's Fig. 8."""
+    k = len(curves)
+    fig, axes = plt.subplots(1, k, figsize=(6.2 * k, 4.2), squeeze=False, sharey=True)
+    for ax, (label, A) in zip(axes[0], curves.items(), strict=True):
+        sv = 20 * np.log10(_sv(A))
+        ax.semilogx(f, sv, marker=".", lw=1.2)
+        ax.fill_between([f.min(), f_band_hz], -band_db, band_db, color="0.85", zorder=0,
+                        label=f"paper: ±{band_db:g} dB to {f_band_hz:g} Hz")  # fmt: skip
+        ax.axhline(0, color="k", lw=0.8)
+        m = f <= f_band_hz
+        ax.set_title(f"{label}: {sv[m].min():+.1f} / {sv[m].max():+.1f} dB to {f_band_hz:g} Hz", fontsize=9)
+        ax.set_xlabel("frequency (Hz)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[0][0].set_ylabel("singular values of P·P̂⁻¹ (dB)")
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig, axes
+
+
+def loci(reports: dict, *, title: str = "", f_range=(0.1, 500.0)):
+    """Characteristic loci (eigenvalues of P G): Nyquist plane (top) and Bode magnitude and
+    phase (bottom) per loop — the paper's Fig. 9."""
+    k = len(reports)
+    fig, axes = plt.subplots(3, k, figsize=(6.2 * k, 11), squeeze=False,
+                             gridspec_kw={"height_ratios": [2.2, 1, 1]})  # fmt: skip
+    for j, (label, rep) in enumerate(reports.items()):
+        f = np.asarray(rep.freq_hz)
+        m = (f >= f_range[0]) & (f <= f_range[1])
+        lam = np.asarray(rep.loci)[m]
+        ax = axes[0][j]
+        for i in range(lam.shape[1]):
+            ax.plot(lam[:, i].real, lam[:, i].imag, lw=1.1, color=f"C{i}")
+            ax.plot(lam[:, i].real, -lam[:, i].imag, lw=0.6, ls=":", color=f"C{i}")
+        th = np.linspace(0, 2 * np.pi, 200)
+        ax.plot(np.cos(th), np.sin(th), color="0.6", lw=0.8, label="unit circle")
+        ax.plot([-1], [0], "r+", ms=12, mew=2, label="−1")
+        ax.set_xlim(-3, 2)
+        ax.set_ylim(-2.5, 2.5)
+        ax.set_aspect("equal")
+        ax.grid(True, alpha=0.3)
+        gm, pm = float(rep.gm_db), float(rep.pm_deg)
+        ax.set_title(f"{label}\n{'stable' if bool(rep.stable) else 'UNSTABLE'}, GM {gm:.1f} dB, "
+                     f"PM {pm:.1f}°", fontsize=9)  # fmt: skip
+        ax.set_xlabel("Re λ_i(PG)")
+        ax.set_ylabel("Im λ_i(PG)")
+        ax.legend(fontsize=8, loc="lower left")
+        axes[1][j].semilogx(f[m], 20 * np.log10(np.abs(lam)), lw=1.1)
+        axes[1][j].axhline(0, color="k", lw=0.8)
+        axes[1][j].set_ylim(-60, 50)
+        axes[1][j].set_ylabel("|λ_i(PG)| (dB)")
+        axes[1][j].grid(True, which="both", alpha=0.3)
+        ph = np.degrees(np.unwrap(np.angle(lam), axis=0))
+        axes[2][j].semilogx(f[m], ph, lw=1.1)
+        axes[2][j].axhline(-180, color="k", lw=0.8)
+        axes[2][j].set_ylabel("phase λ_i(PG) (deg)")
+        axes[2][j].set_xlabel("frequency (Hz)")
+        axes[2][j].grid(True, which="both", alpha=0.3)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig, axes
+
+
 def save(fig, path) -> None:
     """Save and close a figure (creates the folder)."""
     from pathlib import Path
