@@ -1,0 +1,46 @@
+"""Identification: the paper's WLS baseline, positizing, and PD-constrained nonlinear fits.
+
+- :func:`wls` — paper section 4.2, element-wise weighted least squares (one batched solve).
+- :func:`positize`, :func:`crhp_report` — paper section 5.1 and its root check.
+- :func:`fit_nls` — hapid's fit: PSD hand and mechanism matrices (``L Lᵀ``, free-sign
+  diagonal), joint Z_H/Z_T residuals, optimistix solvers, Laplace covariance.
+- diagnostics — singular values of Z vs Ẑ and of P P̂⁻¹, the paper's band and anisotropy
+  reduction.
+"""
+
+from .. import _config  # noqa: F401  (float64)
+from ._diagnostics import ImpedanceSV as ImpedanceSV
+from ._diagnostics import anisotropy_reduction as anisotropy_reduction
+from ._diagnostics import impedance_singular_values as impedance_singular_values
+from ._diagnostics import model_relative_errors as model_relative_errors
+from ._diagnostics import pphat as pphat
+from ._diagnostics import pphat_band_db as pphat_band_db
+from ._diagnostics import pphat_singular_values as pphat_singular_values
+from ._nls import SOLVERS as SOLVERS
+from ._nls import WEIGHTS as WEIGHTS
+from ._nls import Problem as Problem
+from ._nls import data_scale as data_scale
+from ._nls import fit_nls as fit_nls
+from ._nls import fit_nls_batch as fit_nls_batch
+from ._nls import laplace_covariance as laplace_covariance
+from ._nls import make_problem as make_problem
+from ._nls import nls_cost as nls_cost
+from ._pd import MATRIX_NAMES as MATRIX_NAMES
+from ._pd import Scale as Scale
+from ._pd import boundary_names as boundary_names
+from ._pd import boundary_report as boundary_report
+from ._pd import canonical_theta as canonical_theta
+from ._pd import model_to_theta as model_to_theta
+from ._pd import n_params as n_params
+from ._pd import project_pd as project_pd
+from ._pd import theta_to_model as theta_to_model
+from ._positize import CRHPReport as CRHPReport
+from ._positize import crhp_report as crhp_report
+from ._positize import positize as positize
+from ._positize import positize_matrix as positize_matrix
+from ._result import FitFailedError as FitFailedError
+from ._result import NLSResult as NLSResult
+from ._wls import OMEGA_C_PAPER as OMEGA_C_PAPER
+from ._wls import paper_weight as paper_weight
+from ._wls import wls as wls
+from ._wls import wls_coefficients as wls_coefficients

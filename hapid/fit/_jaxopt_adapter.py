@@ -1,0 +1,52 @@
+# ruff: noqa: F722  (jaxtyping shape strings such as "N n n" are not Python expressions)
+"""The one place hapid touches jaxopt (a cross-check backend that can be dropped).
+
+jaxopt is no longer developed upstream (DESIGN.md, "Solvers"); :func:`jaxopt_lm` is the whole
+interface, imported lazily so hapid works without jaxopt installed.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+
+import jax.numpy as jnp
+from jaxtyping import Array, Float, Int
+
+
+def jaxopt_lm(
+    residual_fn: Callable[[Array], Array],
+    theta0: Float[Array, " p"],
+    *,
+    max_steps: int,
+    rtol: float,
+    atol: float,
+) -> tuple[Float[Array, " p"], Int[Array, ""], Int[Array, ""]]:
+    """Minimize ``½‖residual_fn(θ)‖²`` with ``jaxopt.LevenbergMarquardt``.
+
+    Stops (Madsen–Nielsen) when ``‖Δθ‖₂ ≤ rtol(‖θ‖₂ + rtol)`` or ``‖Jᵀr‖∞ ≤ atol``; normal
+    equations solved by Cholesky. Returns ``(theta, n_steps, status_code)`` with status 0
+    converged, 1 max steps, 2 non-finite.
+    """
+    try:
+        with warnings.catch_warnings():  # "JAXopt is no longer maintained": known, see above
+            warnings.simplefilter("ignore", DeprecationWarning)
+            import jaxopt
+    except ImportError as e:  # pragma: no cover - jaxopt is a declared dependency
+        raise ValueError("solver='jaxopt_lm' needs jaxopt, which is not installed") from e
+    lm = jaxopt.LevenbergMarquardt(
+        residual_fun=residual_fn,
+        maxiter=max_steps,
+        stop_criterion="madsen-nielsen",
+        xtol=rtol,
+        gtol=atol,
+        solver="cholesky",
+        implicit_diff=False,
+        materialize_jac=True,
+        jit=True,
+    )
+    theta, state = lm.run(theta0)
+    n_steps = jnp.asarray(state.iter_num)
+    finite = jnp.all(jnp.isfinite(theta))
+    code = jnp.where(~finite, 2, jnp.where(n_steps >= max_steps, 1, 0))
+    return theta, n_steps, code

@@ -1,0 +1,42 @@
+"""Posterior uncertainty of identified impedance models and robust-margin checks.
+
+- :func:`make_log_posterior` → :class:`LogPosterior` — complex-Gaussian likelihood with a
+  relative model-error floor and proper priors on the PD parameterization (``log_prob``
+  jitted and vmapped over walkers).
+- :func:`sample_posterior` (emcee), :func:`laplace_samples` (fast path),
+  :func:`laplace_posterior` → :class:`PosteriorSamples`; :func:`save_samples`,
+  :func:`load_samples`; :func:`posterior_from_files` for the CLI.
+- :func:`credible_bands` — posterior-predictive bands of |Z|, σ(Z), σ(P), σ(P P̂⁻¹).
+- :func:`robust_check`, :func:`device_plants` → :class:`RobustReport` — P(stable), margin
+  and bandwidth quantiles of a fixed controller over posterior samples or device variants.
+- :func:`pose_study` — nominal vs re-identified controller over a grid of stylus poses.
+"""
+
+from .. import _config  # noqa: F401  (float64)
+from ._files import posterior_from_files as posterior_from_files
+from ._files import robust_from_files as robust_from_files
+from ._likelihood import LogPosterior as LogPosterior
+from ._likelihood import batched_log_prob as batched_log_prob
+from ._likelihood import fold_theta as fold_theta
+from ._likelihood import make_log_posterior as make_log_posterior
+from ._likelihood import param_names as param_names
+from ._poses import identify as identify
+from ._poses import pose_grid as pose_grid
+from ._poses import pose_study as pose_study
+from ._predictive import QUANTITIES as QUANTITIES
+from ._predictive import credible_bands as credible_bands
+from ._predictive import predictive_samples as predictive_samples
+from ._robust import RobustReport as RobustReport
+from ._robust import device_plants as device_plants
+from ._robust import robust_check as robust_check
+from ._robust import robust_omega as robust_omega
+from ._sampler import MOVES as MOVES
+from ._sampler import PosteriorSamples as PosteriorSamples
+from ._sampler import ShortChainWarning as ShortChainWarning
+from ._sampler import check_initial_state as check_initial_state
+from ._sampler import initial_point as initial_point
+from ._sampler import laplace_posterior as laplace_posterior
+from ._sampler import laplace_samples as laplace_samples
+from ._sampler import load_samples as load_samples
+from ._sampler import sample_posterior as sample_posterior
+from ._sampler import save_samples as save_samples

@@ -1,0 +1,324 @@
+# ruff: noqa: F722  (jaxtyping shape strings in annotations)
+"""Robust-margin check of a fixed controller over a batch of plants.
+
+The controller is designed once from the *nominal* model, ``G(jω) = g(jω) Ẑ_T Ẑ_H⁻¹``, and
+held fixed. Every plant of a batch is then analysed with
+:func:`hapid.control.analyze_loop` (``vmap``-ed, in chunks): generalized-Nyquist stability
+verdict first, then gain/phase margins of the characteristic loci, the balanced disk
+margin, the isotropic bandwidth and the peak of σ̄(T).
+
+Two kinds of batches, and what each covers:
+
+- **posterior samples** (:class:`PosteriorSamples` or a batched :class:`ImpedanceModel`):
+  each ``P̂_s = Ẑ_H,s Ẑ_T,s⁻¹`` is a continuous *second-order* model without delay. This
+  covers **parameter uncertainty within the model class only** — not the actuator delay,
+  the sampling, or the unmodeled mechanism/hand dynamics that the class cannot represent.
+- **device variants** (:func:`device_plants`): the simulated device's true sampled plant
+  ``device.sampled_P(ω)`` (ZOH, one-sample delay, extra modes) at other stylus poses and for
+  other virtual subjects. This covers delay and unmodeled dynamics, for the simulated
+  device's variation only.
+
+Open-loop RHP poles (needed by the Nyquist count): the controller's are the CRHP roots of
+det Ẑ_H of the nominal model (:func:`hapid.control.controller_unstable_poles`); a model
+plant's are the roots of det Ẑ_T,s with ``Re > 0`` (none for PD matrices); a device's are 0
+(passive mechanics).
+
+Summary statistics. An unstable sample counts as the worst possible value of every margin
+(``−inf`` dB/deg, disk margin 0) and of the bandwidth (0 Hz), so a 5 % quantile is only
+finite when fewer than 5 % of the samples are unstable. ``passed``: ``P(stable) ≥
+p_stable_required`` and the 5 % quantiles of GM and PM meet ``gm_db`` / ``pm_deg``.
+
+CPU hang (jax 0.10.2). A ``vmap`` of ``analyze_loop`` over a chunk of plants hung
+intermittently on this project's 2-core CPU machine (about 1 process in 4, CPU idle inside
+the XLA execution, also with ``XLA_FLAGS=--xla_cpu_multi_thread_eigen=false``; DESIGN.md
+"CPU pitfalls"). The default therefore analyses one plant per call of a jitted
+``analyze_loop`` (one compile), which has not hung in our runs (10 of 10 processes). Cost:
+≈ 4 ms per plant at n = 2, N = 400 (2× the vmapped chunk); at n = 5, N = 1000 both paths
+take ≈ 40 ms per plant (benchmarks/bench_uncertainty.py). ``vectorize=True`` keeps the
+vmapped path.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import _config  # noqa: F401  (float64)
+from ..control import Compensator, analyze_loop, controller_unstable_poles, inverse_model_response
+from ..fit._pd import theta_to_model
+from ..impedance import ImpedanceModel
+from ._sampler import PosteriorSamples
+
+TWO_PI = 2.0 * np.pi
+FIELDS = ("gm_db", "pm_deg", "disk_margin", "disk_gm_db", "disk_pm_deg", "iso_bandwidth_hz", "t_peak_db")
+_WORST = {"gm_db": -np.inf, "pm_deg": -np.inf, "disk_margin": 0.0, "disk_gm_db": 0.0,
+          "disk_pm_deg": 0.0, "iso_bandwidth_hz": 0.0, "t_peak_db": np.inf}  # fmt: skip
+
+
+def robust_omega(n_freq: int = 1000, f_min_hz: float = 0.05, f_max_hz: float = 450.0) -> np.ndarray:
+    """Default analysis grid (rad/s): ``n_freq`` log-spaced points, 0.05–450 Hz (below the
+    1 kHz device's Nyquist frequency, above the paper's low-pass poles)."""
+    return TWO_PI * np.geomspace(f_min_hz, f_max_hz, n_freq)
+
+
+@dataclasses.dataclass(frozen=True)
+class RobustReport:
+    """Per-plant results (arrays ``(S,)``) and their summary.
+
+    ``stable``, ``n_closed_loop_rhp``, ``gm_db``, ``pm_deg``, ``disk_margin``, ``disk_gm_db``,
+    ``disk_pm_deg``, ``iso_bandwidth_hz``, ``t_peak_db`` (raw values of
+    :class:`hapid.control.LoopReport`); ``labels`` (optional names per plant);
+    requirements ``gm_req_db``, ``pm_req_deg``, ``p_stable_required``.
+    """
+
+    stable: np.ndarray
+    n_closed_loop_rhp: np.ndarray
+    gm_db: np.ndarray
+    pm_deg: np.ndarray
+    disk_margin: np.ndarray
+    disk_gm_db: np.ndarray
+    disk_pm_deg: np.ndarray
+    iso_bandwidth_hz: np.ndarray
+    t_peak_db: np.ndarray
+    gm_req_db: float = 6.0
+    pm_req_deg: float = 30.0
+    p_stable_required: float = 0.95
+    labels: tuple | None = None
+
+    @property
+    def n(self) -> int:
+        return int(self.stable.shape[0])
+
+    @property
+    def p_stable(self) -> float:
+        return float(np.mean(self.stable))
+
+    def penalized(self, name: str) -> np.ndarray:
+        """Field ``name`` with unstable plants set to the worst value (module docstring)."""
+        v = np.asarray(getattr(self, name), dtype=float)
+        return np.where(self.stable, v, _WORST[name])
+
+    def quantile(self, name: str, q: float) -> float:
+        v = self.penalized(name)
+        # inverted-CDF quantiles: no interpolation between ±inf (which would give NaN)
+        if name == "t_peak_db":  # larger is worse: the q-quantile of badness
+            return float(np.quantile(v, 1.0 - q, method="inverted_cdf"))
+        return float(np.quantile(v, q, method="inverted_cdf"))
+
+    @property
+    def worst(self) -> int:
+        """Index of the worst plant: unstable first, then smallest disk margin, then GM."""
+        key = np.lexsort((self.penalized("gm_db"), self.penalized("disk_margin"), self.stable))
+        return int(key[0])
+
+    @property
+    def passed(self) -> bool:
+        return (
+            self.p_stable >= self.p_stable_required
+            and self.quantile("gm_db", 0.05) >= self.gm_req_db
+            and self.quantile("pm_deg", 0.05) >= self.pm_req_deg
+        )
+
+    def summary(self) -> dict:
+        """Plain-python summary: P(stable), 5 %/50 % quantiles, worst plant, pass/fail."""
+        w = self.worst
+        out = {"n": self.n, "p_stable": self.p_stable}
+        for f in FIELDS:
+            out[f"{f}_q05"] = self.quantile(f, 0.05)
+            out[f"{f}_q50"] = self.quantile(f, 0.50)
+        out["worst_index"] = w
+        out["worst_label"] = None if self.labels is None else self.labels[w]
+        out["worst"] = {f: float(getattr(self, f)[w]) for f in FIELDS} | {"stable": bool(self.stable[w])}
+        out["requirements"] = {"gm_db": self.gm_req_db, "pm_deg": self.pm_req_deg,
+                               "p_stable": self.p_stable_required}  # fmt: skip
+        out["passed"] = self.passed
+        return out
+
+    def rows(self) -> list[dict]:
+        """One dict per plant (label, stable, margins, bandwidth)."""
+        rows = []
+        for i in range(self.n):
+            r = {"label": None if self.labels is None else self.labels[i], "stable": bool(self.stable[i])}
+            r |= {f: float(getattr(self, f)[i]) for f in FIELDS}
+            rows.append(r)
+        return rows
+
+
+_KEYS = ("stable", "n_closed_loop_rhp") + FIELDS
+
+
+@eqx.filter_jit
+def _analyze_one(P, p_ol, G, omega):
+    r = analyze_loop(P, G, omega, p_ol)
+    return {k: getattr(r, k) for k in _KEYS}
+
+
+@eqx.filter_jit
+def _analyze_vmapped(P, p_ol, G, omega):
+    return jax.vmap(lambda P_, p_: _analyze_one(P_, p_, G, omega))(P, p_ol)
+
+
+def _analyze_chunk(P, p_ol, G, omega, vectorize):
+    if vectorize:
+        return _analyze_vmapped(P, p_ol, G, omega)
+    outs = [_analyze_one(P[i], p_ol[i], G, omega) for i in range(P.shape[0])]
+    return {k: np.stack([np.asarray(o[k]) for o in outs]) for k in _KEYS}
+
+
+@eqx.filter_jit
+def _model_plants(theta, scale, omega):
+    def one(t):
+        m = theta_to_model(t, scale)
+        return _plant_and_poles(m, omega)
+
+    return jax.vmap(one)(theta)
+
+
+@eqx.filter_jit
+def _models_plants(models, omega):
+    return jax.vmap(lambda m: _plant_and_poles(m, omega))(models)
+
+
+def _plant_and_poles(m: ImpedanceModel, omega):
+    P = m.P(1j * omega)
+    r = m.total.roots()
+    n_rhp = jnp.sum(jnp.real(r) > 0) + jnp.sum(~jnp.isfinite(r))
+    return P, n_rhp
+
+
+def controller_response(controller, omega):
+    """``(G (N, n, n), open-loop RHP poles of G)`` from ``(nominal model, g)`` or an array."""
+    omega = jnp.asarray(omega, dtype=jnp.float64)
+    if isinstance(controller, tuple) and len(controller) == 2:
+        model, g = controller
+        if not isinstance(model, ImpedanceModel) or not isinstance(g, Compensator):
+            raise ValueError("controller must be (nominal ImpedanceModel, Compensator) or G (N, n, n)")
+        G = inverse_model_response(model, g, omega)
+        return G, int(controller_unstable_poles(model, g))
+    G = jnp.asarray(controller, dtype=jnp.complex128)
+    if G.ndim != 3 or G.shape[0] != omega.shape[0] or G.shape[1] != G.shape[2]:
+        raise ValueError(f"G must be ({omega.shape[0]}, n, n), got shape {G.shape}")
+    return G, 0
+
+
+def robust_check(
+    plants,
+    controller,
+    omega=None,
+    *,
+    p_ol_rhp=None,
+    controller_rhp: int | None = None,
+    gm_db: float = 6.0,
+    pm_deg: float = 30.0,
+    p_stable_required: float = 0.95,
+    chunk: int = 250,
+    max_samples: int | None = 1000,
+    seed: int = 0,
+    labels=None,
+    vectorize: bool = False,
+) -> RobustReport:
+    """Analyse the loop of a fixed controller with every plant of a batch.
+
+    - ``plants``: :class:`PosteriorSamples` (at most ``max_samples`` random draws, ``seed``),
+      a batched :class:`ImpedanceModel` (leading axis S), or plant responses ``(S, N, n, n)``
+      on ``omega`` (then ``p_ol_rhp`` — int or ``(S,)`` — gives their open-loop RHP poles,
+      default 0).
+    - ``controller``: ``(nominal_model, g)`` (G = g Ẑ_T Ẑ_H⁻¹, its RHP poles counted from
+      the nominal model) or a response ``G (N, n, n)`` (pass ``controller_rhp`` if G has
+      RHP poles).
+    - ``omega``: grid in rad/s (default :func:`robust_omega`: 1000 points, 0.05–450 Hz).
+    - ``gm_db``, ``pm_deg``, ``p_stable_required``: requirements for ``passed``.
+    - ``chunk``: plants per vmapped batch (memory: chunk × N × n² complex per array).
+    - ``vectorize``: ``True`` vmaps :func:`~hapid.control.analyze_loop` over each chunk
+      (no faster at n = 5); ``False`` (default) calls it once per plant (one compile, a python
+      loop). See "CPU hang" in the module docstring.
+
+    Returns a :class:`RobustReport`.
+    """
+    omega = robust_omega() if omega is None else np.asarray(omega, dtype=float)
+    if omega.ndim != 1 or np.any(np.diff(omega) <= 0) or np.any(omega <= 0):
+        raise ValueError("omega must be a strictly increasing (N,) array of positive rad/s")
+    om = jnp.asarray(omega)
+    G, c_rhp = controller_response(controller, om)
+    if controller_rhp is not None:
+        c_rhp = int(controller_rhp)
+    if isinstance(plants, PosteriorSamples):
+        theta = plants.theta
+        if max_samples is not None and theta.shape[0] > max_samples:
+            idx = np.random.default_rng(seed).choice(theta.shape[0], max_samples, replace=False)
+            theta = theta[np.sort(idx)]
+        S = theta.shape[0]
+        get = lambda i, j: _model_plants(jnp.asarray(theta[i:j]), plants.scale, om)  # noqa: E731
+    elif isinstance(plants, ImpedanceModel):
+        if np.ndim(plants.hand.M) != 3:
+            raise ValueError("robust_check: a batched ImpedanceModel (S, n, n) is required")
+        S = int(np.shape(plants.hand.M)[0])
+        get = lambda i, j: _models_plants(jax.tree.map(lambda a: a[i:j], plants), om)  # noqa: E731
+    else:
+        P = jnp.asarray(plants, dtype=jnp.complex128)
+        if P.ndim != 4 or P.shape[1:] != G.shape:
+            raise ValueError(f"plants must be (S, {G.shape[0]}, n, n) matching G, got {P.shape}")
+        S = P.shape[0]
+        pol = jnp.broadcast_to(jnp.asarray(0 if p_ol_rhp is None else p_ol_rhp), (S,))
+        get = lambda i, j: (P[i:j], pol[i:j])  # noqa: E731
+    if S == 0:
+        raise ValueError("robust_check: no plants")
+    if G.shape[-1] != (plants.n if isinstance(plants, PosteriorSamples | ImpedanceModel) else G.shape[-1]):
+        raise ValueError(f"controller is {G.shape[-1]}×{G.shape[-1]} but the plants have n = {plants.n}")
+    parts = []
+    for i in range(0, S, chunk):
+        Pc, pol = get(i, min(S, i + chunk))
+        parts.append(_analyze_chunk(Pc, jnp.asarray(pol, dtype=jnp.float64) + c_rhp, G, om, vectorize))
+    res = {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in parts[0]}
+    if labels is not None and len(labels) != S:
+        raise ValueError(f"{len(labels)} labels for {S} plants")
+    return RobustReport(
+        **res,
+        gm_req_db=float(gm_db),
+        pm_req_deg=float(pm_deg),
+        p_stable_required=float(p_stable_required),
+        labels=None if labels is None else tuple(labels),
+    )
+
+
+@eqx.filter_jit
+def _sampled_P(device, omega):
+    return device.sampled_P(omega)
+
+
+def device_plants(device, omega=None, *, poses=(), n_subjects: int = 0, key=0, include_nominal: bool = True):
+    """True sampled plants of a simulated device's variants: ``(labels, P (S, N, n, n))``.
+
+    - ``device``: a :class:`hapid.device.ParallelDevice` (e.g. ``cu5()``).
+    - ``poses``: :class:`hapid.device.Pose` objects (other stylus poses, nominal subject).
+    - ``n_subjects``: virtual subjects (:func:`hapid.device.virtual_subject`) at the device's
+      pose, drawn from ``key`` (JAX key or int).
+    - ``include_nominal``: the device itself first.
+
+    Pass the result to :func:`robust_check` (``p_ol_rhp`` 0: passive mechanics).
+    """
+    from ..device import virtual_subject
+
+    omega = jnp.asarray(robust_omega() if omega is None else omega, dtype=jnp.float64)
+    labels, Ps = [], []
+    if include_nominal:
+        labels.append("nominal")
+        Ps.append(_sampled_P(device, omega))
+    for k, pose in enumerate(poses):
+        d = eqx.tree_at(lambda x: x.pose, device, pose)
+        c = np.asarray(pose.center) - np.asarray(device.pose.center)
+        labels.append(f"pose {k}: d = ({c[0]:+.3f}, {c[1]:+.3f}, {c[2]:+.3f}) m")
+        Ps.append(_sampled_P(d, omega))
+    if n_subjects:
+        key = jax.random.PRNGKey(key) if isinstance(key, int) else key
+        for k, sk in enumerate(jax.random.split(key, n_subjects)):
+            d = eqx.tree_at(lambda x: x.hand, device, virtual_subject(sk, device.hand))
+            labels.append(f"subject {k}")
+            Ps.append(_sampled_P(d, omega))
+    if not Ps:
+        raise ValueError("device_plants: nothing selected (no nominal, poses or subjects)")
+    return labels, jnp.stack(Ps)

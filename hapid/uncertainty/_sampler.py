@@ -1,0 +1,513 @@
+# ruff: noqa: F722  (jaxtyping shape strings in annotations)
+"""emcee driver, Laplace approximations and the :class:`PosteriorSamples` value object.
+
+- :func:`laplace_samples` — the fast path: Gaussian draws ``N(θ̂, Σ_NLS)`` from an
+  :class:`~hapid.fit.NLSResult` (θ only, no model-error parameters).
+- :func:`laplace_posterior` — MAP of a :class:`LogPosterior` (BFGS from the NLS optimum)
+  and the inverse Hessian there: the Gaussian that :func:`sample_posterior` draws its
+  walkers from (full draws need no burn-in, DESIGN.md "emcee in ~90 dimensions").
+- :func:`sample_posterior` — ``emcee.EnsembleSampler`` with ``vectorize=True`` on the
+  jitted, vmapped log-posterior; optional HDF5 backend, tqdm progress bar, autocorrelation
+  time, effective sample size, and a :class:`ShortChainWarning` below 50 τ.
+
+Move default: ``DEMove()``. Measured with ``benchmarks/bench_uncertainty.py`` (see its
+header): DE beats the stretch move by a wide margin in ESS per second at d ≈ 20–92 (and
+DESIGN.md measured ≈ 8× at d = 90). ``DESnookerMove`` (wrong target in emcee 3.1.6) and
+``KDEMove`` (fails at this dimension) are not offered.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+import warnings
+from pathlib import Path
+
+import emcee
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from .. import _config  # noqa: F401  (float64)
+from ..fit._pd import Scale, n_from_params, n_params, theta_to_model
+from ..fit._result import NLSResult
+from ..impedance import ImpedanceModel
+from ._likelihood import LogPosterior, batched_log_prob, diag_positions, fold_theta, param_names
+
+MOVES = ("de", "stretch", "de_mix")
+TAU_MULTIPLE = 50.0
+
+
+class ShortChainWarning(UserWarning):
+    """The chain is shorter than 50 integrated autocorrelation times: estimates unreliable."""
+
+
+def _moves(name: str):
+    if name == "de":
+        return [(emcee.moves.DEMove(), 1.0)]
+    if name == "stretch":
+        return [(emcee.moves.StretchMove(), 1.0)]
+    if name == "de_mix":  # DE plus 10 % γ = 1 jumps (mode hopping between reflections)
+        return [(emcee.moves.DEMove(), 0.9), (emcee.moves.DEMove(gamma0=1.0), 0.1)]
+    raise ValueError(f"moves must be one of {MOVES}, got {name!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class PosteriorSamples:
+    """Posterior draws of the PD-parameterized model.
+
+    - ``samples``: ``(S, d)`` — folded θ (``d ≥ p = 6·n(n+1)/2``, diagonals ≥ 0, in ``scale``
+      units) followed by any model-error coordinates (``log_tau_H``, ``log_tau_M``).
+    - ``log_prob``: ``(S,)`` log-posterior of each draw (NaN for Laplace draws).
+    - ``scale``: the :class:`~hapid.fit.Scale` θ is expressed in.
+    - ``n``: rods. ``names``: the ``d`` coordinate names.
+    - ``diagnostics``: method, acceptance fraction, τ per parameter, ESS, steps, timings …
+    """
+
+    samples: np.ndarray
+    log_prob: np.ndarray
+    scale: Scale
+    n: int
+    names: tuple[str, ...]
+    diagnostics: dict = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self):
+        s = np.asarray(self.samples)
+        p = n_params(self.n)
+        if s.ndim != 2 or s.shape[1] < p or s.shape[1] > p + 2:
+            raise ValueError(
+                f"PosteriorSamples: samples must be (S, {p}) or (S, {p}+model-error) for n = "
+                f"{self.n}, got shape {s.shape}"
+            )
+        if np.shape(self.log_prob) != (s.shape[0],):
+            raise ValueError("PosteriorSamples: log_prob must be (S,)")
+        if len(self.names) != s.shape[1]:
+            raise ValueError("PosteriorSamples: names must match the number of columns")
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.samples.shape[0])
+
+    @property
+    def n_theta(self) -> int:
+        return n_params(self.n)
+
+    @property
+    def theta(self) -> np.ndarray:
+        """``(S, p)`` folded θ (canonical factors, non-negative diagonals)."""
+        return self.samples[:, : self.n_theta]
+
+    @property
+    def tau(self) -> np.ndarray | None:
+        """``(S, 2)`` relative model-error scales τ_H, τ_M (None without model error)."""
+        extra = self.samples[:, self.n_theta :]
+        return np.exp(extra) if extra.shape[1] else None
+
+    def models(self, idx=None) -> ImpedanceModel:
+        """Batched :class:`ImpedanceModel` (arrays ``(S, n, n)``; physical units)."""
+        th = jnp.asarray(self.theta if idx is None else self.theta[idx])
+        return _models(th, self.scale)
+
+    def physical(self) -> dict[str, np.ndarray]:
+        """``{"M_H": (S, n, n), …, "K_M": …}`` physical matrices of every draw."""
+        m = self.models()
+        h, mech = m.hand, m.mechanism
+        vals = (h.M, h.B, h.K, mech.M, mech.B, mech.K)
+        return {k: np.asarray(v) for k, v in zip(("M_H", "B_H", "K_H", "M_M", "B_M", "K_M"), vals, strict=True)}
+
+    def summary(self) -> str:
+        d = self.diagnostics
+        parts = [f"{d.get('method', '?')}: {self.n_samples} samples, d = {self.samples.shape[1]}"]
+        for k in ("acceptance_fraction", "tau_max", "steps_over_tau", "ess_min", "ess_per_s"):
+            if k in d and d[k] is not None:
+                parts.append(f"{k} {d[k]:.4g}")
+        return "; ".join(parts)
+
+
+@eqx.filter_jit
+def _models(theta, scale):
+    return jax.vmap(lambda t: theta_to_model(t, scale))(theta)
+
+
+# --- Laplace ---------------------------------------------------------------------------
+
+
+def _canonical_with_cov(theta, cov):
+    """Flip factor columns so diagonals are ≥ 0; the same linear sign map on ``cov``."""
+    n = n_from_params(theta.shape[-1])
+    rows, cols = np.tril_indices(n)
+    t = len(rows)
+    th = np.asarray(theta, dtype=float)
+    sign = np.ones_like(th)
+    diag = diag_positions(n)
+    for k in range(6):
+        for j in range(n):
+            if th[diag[k * n + j]] < 0:  # flip column j of factor k
+                sign[k * t + np.flatnonzero(cols == j)] *= -1.0
+    return th * sign, np.asarray(cov) * np.outer(sign, sign)
+
+
+def _check_key(key):
+    if isinstance(key, int):
+        return jax.random.PRNGKey(key)
+    return key
+
+
+def laplace_samples(nls_result: NLSResult, n_samples: int, key=0) -> PosteriorSamples:
+    """Fast path: ``n_samples`` draws of θ from ``N(θ̂, Σ)`` of an NLS fit (no MCMC).
+
+    ``Σ = nls_result.covariance`` (``σ̂²(JᵀJ)⁺``). The NLS θ̂ is first made canonical (column
+    signs flipped so diagonals are ≥ 0, same model, same linear map on Σ); draws are then
+    folded (``|diag|``). With noise weights this is the Laplace approximation of the
+    pure-noise posterior under a flat prior; with relative/blend weights its σ̂² absorbs the
+    model error as a single scale. ``key``: a JAX PRNG key or an int seed.
+    """
+    if not isinstance(nls_result, NLSResult):
+        raise ValueError(f"laplace_samples: expected an NLSResult, got {type(nls_result).__name__}")
+    if np.ndim(nls_result.theta) != 1:
+        raise ValueError("laplace_samples: an unbatched NLSResult is required")
+    if not (isinstance(n_samples, int | np.integer) and n_samples > 0):
+        raise ValueError(f"n_samples must be a positive int, got {n_samples!r}")
+    theta, cov = _canonical_with_cov(np.asarray(nls_result.theta), np.asarray(nls_result.covariance))
+    if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(cov))):
+        raise ValueError("laplace_samples: the NLS result has a non-finite θ or covariance")
+    n = n_from_params(theta.shape[0])
+    draws = _mvn(_check_key(key), theta, cov, n_samples)
+    return PosteriorSamples(
+        samples=fold_theta(draws),
+        log_prob=np.full(n_samples, np.nan),
+        scale=nls_result.scale,
+        n=n,
+        names=tuple(param_names(n, model_error=False)),
+        diagnostics={"method": "laplace_nls", "mean": theta, "cov": cov},
+    )
+
+
+def _mvn(key, mean, cov, k):
+    """Draws from N(mean, cov) via a symmetric square root (PSD cov allowed)."""
+    lam, V = np.linalg.eigh(0.5 * (cov + cov.T))
+    root = V * np.sqrt(np.clip(lam, 0.0, None))
+    z = np.asarray(jax.random.normal(key, (k, mean.shape[0])))
+    return mean + z @ root.T
+
+
+def laplace_posterior(
+    post: LogPosterior, x0, *, max_steps: int = 3000, rtol: float = 1e-9, atol: float = 1e-9
+) -> tuple[np.ndarray, np.ndarray, dict]:
+    """MAP and Laplace covariance ``(x_map (d,), cov (d, d), info)`` of a :class:`LogPosterior`.
+
+    BFGS (optimistix) on ``−log p`` from ``x0`` (e.g. the NLS θ followed by the prior mean
+    of log τ). The covariance is the inverse Hessian with its eigenvalues floored at the
+    prior precision ``1/prior_scale²`` (the prior alone contributes that much curvature; a
+    negative curvature at a kink ``|θ_jj| = 0`` would otherwise give nonsense). ``info``:
+    ``steps``, ``converged``, ``log_prob`` at the MAP.
+    """
+    x0 = jnp.asarray(x0, dtype=jnp.float64)
+    if x0.shape != (post.dim,):
+        raise ValueError(f"laplace_posterior: x0 must be ({post.dim},), got {x0.shape}")
+    if not bool(jnp.all(jnp.isfinite(x0))):
+        raise ValueError("laplace_posterior: x0 contains NaN or inf")
+    if not np.isfinite(float(post(x0))):
+        raise ValueError("laplace_posterior: the log-posterior at x0 is not finite")
+    xm, steps, ok, H = _map_hessian(post, x0, max_steps, rtol, atol)
+    xm, H = np.asarray(xm), np.asarray(H)
+    lam, V = np.linalg.eigh(0.5 * (H + H.T))
+    floor = 1.0 / post.prior_scale**2
+    lam = np.maximum(lam, floor)
+    cov = (V / lam) @ V.T
+    xm = np.concatenate([fold_theta(xm[: post.n_theta]), xm[post.n_theta :]])
+    info = {"steps": int(steps), "converged": bool(ok), "log_prob": float(post(jnp.asarray(xm)))}
+    return xm, cov, info
+
+
+@eqx.filter_jit
+def _map_hessian(post, x0, max_steps, rtol, atol):
+    nlp = lambda x, args: -post(x)  # noqa: E731
+    sol = optx.minimise(nlp, optx.BFGS(rtol=rtol, atol=atol), x0, max_steps=max_steps, throw=False)
+    x = sol.value
+    H = jax.hessian(lambda z: -post(z))(x)
+    return x, sol.stats["num_steps"], sol.result == optx.RESULTS.successful, H
+
+
+def initial_point(post: LogPosterior, nls_result: NLSResult | None = None) -> np.ndarray:
+    """A start ``x0`` (d,): the (canonical) NLS θ, then the prior means of log τ; without an
+    NLS result, a noise-weighted :func:`hapid.fit.fit_nls` is not attempted — pass one."""
+    if nls_result is None:
+        raise ValueError("initial_point: pass an NLSResult (the NLS optimum is the start)")
+    th = np.asarray(nls_result.theta)
+    if th.shape != (post.n_theta,):
+        raise ValueError(
+            f"the NLS result has θ of length {th.shape[-1]} (n = {n_from_params(th.shape[-1])}), "
+            f"the posterior expects {post.n_theta} (n = {post.n})"
+        )
+    if not np.allclose(np.asarray(nls_result.scale.z_ref), np.asarray(post.scale.z_ref)) or not np.allclose(
+        np.asarray(nls_result.scale.omega_ref), np.asarray(post.scale.omega_ref)
+    ):
+        raise ValueError("the NLS result's scale differs from the posterior's: build it with scale=nls.scale")
+    th, _ = _canonical_with_cov(th, np.eye(th.shape[0]))
+    return np.concatenate([th, np.full(post.n_tau, post.log_tau_mean)])
+
+
+# --- emcee -----------------------------------------------------------------------------
+
+
+def check_initial_state(post: LogPosterior, x0: np.ndarray, log_prob_fn=None) -> np.ndarray:
+    """Validate walkers ``(W, d)``: finite, ``W ≥ 2d``, finite log-probability. Returns
+    their log-probabilities. Raises ``ValueError`` naming the problem."""
+    x0 = np.asarray(x0, dtype=np.float64)
+    d = post.dim
+    if x0.ndim != 2 or x0.shape[1] != d:
+        raise ValueError(f"initial state must be (n_walkers, {d}), got shape {x0.shape}")
+    W = x0.shape[0]
+    if W < 2 * d:
+        raise ValueError(
+            f"{W} walkers for d = {d} parameters: emcee's ensemble moves need at least 2·d = "
+            f"{2 * d} walkers"
+        )
+    if not np.all(np.isfinite(x0)):
+        bad = np.argwhere(~np.isfinite(x0))[0]
+        raise ValueError(f"initial state contains NaN or inf (walker {bad[0]}, parameter {bad[1]})")
+    lp = (post.log_prob_numpy if log_prob_fn is None else log_prob_fn)(x0)
+    if not np.all(np.isfinite(lp)):
+        k = int(np.flatnonzero(~np.isfinite(lp))[0])
+        raise ValueError(f"initial state: walker {k} has a non-finite log-probability ({lp[k]})")
+    return lp
+
+
+def _autocorr(sampler, discard):
+    """``get_autocorr_time(quiet=True)`` without emcee's log message (we warn ourselves)."""
+    logging.disable(logging.WARNING)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return np.asarray(sampler.get_autocorr_time(discard=discard, quiet=True))
+    finally:
+        logging.disable(logging.NOTSET)
+
+
+def _diagnostics(sampler, discard, thin_by, n_walkers, wall_s, method_name, tau_multiple):
+    chain_len = sampler.iteration  # stored steps
+    acc = sampler.acceptance_fraction
+    tau_stored = _autocorr(sampler, discard)
+    tau = np.asarray(tau_stored) * thin_by  # in sampler steps
+    steps = (chain_len - discard) * thin_by
+    tau_max = float(np.nanmax(tau))
+    ess = n_walkers * steps / tau
+    out = {
+        "method": f"emcee ({method_name})",
+        "n_walkers": int(n_walkers),
+        "n_steps": int(chain_len * thin_by),
+        "discard_steps": int(discard * thin_by),
+        "thin_by": int(thin_by),
+        "acceptance_fraction": float(np.mean(acc)),
+        "acceptance_min": float(np.min(acc)),
+        "tau": tau,
+        "tau_max": tau_max,
+        "steps_over_tau": float(steps / tau_max),
+        "ess": ess,
+        "ess_min": float(np.nanmin(ess)),
+        "wall_s": float(wall_s),
+        "ess_per_s": float(np.nanmin(ess) / wall_s) if wall_s > 0 else None,
+        "converged_50tau": bool(steps >= tau_multiple * tau_max),
+    }
+    return out
+
+
+def sample_posterior(
+    post: LogPosterior,
+    init,
+    *,
+    n_steps: int | None = None,
+    n_walkers: int | None = None,
+    moves: str = "de",
+    seed: int = 0,
+    progress: bool = False,
+    backend_path: str | Path | None = None,
+    discard: float = 0.1,
+    max_steps: int = 40000,
+    check_every: int = 2000,
+    max_stored: int = 2000,
+    tau_multiple: float = TAU_MULTIPLE,
+) -> PosteriorSamples:
+    """Sample ``post`` with ``emcee.EnsembleSampler(vectorize=True)``.
+
+    ``init`` is one of: an ``(W, d)`` array of walkers; a ``(mean, cov)`` pair (walkers are
+    full Gaussian draws); an :class:`~hapid.fit.NLSResult` (→ :func:`laplace_posterior`
+    around its θ, then Gaussian draws).
+
+    - ``n_steps``: sampler steps. ``None`` (default): run in chunks of ``check_every`` until
+      the chain is ``≥ tau_multiple`` (50) integrated autocorrelation times long and τ has
+      settled (changed < 5 %), or ``max_steps``.
+    - ``n_walkers``: default ``2·d + 2`` (fewer than ``2·d`` is a ``ValueError``).
+    - ``moves``: ``"de"`` (default, ``DEMove()``), ``"de_mix"``, ``"stretch"``.
+    - ``progress``: tqdm bar (emcee's ``progress=``). ``backend_path``: an HDF5 file
+      (``emcee.backends.HDFBackend``, needs h5py; reset at the start of the run).
+    - ``discard``: fraction of the chain dropped at the start (default 10 %; walkers drawn
+      from the Laplace Gaussian need little or none).
+    - ``max_stored``: the chain is thinned (``thin_by``) so at most about this many steps
+      are stored (memory: steps × walkers × d × 8 bytes).
+
+    The returned draws are the kept chain thinned to about two per autocorrelation time
+    (``diagnostics["thin_output"]`` steps apart). Returns :class:`PosteriorSamples` with
+    diagnostics (acceptance fraction, τ per
+    parameter in steps, ESS = walkers × steps / τ, wall time, ESS/s). Warns
+    :class:`ShortChainWarning` when the kept chain is shorter than 50 τ_max.
+    """
+    d = post.dim
+    rng = np.random.default_rng(seed)
+    W = 2 * d + 2 if n_walkers is None else int(n_walkers)
+    if W < 2 * d:
+        raise ValueError(
+            f"n_walkers = {W} for d = {d} parameters: emcee's ensemble moves need at least "
+            f"2·d = {2 * d} walkers"
+        )
+    if not (0.0 <= discard < 1.0):
+        raise ValueError(f"discard must be a fraction in [0, 1), got {discard}")
+    move_list = _moves(moves)
+    lp_fn = batched_log_prob(post)
+    laplace_info = None
+    if isinstance(init, NLSResult):
+        mean, cov, laplace_info = laplace_posterior(post, initial_point(post, init))
+        init = (mean, cov)
+    if isinstance(init, tuple):
+        mean, cov = (np.asarray(a, dtype=np.float64) for a in init)
+        if mean.shape != (d,) or cov.shape != (d, d):
+            raise ValueError(f"init (mean, cov) must be ({d},) and ({d}, {d}), got {mean.shape}, {cov.shape}")
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+            raise ValueError("init: the Gaussian's mean or covariance contains NaN or inf")
+        x0 = _mvn(jax.random.PRNGKey(int(rng.integers(2**31))), mean, cov, W)
+        lp = lp_fn(x0)
+        for _ in range(20):  # redraw the rare walker in a region of zero density
+            bad = ~np.isfinite(lp)
+            if not bad.any():
+                break
+            x0[bad] = _mvn(jax.random.PRNGKey(int(rng.integers(2**31))), mean, cov, int(bad.sum()))
+            lp = lp_fn(x0)
+    else:
+        x0 = np.asarray(init, dtype=np.float64)
+        if x0.ndim == 2 and n_walkers is not None and x0.shape[0] != W:
+            raise ValueError(f"init has {x0.shape[0]} walkers but n_walkers = {W}")
+        W = x0.shape[0] if x0.ndim == 2 else W
+    lp0 = check_initial_state(post, x0, lp_fn)
+
+    total = max_steps if n_steps is None else int(n_steps)
+    if total < 1:
+        raise ValueError(f"n_steps must be ≥ 1, got {n_steps}")
+    thin_by = max(1, int(np.ceil(total / max_stored)))
+    backend = None
+    if backend_path is not None:
+        backend = emcee.backends.HDFBackend(str(backend_path))
+        backend.reset(W, d)
+    sampler = emcee.EnsembleSampler(
+        W, d, lp_fn, moves=move_list, vectorize=True, backend=backend,
+        parameter_names=None,
+    )  # fmt: skip
+    state = emcee.State(x0, log_prob=lp0)
+    sampler.random_state = np.random.RandomState(int(rng.integers(2**31))).get_state()
+    t0 = time.perf_counter()
+    if n_steps is not None:
+        sampler.run_mcmc(state, max(1, total // thin_by), thin_by=thin_by, progress=progress)
+    else:
+        chunk = max(1, check_every // thin_by)
+        old_tau = np.inf
+        while sampler.iteration * thin_by < max_steps:
+            state = sampler.run_mcmc(state, chunk, thin_by=thin_by, progress=progress)
+            it = sampler.iteration
+            tau = np.nanmax(_autocorr(sampler, int(discard * it))) * thin_by
+            kept = (it - int(discard * it)) * thin_by
+            if np.isfinite(tau) and kept >= tau_multiple * tau and abs(old_tau - tau) < 0.05 * tau:
+                break
+            old_tau = tau
+    wall = time.perf_counter() - t0
+    disc = int(discard * sampler.iteration)
+    diag = _diagnostics(sampler, disc, thin_by, W, wall, moves, tau_multiple)
+    diag["laplace"] = laplace_info
+    if not diag["converged_50tau"]:
+        warnings.warn(
+            f"emcee chain is {diag['steps_over_tau']:.1f} autocorrelation times long (τ_max = "
+            f"{diag['tau_max']:.0f} steps, {diag['n_steps'] - diag['discard_steps']} steps kept); "
+            f"below {tau_multiple:g} τ the τ and ESS estimates are unreliable: run longer",
+            ShortChainWarning,
+            stacklevel=2,
+        )
+    # keep about two draws per autocorrelation time per walker (the rest is redundant)
+    thin_out = max(1, int(diag["tau_max"] / thin_by / 2)) if np.isfinite(diag["tau_max"]) else 1
+    diag["thin_output"] = int(thin_out * thin_by)
+    chain = sampler.get_chain(discard=disc, thin=thin_out, flat=True)
+    lps = sampler.get_log_prob(discard=disc, thin=thin_out, flat=True)
+    theta, extra = post.split(chain)
+    return PosteriorSamples(
+        samples=np.concatenate([theta, extra], axis=1),
+        log_prob=np.asarray(lps),
+        scale=post.scale,
+        n=post.n,
+        names=tuple(post.names),
+        diagnostics=diag,
+    )
+
+
+# --- files -----------------------------------------------------------------------------
+
+
+def save_samples(path, ps: PosteriorSamples) -> Path:
+    """Write samples to ``.npz``: ``samples (S, d)``, ``log_prob (S,)``, ``n``, ``names``,
+    ``omega_ref``, ``z_ref``, ``method`` and the scalar diagnostics."""
+    path = Path(path)
+    scal = {
+        f"diag_{k}": np.asarray(v)
+        for k, v in ps.diagnostics.items()
+        if isinstance(v, int | float | bool | np.ndarray) and not isinstance(v, dict)
+    }
+    np.savez(
+        path,
+        samples=np.asarray(ps.samples, dtype=np.float64),
+        log_prob=np.asarray(ps.log_prob, dtype=np.float64),
+        n=np.int64(ps.n),
+        names=np.asarray(ps.names),
+        omega_ref=np.float64(ps.scale.omega_ref),
+        z_ref=np.float64(ps.scale.z_ref),
+        method=np.asarray(str(ps.diagnostics.get("method", ""))),
+        **scal,
+    )
+    return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
+
+
+def load_samples(path, n: int | None = None) -> PosteriorSamples:
+    """Read a :func:`save_samples` file. ``n`` (optional): the rod count expected — a file
+    for a different ``n``, or whose sample width does not match its ``n``, is a
+    ``ValueError``."""
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"samples file {path} does not exist")
+    with np.load(path, allow_pickle=False) as f:
+        missing = [k for k in ("samples", "log_prob", "n", "omega_ref", "z_ref", "names") if k not in f]
+        if missing:
+            raise ValueError(f"{path}: not a posterior-samples file (missing {missing})")
+        d = {k: f[k] for k in f.files}
+    file_n = int(d["n"])
+    s = d["samples"]
+    if n is not None and file_n != int(n):
+        raise ValueError(
+            f"{path}: samples are for an n = {file_n} rod device, but n = {n} was expected"
+        )
+    p = n_params(file_n)
+    if s.ndim != 2 or not (p <= s.shape[1] <= p + 2):
+        raise ValueError(
+            f"{path}: samples have shape {s.shape}, which does not fit n = {file_n} "
+            f"(expected (S, {p}) or (S, {p + 2}))"
+        )
+    if not np.all(np.isfinite(s)):
+        raise ValueError(f"{path}: samples contain NaN or inf")
+    diag = {k[5:]: (v.item() if v.ndim == 0 else v) for k, v in d.items() if k.startswith("diag_")}
+    diag["method"] = str(d["method"]) if "method" in d else ""
+    return PosteriorSamples(
+        samples=s,
+        log_prob=d["log_prob"],
+        scale=Scale(jnp.asarray(float(d["omega_ref"])), jnp.asarray(float(d["z_ref"]))),
+        n=file_n,
+        names=tuple(str(x) for x in d["names"]),
+        diagnostics=diag,
+    )
