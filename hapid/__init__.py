@@ -4,6 +4,11 @@ Importing hapid switches on float64 (``jax_enable_x64``).
 """
 
 from . import _config  # noqa: F401  (float64 before anything else)
+from . import control as control
+from . import device as device
+from . import experiment as experiment
+from . import fit as fit
+from . import uncertainty as uncertainty
 from .frf import FRF as FRF
 from .frf import as_frf as as_frf
 from .impedance import ImpedanceModel as ImpedanceModel

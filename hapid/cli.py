@@ -13,6 +13,11 @@ from pathlib import Path
 EXAMPLES = """examples:
   hapid simulate --device cu5 --out run.npz            # the paper's protocol on cu5
   hapid frf run.npz --out frf.npz --plot frf.png       # empirical Z_H, Z_T (+ std)
+  hapid fit frf.npz --method wls --positize --out wls.npz   # the paper's baseline
+  hapid fit frf.npz --method nls --out nls.npz         # PD-constrained nonlinear fit
+  hapid analyze --model nls.npz --device cu5 --out report.json
+  hapid posterior frf.npz --out samples.npz            # emcee posterior over M, B, K
+  hapid robust --samples samples.npz --model nls.npz --device cu5 --out robust.json
   hapid demo --out out/demo                            # simulate → FRF → σ plots
   hapid paper --out out/paper                          # the paper's figures 5–10 + summary
   hapid run scenes/zh_only.toml                        # a scene: only the stages it needs
@@ -236,7 +241,189 @@ def _register_scene(sub):
     r.set_defaults(func=cmd_run)
 
 
-_EXTRA: list = [_register_scene]  # later stages register their subcommands here
+def cmd_fit(a):
+    import numpy as np
+
+    from . import io
+    from .fit import crhp_report, fit_nls, positize, pphat_band_db, wls
+
+    frf = io.load_frf(a.frf)
+    raw = wls(frf, omega_c=TWO_PI * a.omega_c_hz)
+    before = crhp_report(raw)
+    meta = {}
+    if a.method == "wls":
+        model = positize(raw) if a.positize else raw
+        status, cost = "closed form", float("nan")
+        meta["method"] = "wls+positize" if a.positize else "wls"
+    else:
+        res = fit_nls(frf, weight=a.weight, solver=a.solver, f_max_hz=a.f_max_hz,
+                      omega_c=TWO_PI * a.omega_c_hz, max_steps=a.max_steps)  # fmt: skip
+        if not bool(res.ok) and not a.allow_unconverged:
+            raise CLIError(f"NLS fit did not converge (status {res.status} after {int(res.n_steps)} "
+                           "steps); no model written (use --allow-unconverged to write it anyway)")  # fmt: skip
+        model, status, cost = res.model, res.status, float(res.cost)
+        meta.update(method="nls", status=status, cost=cost, steps=int(res.n_steps),
+                    weight=a.weight, solver=a.solver, covariance=np.asarray(res.covariance),
+                    theta=np.asarray(res.theta))  # fmt: skip
+        if res.boundary:
+            print(f"note: at the PSD boundary: {', '.join(res.boundary)}")
+    after = crhp_report(model)
+    lo, hi = pphat_band_db(frf.P, model, frf.omega, a.band_hz)
+    out = io.save_model(a.out, model, **meta)
+    print(f"{meta['method']}: status {status}" + (f", cost {cost:.4g}" if np.isfinite(cost) else ""))
+    print(f"CRHP roots of det Ẑ_H, det Ẑ_T: before {int(before.hand)}, {int(before.total)} → "
+          f"after {int(after.hand)}, {int(after.total)}")  # fmt: skip
+    print(f"P·P̂⁻¹ band to {a.band_hz:g} Hz (measured P): {float(lo):+.1f} / {float(hi):+.1f} dB → {out}")
+
+
+TWO_PI = 6.283185307179586
+
+
+def cmd_analyze(a):
+    import json
+
+    import numpy as np
+
+    from . import io, scene
+    from .control import analyze_loop, discretize_compensator, discretize_controller, max_siso_gain
+
+    model = io.load_model(a.model)
+    cfg = scene.merge({})
+    g = scene.compensator(cfg["controller"] | ({"k": a.k} if a.k is not None else {}))
+    if a.frf:
+        frf = io.load_frf(a.frf)
+        omega, P, ts = np.asarray(frf.omega), np.asarray(frf.P), 1.0 / a.fs
+        print("note: a measured FRF has few frequencies: the Nyquist verdict needs a dense grid "
+              "and may be unresolved; margins and bandwidth are read on the FRF grid")  # fmt: skip
+    else:
+        from .device import preset
+
+        dev = preset(a.device)
+        if dev.n != model.n:
+            raise CLIError(f"model has n = {model.n} rods but device {a.device} has {dev.n}")
+        omega = scene.analysis_grid(cfg["analysis"], dev.fs_hz)
+        P, ts = np.asarray(dev.sampled_P(omega)), dev.ts
+    if P.shape[-1] != model.n:
+        raise CLIError(f"model has n = {model.n} rods but the plant has {P.shape[-1]}")
+    if a.controller == "mimo":
+        G = np.asarray(discretize_controller(model, g, ts).at_omega(omega))
+        c = None
+    else:
+        gd = np.asarray(discretize_compensator(g, ts).at_omega(omega)).reshape(-1)
+        c = float(max_siso_gain(P, omega, gd)) if a.siso_gain is None else a.siso_gain
+        G = (c * gd)[:, None, None] * np.eye(model.n)
+    rep = analyze_loop(P, G, omega)
+    s = rep.summary()
+    out = {"controller": a.controller, "siso_gain": c, **s}
+    if a.out:
+        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(a.out).write_text(json.dumps(out, indent=2, default=float))
+    verdict = "STABLE" if s["stable"] else ("UNSTABLE" if s.get("nyquist_resolved", True) else "UNDECIDED (grid too coarse)")
+    print(f"closed loop: {verdict} (generalized Nyquist, {s['n_encirclements']} encirclements)")
+    if s["stable"]:
+        print(f"isotropic bandwidth {s['iso_bandwidth_hz']:.2f} Hz (paper-literal "
+              f"{s['iso_bandwidth_literal_hz']:.2f} Hz); GM {s['gm_db']:.1f} dB, PM {s['pm_deg']:.1f}°, "
+              f"disk margin α {s['disk_margin']:.3f}; peak σ̄(T) {s['t_peak_db']:.1f} dB at "
+              f"{s['t_peak_hz']:.1f} Hz")  # fmt: skip
+    else:
+        print("no bandwidth reported for a loop that is not stable")
+    if c is not None:
+        print(f"SISO gain c = {c:.4g}")
+    if a.out:
+        print(f"report → {a.out}")
+
+
+def cmd_posterior(a):
+    from .uncertainty import posterior_from_files
+
+    ps = posterior_from_files(a.frf, a.out, method=a.method, n_samples=a.samples,
+                              n_steps=a.steps, seed=a.seed, backend_path=a.hdf5,
+                              fit_options={"f_max_hz": a.f_max_hz},
+                              posterior_options={"n_walkers": a.walkers} if a.walkers else None)  # fmt: skip
+    summ = ps.summary() if hasattr(ps, "summary") else {}
+    for k, v in summ.items():
+        if not hasattr(v, "__len__") or isinstance(v, str):
+            print(f"  {k}: {v}")
+    print(f"samples → {a.out}")
+
+
+def cmd_robust(a):
+    import json
+
+    from .uncertainty import robust_from_files
+
+    res = robust_from_files(a.samples, a.model, a.out, gm_db=a.gm_db, pm_deg=a.pm_deg,
+                            max_samples=a.max_samples, device=a.device, n_subjects=a.subjects)  # fmt: skip
+    print(json.dumps(res, indent=2, default=float)[:4000])
+    if a.out:
+        print(f"report → {a.out}")
+
+
+def _register_stages(sub):
+    f = sub.add_parser("fit", help="fit M, B, K models to an FRF (paper WLS or hapid NLS + PD)",
+                       description="Fit Ẑ_H, Ẑ_T = M s² + B s + K to an FRF file: the paper's "
+                       "weighted least squares (optionally positized) or hapid's nonlinear fit "
+                       "with positive-semidefinite M, B, K (Cholesky factors).",
+                       epilog="example: hapid fit frf.npz --method nls --weight relative --out model.npz")  # fmt: skip
+    f.add_argument("frf", help="FRF file (.npz, .csv, .mat)")
+    f.add_argument("--method", choices=["wls", "nls"], default="nls")
+    f.add_argument("--positize", action="store_true", help="positize the WLS model (paper 5.1)")
+    f.add_argument("--weight", choices=["relative", "paper", "noise", "blend"], default="relative")
+    f.add_argument("--solver", default="lm", help="lm (default), dogleg, gauss_newton, bfgs, "
+                   "nonlinear_cg, jaxopt_lm")  # fmt: skip
+    f.add_argument("--f-max-hz", type=float, default=40.0, help="NLS fit band (Hz), default 40")
+    f.add_argument("--omega-c-hz", type=float, default=7.0, help="paper weight corner (Hz)")
+    f.add_argument("--max-steps", type=int, default=500)
+    f.add_argument("--band-hz", type=float, default=30.0, help="report the P·P̂⁻¹ band to here")
+    f.add_argument("--allow-unconverged", action="store_true")
+    f.add_argument("--out", required=True, help="model file (.npz)")
+    f.set_defaults(func=cmd_fit)
+
+    an = sub.add_parser("analyze", help="closed-loop analysis: stability first, then bandwidth, margins",
+                        description="Analyze the force loop of a model's controller on a simulated "
+                        "device's true sampled plant or on a measured FRF: generalized Nyquist "
+                        "verdict, isotropic bandwidth, gain/phase/disk margins, peak of T.",
+                        epilog="example: hapid analyze --model model.npz --device cu5 --out report.json")  # fmt: skip
+    an.add_argument("--model", required=True)
+    src = an.add_mutually_exclusive_group(required=True)
+    src.add_argument("--device", help="preset device whose true plant closes the loop")
+    src.add_argument("--frf", help="measured FRF file whose P closes the loop")
+    an.add_argument("--controller", choices=["mimo", "siso"], default="mimo")
+    an.add_argument("--k", type=float, help="override the gain k of g(s) (paper: 0.85)")
+    an.add_argument("--siso-gain", type=float, help="SISO c (default: the 6 dB / 30° design rule)")
+    an.add_argument("--fs", type=float, default=1000.0, help="sampling rate for --frf (Hz)")
+    an.add_argument("--out", help="JSON report")
+    an.set_defaults(func=cmd_analyze)
+
+    po = sub.add_parser("posterior", help="emcee posterior (or Laplace) over M, B, K from an FRF",
+                        epilog="example: hapid posterior frf.npz --out samples.npz --method laplace")  # fmt: skip
+    po.add_argument("frf")
+    po.add_argument("--out", required=True)
+    po.add_argument("--model", help="(unused: the NLS fit is redone as the start point)")
+    po.add_argument("--method", choices=["emcee", "laplace"], default="emcee")
+    po.add_argument("--walkers", type=int, default=0, help="0 = 2·dim + 2")
+    po.add_argument("--steps", type=int, help="emcee steps (default: run to 50 τ)")
+    po.add_argument("--samples", type=int, default=4000, help="Laplace draws")
+    po.add_argument("--f-max-hz", type=float, default=40.0)
+    po.add_argument("--seed", type=int, default=0)
+    po.add_argument("--hdf5", help="emcee HDF5 backend file")
+    po.set_defaults(func=cmd_posterior)
+
+    ro = sub.add_parser("robust", help="robust-margin check of a nominal controller over samples",
+                        epilog="example: hapid robust --samples samples.npz --model model.npz --device cu5 --out robust.json")  # fmt: skip
+    ro.add_argument("--samples", required=True)
+    ro.add_argument("--model", required=True, help="nominal model the controller is designed from")
+    ro.add_argument("--controller", default="mimo", choices=["mimo"], help="controller kind")
+    ro.add_argument("--device", help="also check a preset device's true plant (poses, subjects)")
+    ro.add_argument("--subjects", type=int, default=0, help="virtual subjects for --device")
+    ro.add_argument("--gm-db", type=float, default=6.0)
+    ro.add_argument("--pm-deg", type=float, default=30.0)
+    ro.add_argument("--max-samples", type=int, default=1000)
+    ro.add_argument("--out", help="JSON report")
+    ro.set_defaults(func=cmd_robust)
+
+
+_EXTRA: list = [_register_scene, _register_stages]  # later stages register their subcommands here
 
 
 def main(argv=None) -> int:

@@ -128,8 +128,10 @@ def plant(Z_H: Complex[Array, "N n n"], Z_T: Complex[Array, "N n n"]) -> Complex
 
 
 def singular_values(A: Complex[Array, "N n n"]) -> Float[Array, "N n"]:
-    """Singular values per frequency, descending, ``(N, n)``."""
-    return jnp.linalg.svd(A, compute_uv=False)
+    """Singular values per frequency, descending, ``(N, n)`` (deadlock-safe, see ``_linalg``)."""
+    from ._linalg import svdvals
+
+    return svdvals(A)
 
 
 def span_db(A: Complex[Array, "N n n"]) -> Float[Array, " N"]:

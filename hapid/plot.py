@@ -179,6 +179,32 @@ def loci(reports: dict, *, title: str = "", f_range=(0.1, 500.0)):
     return fig, axes
 
 
+def sweep(keys, rows, metrics):
+    """Sweep results against the first varied option; one line per combination of the others."""
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    x = rows[:, 0]
+    others = rows[:, 1:]
+    combos = np.unique(others, axis=0) if others.shape[1] else np.zeros((1, 0))
+    for j, c in enumerate(combos):
+        m = np.all(others == c, axis=1) if others.shape[1] else np.ones(len(x), bool)
+        o = np.argsort(x[m])
+        lab = ", ".join(f"{k}={v:g}" for k, v in zip(keys[1:], c, strict=True)) or None
+        axes[0].plot(x[m][o], metrics["iso_bandwidth_hz"][m][o], marker="o", ms=3, color=f"C{j % 10}", label=lab)
+        axes[1].plot(x[m][o], metrics["pphat_max_db"][m][o], marker="o", ms=3, color=f"C{j % 10}")
+        axes[1].plot(x[m][o], metrics["pphat_min_db"][m][o], marker="o", ms=3, ls="--", color=f"C{j % 10}")
+        axes[2].plot(x[m][o], metrics["disk_margin"][m][o], marker="o", ms=3, color=f"C{j % 10}")
+    axes[0].set_ylabel("isotropic bandwidth (Hz; missing = unstable)")
+    axes[1].set_ylabel("P·P̂⁻¹ band to 30 Hz (dB): max solid, min dashed")
+    axes[2].set_ylabel("disk margin α (σ̄(S − T))")
+    for ax in axes:
+        ax.set_xlabel(keys[0])
+        ax.grid(True, alpha=0.3)
+    if len(combos) <= 12 and others.shape[1]:
+        axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    return fig, axes
+
+
 def save(fig, path) -> None:
     """Save and close a figure (creates the folder)."""
     from pathlib import Path

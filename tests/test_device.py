@@ -27,7 +27,7 @@ def test_jacobian_matches_finite_difference_of_rod_lengths(make):
         v, w_body = dof[:3, k], dof[3:, k]
         w = R @ w_body
         # rotate about the grip point by a small angle h around w, translate by h v
-        def moved(sign):
+        def moved(sign, v=v, w=w):
             from scipy.spatial.transform import Rotation
 
             Rw = Rotation.from_rotvec(sign * h * w).as_matrix() if np.any(w) else np.eye(3)

@@ -9,10 +9,10 @@ from ._excitation import multisine as multisine
 from ._excitation import paper_frequencies as paper_frequencies
 from ._excitation import patterns as patterns
 from ._excitation import schroeder_phases as schroeder_phases
+from ._fast import simulate_frf as simulate_frf
 from ._protocol import Protocol as Protocol
 from ._protocol import Run as Run
 from ._protocol import validate_run as validate_run
 from ._synthesis import periodic_run as periodic_run
-from ._synthesis import time_domain_run as time_domain_run
 from ._synthesis import time_domain_response as time_domain_response
-from ._fast import simulate_frf as simulate_frf
+from ._synthesis import time_domain_run as time_domain_run

@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from .. import _config  # noqa: F401
+from .._linalg import svdvals
 from ..device import Device
 from ..frf import FRF
 from ._protocol import Protocol
@@ -49,7 +50,9 @@ def simulate_frf(device: Device, protocol: Protocol, key, *, force_noise=None,
 
     Lm = Y[:, :n] + cnoise(k1, (K, n, E), sl)
     RI = Y[:, n:] + cnoise(k2, (K, n, E), sf)
-    Lp = jnp.linalg.pinv(Lm)  # (K, E, n)
+    # 𝓛⁺ = (𝓛ᴴ𝓛)⁻¹𝓛ᴴ (E ≥ n): an LU solve, not an SVD — see hapid._linalg
+    Lh = jnp.swapaxes(jnp.conj(Lm), -1, -2)
+    Lp = jnp.linalg.solve(Lh @ Lm, Lh)  # (K, E, n)
     Z_H = -RI @ Lp
     Z_T = -cmd @ Lp
     w = jnp.abs(Lp) ** 2  # (K, E, n)
@@ -58,6 +61,6 @@ def simulate_frf(device: Device, protocol: Protocol, key, *, force_noise=None,
     vT = var * (sl**2 * jnp.sum(jnp.abs(Z_T) ** 2, axis=-1))
     std_H = jnp.sqrt(vH[:, :, None] * jnp.sum(w, axis=1)[:, None, :])
     std_T = jnp.sqrt(vT[:, :, None] * jnp.sum(w, axis=1)[:, None, :])
-    sv = jnp.linalg.svd(Lm, compute_uv=False)
+    sv = svdvals(Lm)
     return FRF(omega=omega, Z_H=Z_H, Z_T=Z_T, Z_H_std=std_H, Z_T_std=std_T,
                cond_L=sv[:, 0] / sv[:, -1])  # fmt: skip

@@ -29,7 +29,7 @@ def _command(device: Device, protocol: Protocol):
     return U, ms, r
 
 
-def periodic_run(device: Device, protocol: Protocol = Protocol(), *, hold: str = "zoh",
+def periodic_run(device: Device, protocol: Protocol | None = None, *, hold: str = "zoh",
                  noise_seed: int | None = None) -> Run:  # fmt: skip
     """Exact periodic steady state, computed per excited bin in the frequency domain.
 
@@ -37,6 +37,7 @@ def periodic_run(device: Device, protocol: Protocol = Protocol(), *, hold: str =
     ``"bandlimited"`` (an ideal band-limited actuator: the continuous response, so the FRF
     equals ``device.impedances`` exactly).
     """
+    protocol = Protocol() if protocol is None else protocol
     if device.fs_hz != protocol.fs_hz:
         raise ValueError(f"device samples at {device.fs_hz} Hz but the protocol at {protocol.fs_hz} Hz")
     U, ms, _ = _command(device, protocol)
@@ -62,7 +63,7 @@ def periodic_run(device: Device, protocol: Protocol = Protocol(), *, hold: str =
     return _measure(y, R_A, n, protocol, noise_seed)
 
 
-def time_domain_run(device: Device, protocol: Protocol = Protocol(), *, friction: bool = False,
+def time_domain_run(device: Device, protocol: Protocol | None = None, *, friction: bool = False,
                     initial: str = "periodic", substeps: int | None = None, noise_seed: int | None = None) -> Run:  # fmt: skip
     """Time-domain simulation (``jax.lax.scan``): delay buffer, zero-order hold, optional
     smoothed Coulomb friction on the motors, then the same measurement model.
@@ -72,6 +73,7 @@ def time_domain_run(device: Device, protocol: Protocol = Protocol(), *, friction
     substeps: integration steps per sample (default 1 without friction, 10 with: the
     friction force is explicit within each sub-step).
     """
+    protocol = Protocol() if protocol is None else protocol
     if device.fs_hz != protocol.fs_hz:
         raise ValueError(f"device samples at {device.fs_hz} Hz but the protocol at {protocol.fs_hz} Hz")
     if initial not in ("periodic", "zero"):

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from .._linalg import svdvals
 from ..fit._pd import theta_to_model
 from ..impedance import plant
 from ._sampler import PosteriorSamples
@@ -41,14 +42,14 @@ def _chunk(theta, scale, s, P_ref, names):
         if "abs_Z_T" in names:
             out["abs_Z_T"] = jnp.abs(ZT)
         if "sv_Z_H" in names:
-            out["sv_Z_H"] = jnp.linalg.svd(ZH, compute_uv=False)
+            out["sv_Z_H"] = svdvals(ZH)
         if "sv_Z_T" in names:
-            out["sv_Z_T"] = jnp.linalg.svd(ZT, compute_uv=False)
+            out["sv_Z_T"] = svdvals(ZT)
         if "sv_P" in names:
-            out["sv_P"] = jnp.linalg.svd(plant(ZH, ZT), compute_uv=False)
+            out["sv_P"] = svdvals(plant(ZH, ZT))
         if "sv_P_Phatinv" in names:
             # P P̂⁻¹ = P Ẑ_T Ẑ_H⁻¹
-            out["sv_P_Phatinv"] = jnp.linalg.svd(plant(P_ref @ ZT, ZH), compute_uv=False)
+            out["sv_P_Phatinv"] = svdvals(plant(P_ref @ ZT, ZH))
         return out
 
     return jax.vmap(one)(theta)

@@ -1,0 +1,45 @@
+"""Control design and multivariable loop analysis.
+
+* :class:`Compensator` — the scalar g(s) (lag, notches, low-pass), differentiable.
+* :func:`inverse_model_response`, :func:`inverse_model_state_space`,
+  :func:`siso_response`, :func:`max_siso_gain` — the controllers.
+* :func:`controller_is_stable`, :func:`check_controller` — realizability (paper 5.1).
+* :func:`analyze_loop` → :class:`LoopReport` — T, σ(T − I), isotropic bandwidth, loci,
+  generalized Nyquist verdict, gain/phase/disk margins (jit/vmap-able).
+* :class:`StateSpace`, :func:`closed_loop_poles`, :func:`closed_loop_is_stable` — the
+  state-space cross-check.
+* :func:`discretize_compensator`, :func:`discretize_controller` — sampled controllers.
+"""
+
+from ._compensator import Compensator as Compensator
+from ._controller import ControllerCheck as ControllerCheck
+from ._controller import ControllerWarning as ControllerWarning
+from ._controller import check_controller as check_controller
+from ._controller import controller_is_stable as controller_is_stable
+from ._controller import controller_unstable_poles as controller_unstable_poles
+from ._controller import impedance_ratio_state_space as impedance_ratio_state_space
+from ._controller import inverse_model_response as inverse_model_response
+from ._controller import inverse_model_state_space as inverse_model_state_space
+from ._controller import max_siso_gain as max_siso_gain
+from ._controller import siso_response as siso_response
+from ._discrete import DiscreteController as DiscreteController
+from ._discrete import DiscreteStateSpace as DiscreteStateSpace
+from ._discrete import discretize_compensator as discretize_compensator
+from ._discrete import discretize_controller as discretize_controller
+from ._discrete import discretize_state_space as discretize_state_space
+from ._loop import ISO_THRESHOLD as ISO_THRESHOLD
+from ._loop import LoopReport as LoopReport
+from ._loop import analyze_loop as analyze_loop
+from ._loop import isotropic_bandwidth as isotropic_bandwidth
+from ._loop import loop_matrices as loop_matrices
+from ._margins import disk_margin_from_peak as disk_margin_from_peak
+from ._margins import loci_margins as loci_margins
+from ._nyquist import characteristic_loci as characteristic_loci
+from ._nyquist import nyquist_encirclements as nyquist_encirclements
+from ._nyquist import track_loci as track_loci
+from ._statespace import StateSpace as StateSpace
+from ._statespace import closed_loop_is_stable as closed_loop_is_stable
+from ._statespace import closed_loop_matrix as closed_loop_matrix
+from ._statespace import closed_loop_poles as closed_loop_poles
+from ._statespace import closed_loop_well_posed as closed_loop_well_posed
+from ._statespace import series as series
