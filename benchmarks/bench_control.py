@@ -6,8 +6,16 @@ compilation). Plants are random n-rod second-order models (``hapid.control._exam
 under the inverse-model controller designed on a perturbed model, so every loop is a
 realistic one (loci, crossings, Nyquist count all exercised).
 
-Results recorded on the development machine (2 shared cores, jax 0.10.2, CPU):
-see the table printed by the last run in the issue / PR description.
+Recorded (x86_64, 2 shared cores, python 3.11.7, jax 0.10.2, CPU; n = 5, N = 1000):
+
+    case               compile [s]   run [s]  per loop [ms]
+    1 model                   0.30     0.049         49.4
+    vmap batch 100            1.74     3.376         33.8
+    vmap batch 1000           3.12    32.255         32.3
+
+About half of the run time is the five batched SVDs (σ of I+L, S, T, S−T, L), a fifth
+the eigenvalues, the rest loci tracking (120-permutation matching for n = 5; the
+``loci_method="greedy"`` option is ~5× cheaper for that part).
 """
 
 from __future__ import annotations

@@ -6,7 +6,17 @@ are ~4·10⁵ times the constant terms, and float32 loses the fit (DESIGN.md, Co
 
 import os
 
-import jax
+# XLA:CPU (jaxlib 0.10.2) deadlocks when it schedules batched LAPACK kernels concurrently
+# (measured: SVD ∥ LU, LU ∥ eig — all threads idle, every time). The concurrency-optimized
+# scheduler is what runs them side by side; switching it off removed the hang in every case
+# we reproduced. It only takes effect if set before the CPU backend starts, i.e. when hapid
+# is imported before any JAX computation; hapid's own kernels avoid the pattern regardless
+# (``hapid._linalg``, ``hapid.control._lapack``).
+_FLAG = "--xla_cpu_enable_concurrency_optimized_scheduler=false"
+if _FLAG.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _FLAG).strip()
+
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 

@@ -1,0 +1,114 @@
+"""Execute the tutorial notebooks (fast mode) and check one real property of each.
+
+Each notebook runs in a fresh kernel of *this* interpreter (a throw-away kernelspec pointing
+at ``sys.executable``, so a system-wide ``python3`` kernel is never picked up), with
+``HAPID_FAST=1`` and its outputs redirected to a temporary folder (``HAPID_NB_OUT``). After
+the notebook, one extra cell prints a JSON probe of the notebook's own state.
+"""
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+nbformat = pytest.importorskip("nbformat")
+nbclient = pytest.importorskip("nbclient")
+ipykernel_kernelspec = pytest.importorskip("ipykernel.kernelspec")
+
+NB_DIR = Path(__file__).resolve().parent.parent / "notebooks"
+KERNEL = "hapid-test-python"
+CELL_TIMEOUT = 300
+PROBE = "PROBE_JSON:"
+
+
+@pytest.fixture(scope="module")
+def kernel_env(tmp_path_factory):
+    """A kernelspec for sys.executable in a temp prefix, found first via JUPYTER_PATH."""
+    prefix = tmp_path_factory.mktemp("jupyter")
+    ipykernel_kernelspec.install(kernel_name=KERNEL, prefix=str(prefix))
+    spec = json.loads(
+        (prefix / "share" / "jupyter" / "kernels" / KERNEL / "kernel.json").read_text()
+    )
+    assert Path(spec["argv"][0]).resolve() == Path(sys.executable).resolve()
+    mp = pytest.MonkeyPatch()
+    mp.setenv(
+        "JUPYTER_PATH",
+        os.pathsep.join([str(prefix / "share" / "jupyter"), os.environ.get("JUPYTER_PATH", "")]),
+    )
+    mp.setenv("HAPID_FAST", "1")
+    mp.setenv("MPLBACKEND", "Agg")
+    yield
+    mp.undo()
+
+
+def run_notebook(name: str, out_dir: Path, probe: str) -> tuple[dict, float]:
+    """Execute ``notebooks/<name>.ipynb`` with outputs under ``out_dir``; return the probe
+    cell's JSON and the wall time of the notebook (probe excluded)."""
+    nb = nbformat.read(NB_DIR / f"{name}.ipynb", as_version=4)
+    assert all(not c.get("outputs") for c in nb.cells if c.cell_type == "code"), (
+        f"{name}: committed outputs"
+    )
+    nb.cells.append(
+        nbformat.v4.new_code_cell(f"import json as _j\nprint({PROBE!r}, _j.dumps({probe}))")
+    )
+    os.environ["HAPID_NB_OUT"] = str(out_dir)
+    try:
+        client = nbclient.NotebookClient(
+            nb,
+            timeout=CELL_TIMEOUT,
+            kernel_name=KERNEL,
+            resources={"metadata": {"path": str(NB_DIR)}},
+        )
+        t0 = time.perf_counter()
+        client.execute()  # raises CellExecutionError on the first failing cell
+        wall = time.perf_counter() - t0
+    finally:
+        os.environ.pop("HAPID_NB_OUT", None)
+    for cell in nb.cells:
+        for out in cell.get("outputs", []):
+            assert out.get("output_type") != "error", (
+                f"{name}: {out.get('ename')}: {out.get('evalue')}"
+            )
+    text = "".join(
+        o.get("text", "") for o in nb.cells[-1].outputs if o.get("output_type") == "stream"
+    )
+    line = next(ln for ln in text.splitlines() if ln.startswith(PROBE))
+    print(f"{name}: {wall:.1f} s")
+    return json.loads(line[len(PROBE) :]), wall
+
+
+def test_quickstart_nls_model_has_no_crhp_roots(kernel_env, tmp_path):
+    probe, _ = run_notebook(
+        "01_quickstart",
+        tmp_path,
+        "{'hand': int(nls_crhp.hand), 'total': int(nls_crhp.total), 'ok': bool(res.ok), "
+        "'stable': bool(reports['hapid NLS + PD'].stable)}",
+    )
+    assert probe["hand"] == 0 and probe["total"] == 0
+    assert probe["ok"]
+    assert probe["stable"]
+    assert (tmp_path / "01_quickstart" / "step.png").exists()
+
+
+def test_paper_notebook_writes_summary_with_both_fits(kernel_env, tmp_path):
+    probe, _ = run_notebook("02_paper_reproduction", tmp_path, "sorted(summary['fits'])")
+    assert probe == ["nls", "wls"]
+    out = tmp_path / "02_paper_reproduction"
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary["fits"]) == {"wls", "nls"}
+    for k in range(5, 11):
+        assert (out / f"fig{k}.png").stat().st_size > 0
+
+
+def test_uncertainty_notebook_p_stable_is_a_probability(kernel_env, tmp_path):
+    probe, _ = run_notebook(
+        "03_uncertainty_robustness",
+        tmp_path,
+        "{'p_post': p_stable, 'p_dev': rep_dev.p_stable, 'n_post': rep_post.n, 'n_dev': rep_dev.n}",
+    )
+    assert 0.0 <= probe["p_post"] <= 1.0 and 0.0 <= probe["p_dev"] <= 1.0
+    assert probe["n_post"] == 40  # FAST: N_ROBUST posterior samples analysed
+    assert probe["n_dev"] == 1 + 2 + 2  # nominal + two poses (±x) + two virtual subjects
