@@ -34,6 +34,7 @@ def check_fit_input(
     f_max_hz: float | None,
     *,
     need_std: bool = False,
+    positive_std: bool = True,
     need_invertible_Z: bool = False,
     what: str = "fit",
 ) -> None:
@@ -53,7 +54,7 @@ def check_fit_input(
         if a is not None and not np.all(np.isfinite(np.asarray(a))):
             bad = tuple(int(i) for i in np.argwhere(~np.isfinite(np.asarray(a)))[0])
             raise ValueError(f"{what}: FRF {name} contains NaN or inf (first at index {bad})")
-    if need_std:
+    if need_std and positive_std:
         for name, a in (("Z_H_std", frf.Z_H_std), ("Z_T_std", frf.Z_T_std)):
             if np.any(np.asarray(a) <= 0):
                 raise ValueError(f"{what}: FRF {name} must be > 0 everywhere for noise weights")

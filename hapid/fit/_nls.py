@@ -146,6 +146,7 @@ def make_problem(
         frf,
         f_max_hz,
         need_std=weight in ("noise", "blend"),
+        positive_std=weight == "noise",  # blend has a relative floor: a zero std is fine
         need_invertible_Z=use_P_residual,
         what="fit_nls",
     )
@@ -380,6 +381,7 @@ def fit_nls(
         frf,
         f_max_hz,
         need_std=weight in ("noise", "blend"),
+        positive_std=weight == "noise",  # blend has a relative floor: a zero std is fine
         need_invertible_Z=use_P_residual,
         what="fit_nls",
     )
