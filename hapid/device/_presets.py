@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from ._device import ParallelDevice
 from ._geometry import Pose, cu5_geometry, hexapod_geometry, tripod_geometry
-from ._parts import default_modes, nominal_hand, nominal_mechanism, no_modes
+from ._parts import default_modes, no_modes, nominal_hand, nominal_mechanism
 
 
 def cu5(pose: Pose | None = None, *, extra_modes: bool = True, delay_samples: int = 1,
