@@ -109,6 +109,7 @@ def cmd_demo(a):
     from . import io, plot
     from .device import preset
     from .experiment import Protocol, estimate_frf, periodic_run
+    from .impedance import span_db
 
     out = Path(a.out)
     dev = preset(a.device)
@@ -118,8 +119,7 @@ def cmd_demo(a):
     io.save_frf(out / "frf.npz", frf)
     fig, _ = plot.frf_overview(frf, title_prefix=f"{a.device}: ")
     plot.save(fig, out / "frf_singular_values.png")
-    sv = np.linalg.svd(np.asarray(frf.P), compute_uv=False)
-    span = 20 * np.log10(sv[:, 0] / sv[:, -1])
+    span = np.asarray(span_db(frf.P))
     f = np.asarray(frf.freq_hz)
     band = f <= 30
     print(f"{a.device}: plant singular-value span over {f[band].min():g}–{f[band].max():g} Hz: "

@@ -92,6 +92,9 @@ def simulate_loop(device: Device, controller, R_D, *, friction: bool = False,
         raise ValueError(f"R_D must be (T, n) with n = {n}, got shape {R_D.shape}")
     if not bool(jnp.all(jnp.isfinite(R_D))):
         raise ValueError("R_D contains NaN or inf")
+    if d < 1:
+        raise ValueError("simulate_loop needs a device with at least one sample of actuator "
+                         "delay (use closed_loop(...) for the state-space loop without delay)")  # fmt: skip
     m = substeps if substeps is not None else (10 if friction else 1)
     dev = device.discrete(substeps=m, friction=friction)
     noise = force_noise * jax.random.normal(jax.random.PRNGKey(seed), R_D.shape)
@@ -106,9 +109,7 @@ def _simulate(device, dev, ctrl, R_D, noise, m, friction, d):
     def step(carry, inp):
         x, buf, xc = carry
         r, w = inp
-        u = buf[0] if d > 0 else None
-        if d == 0:
-            raise NotImplementedError  # pragma: no cover
+        u = buf[0]
         y = dev.C @ x + dev.D[:, :n] @ u
         R_I = y[n:] + w
         e = r - R_I

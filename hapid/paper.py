@@ -25,10 +25,6 @@ PAPER = {
 }
 
 
-def _sv_db(A):
-    return 20 * np.log10(np.linalg.svd(np.asarray(A), compute_uv=False))
-
-
 def figure(num: int, out_dir, *deps) -> str:
     from . import plot
 
@@ -93,13 +89,13 @@ def loop_numbers(rep) -> dict:
 
 def summary(out_dir, device, frf, wls, nls, mimo, siso) -> dict:
     from .fit import anisotropy_reduction, pphat_band_db
+    from .impedance import span_db
 
     w = frf.omega
     P_true = np.asarray(device.sampled_P(w))
     f = np.asarray(frf.freq_hz)
     band = f <= 30.0
-    sv = np.linalg.svd(P_true, compute_uv=False)
-    span = 20 * np.log10(sv[:, 0] / sv[:, -1])
+    span = np.asarray(span_db(P_true))
     res = {"device": {"n": device.n, "fs_hz": device.fs_hz, "delay_samples": device.delay_samples},
            "plant_span_db_1_30hz": [float(span[band].min()), float(span[band].max())],
            "fits": {}}  # fmt: skip

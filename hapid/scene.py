@@ -53,7 +53,7 @@ DEFAULTS: dict = {
 }  # fmt: skip
 
 OUTPUTS = ("fig5", "fig6", "fig7", "fig8", "fig9", "fig10", "summary", "frf_file",
-           "model_files", "zh_figure")  # fmt: skip
+           "model_files")  # fmt: skip
 
 
 def load_scene(path) -> dict:
@@ -97,7 +97,7 @@ def set_option(cfg: dict, dotted: str, value) -> dict:
 def _device(o):
     import jax
 
-    from .device import Pose, nominal_hand, preset, virtual_subject
+    from .device import Pose, preset, virtual_subject
 
     kw = {"extra_modes": o["extra_modes"]}
     if o["preset"] == "cu5":
@@ -107,10 +107,9 @@ def _device(o):
     if o["subject_seed"] is not None:
         import equinox as eqx
 
-        n_tr = 3
-        hand = virtual_subject(jax.random.PRNGKey(int(o["subject_seed"])), dev.hand, n_tr)
+        # every preset's first three DOF are the translations the subject ranges describe
+        hand = virtual_subject(jax.random.PRNGKey(int(o["subject_seed"])), dev.hand, 3)
         dev = eqx.tree_at(lambda d: d.hand, dev, hand)
-        del nominal_hand
     return dev
 
 
@@ -192,15 +191,13 @@ def _controller(o):
 
 
 def _mimo_one(model, g, plant):
-    from .control import analyze_loop, check_controller, discretize_controller
+    from .control import analyze_loop, controller_unstable_poles, discretize_controller
 
     ctrl = discretize_controller(model, g, plant["ts"])
     G = np.asarray(ctrl.at_omega(plant["omega"]))
-    try:
-        chk = check_controller(model, g)
-        p_ol = int(getattr(chk, "n_unstable_poles", 0))
-    except Exception:  # noqa: BLE001
-        p_ol = 0
+    # the controller's own RHP poles (CRHP roots of det Ẑ_H, unstable poles of g) count as
+    # open-loop unstable poles in the Nyquist criterion; the device plant is stable
+    p_ol = int(controller_unstable_poles(model, g))
     rep = analyze_loop(plant["P"], G, plant["omega"], P_ol_rhp=p_ol)
     return {"report": rep, "controller": ctrl, "p_ol": p_ol}
 
@@ -260,12 +257,22 @@ OUT_STAGES = [
     _out_stage("fig8", ("device", "frf", "wls", "nls"), _fig(8)),
     _out_stage("fig9", ("mimo", "plant"), _fig(9)),
     _out_stage("fig10", ("mimo",), _fig(10)),
-    _out_stage("zh_figure", ("frf", "wls", "nls"), _fig(6)),
-    _out_stage("summary", ("device", "frf", "wls", "nls", "mimo", "siso"),
-               lambda o, *d: __import__("hapid.paper", fromlist=["x"]).summary(o["dir"], *d)),
-    _out_stage("frf_file", ("frf",), lambda o, frf: str(__import__("hapid.io", fromlist=["x"]).save_frf(Path(o["dir"]) / "frf.npz", frf))),
+    _out_stage("summary", ("device", "frf", "wls", "nls", "mimo", "siso"), lambda o, *d: _summary(o["dir"], *d)),
+    _out_stage("frf_file", ("frf",), lambda o, frf: _save_frf(o["dir"], frf)),
     _out_stage("model_files", ("wls", "nls"), lambda o, w, n: _save_models(o["dir"], w, n)),
 ]  # fmt: skip
+
+
+def _summary(out_dir, *deps):
+    from . import paper
+
+    return paper.summary(out_dir, *deps)
+
+
+def _save_frf(out_dir, frf):
+    from . import io
+
+    return str(io.save_frf(Path(out_dir) / "frf.npz", frf))
 
 
 def _save_models(out_dir, w, n):

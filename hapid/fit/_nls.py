@@ -123,6 +123,21 @@ class Problem(eqx.Module):
         return 2 * blocks * self.n**2 * self.n_in_band
 
 
+def _check_data(frf: FRF, f_max_hz, weight: str, use_P_residual: bool) -> None:
+    """The checks ``make_problem`` and ``fit_nls`` share: the weight's name and the data it
+    needs (values only when concrete — outside ``jit``)."""
+    if weight not in WEIGHTS:
+        raise ValueError(f"weight must be one of {WEIGHTS}, got {weight!r}")
+    check_fit_input(
+        frf,
+        f_max_hz,
+        need_std=weight in ("noise", "blend"),
+        positive_std=weight == "noise",  # blend has a relative floor: a zero std is fine
+        need_invertible_Z=use_P_residual,
+        what="fit_nls",
+    )
+
+
 def make_problem(
     frf: FRF,
     *,
@@ -140,16 +155,7 @@ def make_problem(
     ``scale`` defaults to :func:`data_scale` of the band. ``make_problem(frf)(theta)`` is the
     residual vector, ``.cost(theta)`` the cost ``½‖r‖²`` (differentiable in ``theta``).
     """
-    if weight not in WEIGHTS:
-        raise ValueError(f"weight must be one of {WEIGHTS}, got {weight!r}")
-    check_fit_input(
-        frf,
-        f_max_hz,
-        need_std=weight in ("noise", "blend"),
-        positive_std=weight == "noise",  # blend has a relative floor: a zero std is fine
-        need_invertible_Z=use_P_residual,
-        what="fit_nls",
-    )
+    _check_data(frf, f_max_hz, weight, use_P_residual)
     scale = data_scale(frf, f_max_hz) if scale is None else scale
     mask = band_mask(frf.omega, f_max_hz)[:, None, None]
     zr = scale.z_ref
@@ -371,20 +377,11 @@ def fit_nls(
     """
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
-    if weight not in WEIGHTS:
-        raise ValueError(f"weight must be one of {WEIGHTS}, got {weight!r}")
     if linear_solver not in LINEAR_SOLVERS:
         raise ValueError(f"linear_solver must be one of {LINEAR_SOLVERS}, got {linear_solver!r}")
     if not (isinstance(max_steps, int) and max_steps > 0):
         raise ValueError(f"max_steps must be a positive int, got {max_steps!r}")
-    check_fit_input(
-        frf,
-        f_max_hz,
-        need_std=weight in ("noise", "blend"),
-        positive_std=weight == "noise",  # blend has a relative floor: a zero std is fine
-        need_invertible_Z=use_P_residual,
-        what="fit_nls",
-    )
+    _check_data(frf, f_max_hz, weight, use_P_residual)
     num = dict(
         f_max_hz=np.inf if f_max_hz is None else f_max_hz,
         omega_c=omega_c,
