@@ -43,7 +43,9 @@ class StateSpace(eqx.Module):
         s = jnp.asarray(s, dtype=jnp.complex128)
         nx = self.A.shape[0]
         lhs = s[:, None, None] * jnp.eye(nx) - self.A
-        X = jnp.linalg.solve(lhs, jnp.broadcast_to(self.B.astype(jnp.complex128), (s.shape[0],) + self.B.shape))
+        X = jnp.linalg.solve(
+            lhs, jnp.broadcast_to(self.B.astype(jnp.complex128), (s.shape[0],) + self.B.shape)
+        )
         return self.C @ X + self.D
 
 
@@ -66,9 +68,11 @@ class Device(eqx.Module):
     def n(self) -> int: ...
 
     @abc.abstractmethod
-    def state_space(self, friction: bool = False) -> StateSpace:
+    def state_space(self, friction: bool = False, user: bool = False) -> StateSpace:
         """Continuous model, input: applied ``R_A`` (plus, with ``friction``, the Coulomb
-        force on each motor as ``n`` extra inputs); outputs ``[L; R_I]``."""
+        force on each motor as ``n`` extra inputs; then, with ``user``, a voluntary force the
+        user's arm applies to the hand, ``n`` Cartesian inputs, where the device models a
+        hand); outputs ``[L; R_I]``."""
 
     def coulomb_force(self, x: Float[Array, " nx"]) -> Float[Array, " n"]:
         """Smoothed Coulomb friction force on each motor (input to the friction channel)."""
@@ -191,24 +195,30 @@ class ParallelDevice(Device):
             mr = self.modes.mass[j]
             D = jnp.zeros((n, nq)).at[:, self.modes.node[j] * n : self.modes.node[j] * n + n].set(I)
             D = D.at[:, 4 * n + j * n : 4 * n + (j + 1) * n].set(-I)
-            springs.append((D, jnp.full(n, mr * w**2), jnp.full(n, 2 * self.modes.zeta[j] * mr * w)))
+            springs.append(
+                (D, jnp.full(n, mr * w**2), jnp.full(n, 2 * self.modes.zeta[j] * mr * w))
+            )
             masses.append(jnp.full(n, mr))
         K = sum(D.T @ (k[:, None] * D) for D, k, _ in springs)
         C = sum(D.T @ (c[:, None] * D) for D, _, c in springs)
         Mdiag = jnp.concatenate(masses)
         return Mdiag, C, K, springs[2][0]
 
-    def state_space(self, friction: bool = False) -> StateSpace:
+    def state_space(self, friction: bool = False, user: bool = False) -> StateSpace:
         n = self.n
         Mdiag, C, K, D_s = self._matrices(friction)
         nq = Mdiag.shape[0]
         Minv = 1.0 / Mdiag
-        A = jnp.block([[jnp.zeros((nq, nq)), jnp.eye(nq)], [-Minv[:, None] * K, -Minv[:, None] * C]])
+        A = jnp.block(
+            [[jnp.zeros((nq, nq)), jnp.eye(nq)], [-Minv[:, None] * K, -Minv[:, None] * C]]
+        )
         # applied R_A is tension-positive: it pulls the motor back (−u1 direction)
         F = jnp.zeros((nq, n)).at[:n].set(-jnp.eye(n))
         inputs = [F]
         if friction:
             inputs.append(jnp.zeros((nq, n)).at[:n].set(jnp.eye(n)))
+        if user:  # voluntary Cartesian force on the hand masses h (coordinates 3n:4n)
+            inputs.append(jnp.zeros((nq, n)).at[3 * n : 4 * n].set(jnp.eye(n)))
         Bq = jnp.concatenate(inputs, axis=1)
         B = jnp.concatenate([jnp.zeros_like(Bq), Minv[:, None] * Bq], axis=0)
         off = 0 if self.encoder == "motor" else n
@@ -244,7 +254,9 @@ class ParallelDevice(Device):
         to_rod = lambda d: Jinv.T @ jnp.diag(d) @ Jinv  # noqa: E731
         hand = SecondOrder(to_rod(Mc), to_rod(Bc), to_rod(K))
         mm = self.mechanism.m1 + self.mechanism.m2 + jnp.sum(self.modes.mass)
-        mech = SecondOrder(jnp.diag(mm), jnp.diag(self.mechanism.b_drive), jnp.zeros((self.n, self.n)))
+        mech = SecondOrder(
+            jnp.diag(mm), jnp.diag(self.mechanism.b_drive), jnp.zeros((self.n, self.n))
+        )
         return ImpedanceModel.from_hand_mechanism(hand, mech)
 
 
@@ -265,7 +277,10 @@ class SecondOrderDevice(Device):
     def model(self) -> ImpedanceModel:
         return ImpedanceModel.from_hand_mechanism(self.hand, self.mechanism)
 
-    def state_space(self, friction: bool = False) -> StateSpace:
+    def state_space(self, friction: bool = False, user: bool = False) -> StateSpace:
+        if user:
+            raise ValueError("SecondOrderDevice has no hand dynamics to push on; a user force "
+                             "input needs a ParallelDevice (its hand model has the arm)")  # fmt: skip
         n = self.n
         tot = self.hand + self.mechanism
         MTi = jnp.linalg.inv(tot.M)
