@@ -5,9 +5,16 @@ excited angular frequencies ``omega`` (rad/s); ``Z_H_std``, ``Z_T_std`` are the 
 deviations of each element estimate, ``sqrt(E|Ẑ − Z|²)`` (real and imaginary parts together),
 or ``None`` when unknown. ``cond_L`` is the condition number of the stacked displacement
 matrix 𝓛(jω) per frequency (``None`` when not measured).
+
+Precision: hapid computes in float64. float32/complex64 arrays given to ``FRF``/``as_frf``
+are upcast (a :class:`PrecisionWarning` says so: the data keep their ~1e-7 relative
+precision, which measured stress cases show the fits tolerate); with ``jax_enable_x64``
+switched off, building an FRF raises ``RuntimeError``.
 """
 
 from __future__ import annotations
+
+import warnings
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -27,6 +34,24 @@ class FRF(eqx.Module):
     Z_H_std: Float[Array, "N n n"] | None = None
     Z_T_std: Float[Array, "N n n"] | None = None
     cond_L: Float[Array, " N"] | None = None
+
+    def __post_init__(self):
+        # hapid computes in float64 (DESIGN.md): lower-precision input is upcast, with a
+        # warning, so that no stage silently runs in float32
+        require_x64("FRF")
+        for name, dt in _DTYPES.items():
+            a = getattr(self, name)
+            if a is None or not hasattr(a, "dtype") or a.dtype == dt:
+                continue
+            if _is_low_precision(a.dtype):
+                warnings.warn(
+                    f"FRF: {name} is {a.dtype}; upcast to {np.dtype(dt).name} (hapid computes "
+                    "in float64; the data keep only their own precision, ~1e-7 relative for "
+                    "float32)",
+                    PrecisionWarning,
+                    stacklevel=4,
+                )
+            setattr(self, name, jnp.asarray(a, dtype=dt))
 
     def __check_init__(self):
         check_frf_arrays(self.omega, self.Z_H, self.Z_T, self.Z_H_std, self.Z_T_std)
@@ -61,6 +86,37 @@ class FRF(eqx.Module):
         """A new FRF restricted to ``f_min_hz ≤ f ≤ f_max_hz``."""
         f = np.asarray(self.freq_hz)
         return self.select((f >= f_min_hz) & (f <= f_max_hz))
+
+
+class PrecisionWarning(UserWarning):
+    """Input arrays of lower than float64 precision were upcast."""
+
+
+_DTYPES = {
+    "omega": np.float64,
+    "Z_H": np.complex128,
+    "Z_T": np.complex128,
+    "Z_H_std": np.float64,
+    "Z_T_std": np.float64,
+    "cond_L": np.float64,
+}
+
+
+def _is_low_precision(dtype) -> bool:
+    dt = np.dtype(dtype)
+    return dt.kind in "fc" and dt.itemsize < (16 if dt.kind == "c" else 8)
+
+
+def require_x64(what: str) -> None:
+    """Raise a clear error when JAX's float64 has been switched off after ``import hapid``."""
+    import jax
+
+    if not jax.config.jax_enable_x64:
+        raise RuntimeError(
+            f"{what}: hapid computes in float64, but jax_enable_x64 is off (switched off "
+            "after `import hapid`?); hapid has no float32 mode. Re-enable it with "
+            "jax.config.update('jax_enable_x64', True)"
+        )
 
 
 def check_frf_arrays(omega, Z_H, Z_T, Z_H_std=None, Z_T_std=None) -> None:
@@ -101,14 +157,19 @@ def _is_concrete(x) -> bool:
 
 
 def as_frf(freq_hz, Z_H, Z_T, Z_H_std=None, Z_T_std=None, cond_L=None) -> FRF:
-    """Build an FRF from Hz frequencies and arrays (the file contract's units)."""
-    f = jnp.asarray(freq_hz, dtype=jnp.float64)
-    opt = lambda a, dt: None if a is None else jnp.asarray(a, dtype=dt)  # noqa: E731
+    """Build an FRF from Hz frequencies and arrays (the file contract's units).
+
+    float32/complex64 input is upcast to float64/complex128 with a :class:`PrecisionWarning`;
+    with ``jax_enable_x64`` switched off this raises ``RuntimeError`` (hapid is float64).
+    """
+    require_x64("as_frf")
+    f = jnp.asarray(freq_hz)  # keep the input dtype: FRF upcasts (and warns) in one place
+    opt = lambda a: None if a is None else jnp.asarray(a)  # noqa: E731
     return FRF(
-        omega=TWO_PI * f,
-        Z_H=jnp.asarray(Z_H, dtype=jnp.complex128),
-        Z_T=jnp.asarray(Z_T, dtype=jnp.complex128),
-        Z_H_std=opt(Z_H_std, jnp.float64),
-        Z_T_std=opt(Z_T_std, jnp.float64),
-        cond_L=opt(cond_L, jnp.float64),
+        omega=TWO_PI * f.astype(jnp.float64) if not _is_low_precision(f.dtype) else TWO_PI * f,
+        Z_H=jnp.asarray(Z_H),
+        Z_T=jnp.asarray(Z_T),
+        Z_H_std=opt(Z_H_std),
+        Z_T_std=opt(Z_T_std),
+        cond_L=opt(cond_L),
     )

@@ -8,6 +8,7 @@ complex. Frequencies are rad/s internally. Sign conventions are the paper's:
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
@@ -65,18 +66,55 @@ class SecondOrder(eqx.Module):
         """Roots of ``det(M s² + B s + K)`` (rad/s), ``2n`` of them.
 
         Quadratic eigenvalue problem through the companion linearization
-        ``[[0, I], [−M⁻¹K, −M⁻¹B]]``; requires a non-singular M (a singular M has roots at
-        infinity, which this returns as very large values).
+        ``[[0, I], [−M⁻¹K, −M⁻¹B]]`` when M is well conditioned (``‖M‖_F‖M⁻¹‖_F ≤ 1e8``).
+        Otherwise (near-singular or singular M, e.g. a PSD fit on the boundary) the pencil
+        ``[[0, I], [−K, −B]] − s·diag(I, M)`` is solved by shift-and-invert about a complex
+        shift σ (``μ = 1/(s − σ)``), which stays accurate for the finite roots. A singular M
+        has roots at *infinity* (``|μ| ≤ 1e-10·max|μ|``, i.e. beyond ~1e10 times the
+        nearest root's distance from σ); they are returned as ``inf`` (never as NaN or a
+        spurious large finite value), and :meth:`n_crhp_roots` counts them as closed-RHP,
+        the conservative reading that ``hapid.control`` uses too.
         """
         n = self.n
-        Minv = jnp.linalg.inv(self.M)
-        top = jnp.concatenate([jnp.zeros_like(self.M), jnp.broadcast_to(jnp.eye(n), self.M.shape)], -1)
-        bot = jnp.concatenate([-Minv @ self.K, -Minv @ self.B], -1)
-        return jnp.linalg.eigvals(jnp.concatenate([top, bot], -2))
+        M, B, K = self.M, self.B, self.K
+        eye = jnp.broadcast_to(jnp.eye(n, dtype=M.dtype), M.shape)
+        zero = jnp.zeros_like(M)
+        fro = lambda A: jnp.sqrt(jnp.sum(jnp.abs(A) ** 2, axis=(-2, -1)))  # noqa: E731
+        Minv = jnp.linalg.inv(M)
+        cond_M = fro(M) * fro(Minv)
+        good = jnp.isfinite(cond_M) & (cond_M <= 1e8)  # (...,)
+        Minv = jnp.where(good[..., None, None] & jnp.isfinite(Minv), Minv, 0.0)
+        top = jnp.concatenate([zero, eye], -1)
+        companion = jnp.concatenate([top, jnp.concatenate([-Minv @ K, -Minv @ B], -1)], -2)
+        # shift-and-invert of the pencil A − sE (σ in the upper right quadrant: not a root of
+        # a stable model, and generically not of any other)
+        nM, nB, nK = fro(M), fro(B), fro(K)
+        tiny = jnp.finfo(M.dtype).tiny
+        w0 = jnp.where(
+            (nM > 0) & (nK > 0),
+            jnp.sqrt(nK / jnp.maximum(nM, tiny)),
+            jnp.where((nB > 0) & (nK > 0), nK / jnp.maximum(nB, tiny), 1.0),
+        )
+        sigma = (w0 * jnp.exp(1j * np.pi * 0.2371))[..., None, None]
+        A = jnp.concatenate([top, jnp.concatenate([-K, -B], -1)], -2).astype(jnp.complex128)
+        E = jnp.concatenate(
+            [jnp.concatenate([eye, zero], -1), jnp.concatenate([zero, M], -1)], -2
+        ).astype(jnp.complex128)
+        # one LAPACK kernel at a time (XLA:CPU deadlock, see hapid/_linalg.py)
+        A, E = jax.lax.optimization_barrier((A, E, companion))[:2]
+        X = jnp.linalg.solve(A - sigma * E, E)
+        mu = jnp.linalg.eigvals(jax.lax.optimization_barrier((X, companion))[0])
+        big = jnp.max(jnp.abs(mu), axis=-1, keepdims=True)
+        at_inf = jnp.abs(mu) <= 1e-10 * big
+        s_shift = jnp.where(at_inf, jnp.inf + 0j, sigma[..., 0] + 1.0 / jnp.where(at_inf, 1.0, mu))
+        s_comp = jnp.linalg.eigvals(jax.lax.optimization_barrier((companion, mu))[0])
+        return jnp.where(good[..., None], s_comp, s_shift)
 
     def n_crhp_roots(self, tol: float = 0.0) -> Array:
-        """Number of roots with real part ≥ ``-tol`` (closed right half plane)."""
-        return jnp.sum(jnp.real(self.roots()) >= -tol, axis=-1)
+        """Number of roots with real part ≥ ``-tol`` (closed right half plane); roots at
+        infinity (singular M, see :meth:`roots`) and non-finite roots count as closed-RHP."""
+        r = self.roots()
+        return jnp.sum((jnp.real(r) >= -tol) | ~jnp.isfinite(r), axis=-1)
 
 
 class ImpedanceModel(eqx.Module):

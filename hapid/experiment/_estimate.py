@@ -76,6 +76,20 @@ def estimate_frf(run: Run, *, cond_warn: float = 1e3) -> FRF:
             "empirical impedances are sensitive to noise there",
             stacklevel=2,
         )
+    # The commanded forces are known exactly: nearly dependent excitation patterns show in
+    # cond(𝓡_A) even when sensor noise makes the measured 𝓛 look well conditioned (the
+    # noise, not the excitation, then "excites" the missing direction).
+    sa = np.linalg.svd(RA, compute_uv=False)
+    cond_A = sa[:, 0] / np.maximum(sa[:, -1], np.finfo(float).tiny)
+    poor_A = (cond_A > cond_warn) & ~poor
+    if np.any(poor_A):
+        warnings.warn(
+            f"nearly dependent excitation: the commanded forces 𝓡_A have cond > {cond_warn:g} "
+            f"at {int(poor_A.sum())} frequencies ({', '.join(f'{x:g}' for x in f[poor_A][:5])} "
+            f"Hz …; max {cond_A.max():.3g}) although cond(𝓛) is lower: the displacement in the "
+            "weakly excited direction is mostly noise; change the excitation patterns",
+            stacklevel=2,
+        )
     Z_H, Lpinv = _solve_frf(RI, Lm)
     Z_T, _ = _solve_frf(RA, Lm)
     std_H = std_T = None

@@ -32,6 +32,8 @@ units (DESIGN.md: the starting Jacobian's condition number dropped 15–40×).
 
 from __future__ import annotations
 
+import warnings
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -317,6 +319,31 @@ def _fit_core(frf, init, dyn, static):
     )
 
 
+#: fit_nls warns when its dense Jacobian (all frequencies, masked ones included) exceeds this.
+JACOBIAN_WARN_BYTES = 1e9
+
+
+def _warn_jacobian_size(frf: FRF, use_P_residual: bool) -> None:
+    """Warn before a fit whose dense ``m × p`` Jacobian would take more than a gigabyte.
+
+    The fit band is a 0/1 mask (static shapes), so out-of-band frequencies still occupy
+    rows: ``frf.band(...)`` shrinks the problem, ``f_max_hz`` does not.
+    """
+    shape = np.shape(frf.Z_H)
+    N, n = shape[-3], shape[-1]
+    m = 2 * (3 if use_P_residual else 2) * n * n * N
+    nbytes = 8.0 * m * n_params(n) * int(np.prod(shape[:-3], dtype=np.int64))
+    if nbytes > JACOBIAN_WARN_BYTES:
+        warnings.warn(
+            f"fit_nls: n = {n} rods × {N} frequencies gives a dense {m} × {n_params(n)} "
+            f"Jacobian of {nbytes / 1e9:.1f} GB (the Laplace covariance and the solver "
+            "materialize it); drop frequencies with frf.band(...) or decimate the grid — "
+            "f_max_hz only masks rows",
+            UserWarning,
+            stacklevel=3,
+        )
+
+
 def fit_nls(
     frf: FRF,
     init: ImpedanceModel | NLSResult | None = None,
@@ -382,6 +409,7 @@ def fit_nls(
     if not (isinstance(max_steps, int) and max_steps > 0):
         raise ValueError(f"max_steps must be a positive int, got {max_steps!r}")
     _check_data(frf, f_max_hz, weight, use_P_residual)
+    _warn_jacobian_size(frf, use_P_residual)
     num = dict(
         f_max_hz=np.inf if f_max_hz is None else f_max_hz,
         omega_c=omega_c,

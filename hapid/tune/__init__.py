@@ -1,0 +1,44 @@
+"""Differentiable design of the compensator g(s): robust gradient tuning and its validation.
+
+* :class:`ParamMap` — g's parameters in log coordinates.
+* :func:`g_response`, :func:`smooth_sigma_max` — LAPACK-free differentiable pieces.
+* :func:`make_scenarios` → :class:`Scenarios` — plants pre-diagonalized as loops ``g·Q``.
+* :class:`Requirements`, :class:`Family`, :func:`scenario_constraints`, :func:`aggregate` —
+  the smooth bandwidth surrogate, margin constraints and their CVaR over scenarios.
+* :func:`tune` → :class:`TuneResult` — continuation penalty + BFGS (optimistix).
+* :func:`validate` — the non-smooth re-check (Nyquist verdict, iso bandwidth, GM/PM, disk
+  margin) on held-out plants, the true plant and in the time domain.
+"""
+
+from .. import _config  # noqa: F401  (float64)
+from ._files import design_info as design_info
+from ._files import load_design as load_design
+from ._files import save_design as save_design
+from ._files import tune_from_files as tune_from_files
+from ._objective import Box as Box
+from ._objective import Family as Family
+from ._objective import Requirements as Requirements
+from ._objective import aggregate as aggregate
+from ._objective import cvar as cvar
+from ._objective import penalized as penalized
+from ._objective import scenario_constraints as scenario_constraints
+from ._paper import paper_column as paper_column
+from ._params import ParamMap as ParamMap
+from ._recipe import posterior_grid as posterior_grid
+from ._recipe import posterior_plants as posterior_plants
+from ._recipe import robust_design as robust_design
+from ._response import g_response as g_response
+from ._response import smooth_sigma_max as smooth_sigma_max
+from ._scenarios import Scenarios as Scenarios
+from ._scenarios import concat as concat
+from ._scenarios import make_scenarios as make_scenarios
+from ._scenarios import matrix_part as matrix_part
+from ._tune import TuneResult as TuneResult
+from ._tune import phase_counts as phase_counts
+from ._tune import smooth_bandwidth as smooth_bandwidth
+from ._tune import tune as tune
+from ._validate import device_grid as device_grid
+from ._validate import step_response as step_response
+from ._validate import table_row as table_row
+from ._validate import true_plant_loop as true_plant_loop
+from ._validate import validate as validate

@@ -1,0 +1,90 @@
+"""Design files (``.npz``) and the file-level entry point of ``hapid tune``.
+
+Design file: ``k ()``, ``lag_zeros (q,)``, ``lag_poles (q,)``, ``notch_omega (m,)``,
+``notch_zeta_num (m,)``, ``notch_zeta_den (m,)``, ``lowpass (r,)`` — rad/s and
+dimensionless, the fields of :class:`hapid.control.Compensator` — plus ``json`` (a string:
+tuning history, constraint values, validation table).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..control import Compensator
+
+_FIELDS = (
+    "k",
+    "lag_zeros",
+    "lag_poles",
+    "notch_omega",
+    "notch_zeta_num",
+    "notch_zeta_den",
+    "lowpass",
+)
+
+
+def save_design(path, g: Compensator, **info) -> Path:
+    """Write ``g`` (and JSON-able ``info``) atomically-enough to ``path`` (.npz)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays = {f: np.asarray(getattr(g, f), dtype=float) for f in _FIELDS}
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, **arrays, json=np.asarray(json.dumps(info, default=_jsonable)))
+    tmp.replace(path)
+    return path
+
+
+def load_design(path) -> tuple[Compensator, dict]:
+    """``(g, info)`` from a design file."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such design file")
+    with np.load(path, allow_pickle=False) as z:
+        missing = [f for f in _FIELDS if f not in z]
+        if missing:
+            raise ValueError(f"{path}: not a design file (missing {', '.join(missing)})")
+        g = Compensator(**{f: z[f] for f in _FIELDS})
+        info = json.loads(str(z["json"])) if "json" in z else {}
+    return g, info
+
+
+def _jsonable(x):
+    if isinstance(x, np.ndarray | np.generic):
+        return x.tolist()
+    if hasattr(x, "__array__"):
+        return np.asarray(x).tolist()
+    return str(x)
+
+
+def design_info(out: dict) -> dict:
+    """The JSON-able part of a :func:`.robust_design` result."""
+    r = out["result"]
+    return {"bandwidth_claimed_hz": r.bandwidth_hz, "bandwidth0_claimed_hz": r.bandwidth0_hz,
+            "constraints": r.constraints, "feasible": r.feasible, "history": r.history,
+            "parameters": r.parameters(), "families": out["families"], "wall_s": r.wall_s,
+            "table": out.get("table", {})}  # fmt: skip
+
+
+def tune_from_files(model_path, samples_path=None, out=None, *, device=None, **options) -> dict:
+    """Load a model (and samples), run :func:`.robust_design`, write the design file."""
+    from .. import io
+    from ._recipe import robust_design
+
+    model = io.load_model(model_path)
+    samples = None
+    if samples_path is not None:
+        from ..uncertainty import load_samples
+
+        samples = load_samples(samples_path)
+    dev = None
+    if device is not None:
+        from ..device import preset
+
+        dev = preset(device)
+    res = robust_design(model, samples=samples, device=dev, **options)
+    if out is not None:
+        save_design(out, res["result"].g, **design_info(res))
+    return res

@@ -1,0 +1,203 @@
+# ruff: noqa: F722  (jaxtyping shape strings in annotations)
+"""The smooth design problem: maximize a robust isotropic bandwidth under margin constraints.
+
+Decision variables ``z = (x, u)``: ``x`` the log-parameters of g (:class:`.ParamMap`) and
+``u = log ω_b`` (rad/s), the bandwidth being claimed. Per scenario ``s`` (loop ``L = g Q_s``,
+:class:`.Scenarios`) three smooth constraint values, each ``≤ 0`` when met:
+
+* **bandwidth** — the isotropic bandwidth is a *first crossing* of σ̄(T − I) = σ̄(S) through
+  1 − 1/√2, which is not smooth in g. The surrogate claims ω_b and asks that σ̄(S) stay under
+  the threshold below it::
+
+      c_bw = (1/β) log Σ_k exp(β [log s_p(S(jω_k)) − log 0.293 + log w_k(u)]),
+      w_k(u) = sigmoid((u − log ω_k)/τ + 5)
+
+  (a soft maximum over the grid, windowed to ω ≲ ω_b; ``s_p`` the smooth upper bound of σ̄,
+  :func:`.smooth_sigma_max`). The window enters the exponent scaled by β, so above ω_b it
+  decays like ``(ω/ω_b)^{−β/τ}`` — faster than any violation can grow (σ̄(S) → 1 at high
+  frequency must not leak in) — and the shift 5 puts full weight up to ω_b itself.
+  Maximizing ``u`` subject to ``c_bw ≤ 0`` pushes the first crossing up. The soft maximum
+  (≥ max), ``s_p`` (≥ σ̄) and the window (full weight at ω_b) all err on the safe side: the
+  claimed ω_b is at or below the first crossing.
+* **margins** — per characteristic locus ``ℓ_i = g λ_i(Q)`` (exactly the loci
+  :func:`hapid.control.analyze_loop` tracks), a sensitivity bound ``|1 + ℓ_i(jω)| ≥ 1/M_s``
+  at every ω keeps each locus outside the disc of radius ``1/M_s`` around −1, which implies
+  ``GM ≥ M_s/(M_s − 1)`` and ``PM ≥ 2 arcsin(1/(2M_s))``. :attr:`Requirements.ms` is the
+  largest ``M_s`` giving both required margins (6 dB, 30° → ``M_s = 1.932``: GM ≥ 6.3 dB).
+  Smooth form: ``c_ms = (1/β) log Σ_{k,i} exp(−β log|1 + ℓ_i(jω_k)|) − log M_s``. (A crossing
+  of the negative real axis *outside* the disc at ``|ℓ| > 1`` — a lower gain margin — is
+  not excluded by the disc; validation reports the non-smooth margins.)
+* **disk margin** (optional, ``disk_alpha``) — ``σ̄(S − T) ≤ 2/α`` (the MIMO balanced disk
+  margin of :func:`hapid.control.disk_margin_from_peak`), same soft maximum over ω.
+
+**Robust aggregation.** Over a family of scenarios a constraint must hold for a fraction
+``q`` of them. The aggregate is the conditional value at risk ``CVaR_q`` — the mean of the
+``K = ⌈(1 − q) S⌉`` largest values (``jax.lax.top_k``, differentiable almost everywhere):
+``CVaR_q ≤ 0`` implies that at most ``K − 1`` scenarios violate, i.e. the ``q``-quantile is met
+on the training set. ``q = 1`` (or ``S < 1/(1 − q)``) is the scenario approach: all of them.
+
+The penalized objective (continuation in μ, see :func:`.tune`) is
+``f = −u + μ Σ_j max(0, CVaR_j)² + max(μ, 10⁴)·box(x, u) + ρ ‖x − x₀‖²``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import _config  # noqa: F401  (float64)
+from ..control import ISO_THRESHOLD
+from ._params import ParamMap
+from ._response import g_response, smooth_sigma_max
+from ._scenarios import Scenarios
+
+TWO_PI = 2.0 * np.pi
+
+
+@dataclasses.dataclass(frozen=True)
+class Requirements:
+    """Targets: ``gm_db``, ``pm_deg`` (loci margins), ``threshold`` on σ̄(T − I), optional
+    ``disk_alpha`` (MIMO disk margin α), optional ``min_dc_gain`` (lower bound on
+    ``|g(0)| = k Π z_j/p_j``: the static force error of the loop is ≈ 1/(1 + |g(0)|) along
+    each direction, which the isotropic bandwidth alone does not constrain), soft-max
+    sharpness ``beta`` (log units) and bandwidth window width ``tau`` (natural-log
+    frequency)."""
+
+    gm_db: float = 6.0
+    pm_deg: float = 30.0
+    threshold: float = float(ISO_THRESHOLD)
+    disk_alpha: float | None = None
+    min_dc_gain: float | None = None
+    beta: float = 60.0
+    tau: float = 0.02
+
+    @property
+    def ms(self) -> float:
+        """Largest locus sensitivity peak implying both ``gm_db`` and ``pm_deg``."""
+        gm = 10.0 ** (self.gm_db / 20.0)
+        ms_gm = gm / (gm - 1.0) if gm > 1.0 else np.inf
+        ms_pm = 1.0 / (2.0 * np.sin(np.radians(self.pm_deg) / 2.0)) if self.pm_deg > 0 else np.inf
+        return float(min(ms_gm, ms_pm))
+
+
+@dataclasses.dataclass(frozen=True)
+class Family:
+    """Scenarios with their required fraction ``quantile`` and which constraints apply.
+
+    ``bw_quantile`` (default ``quantile``): the fraction of scenarios that must reach the
+    claimed bandwidth (e.g. 0.5: the median scenario's bandwidth is maximized while the
+    margins hold for ``quantile`` of them)."""
+
+    scenarios: Scenarios
+    quantile: float = 0.95
+    bandwidth: bool = True
+    margins: bool = True
+    name: str = "scenarios"
+    bw_quantile: float | None = None
+
+    def __post_init__(self):
+        for q in (self.quantile, self.bw_quantile):
+            if q is not None and not 0.0 < q <= 1.0:
+                raise ValueError(f"Family: quantiles must be in (0, 1], got {q}")
+
+    def k_worst(self, q: float | None = None) -> int:
+        """``K = ⌈(1 − q) S⌉`` (at least 1) for quantile ``q`` (default :attr:`quantile`)."""
+        q = self.quantile if q is None else q
+        S = self.scenarios.n_scenarios
+        return int(min(S, max(1, int(np.ceil((1.0 - q) * S - 1e-9)))))
+
+
+def _lse(a, axis, beta, log_w=None):
+    if log_w is not None:
+        return jax.nn.logsumexp(beta * a + log_w, axis=axis) / beta
+    return jax.nn.logsumexp(beta * a, axis=axis) / beta
+
+
+def scenario_constraints(g, sc: Scenarios, u, req: Requirements) -> dict[str, jax.Array]:
+    """Per-scenario smooth constraint values ``(S,)`` (≤ 0 when met): ``bw``, ``ms`` and, with
+    ``disk_alpha``, ``disk``. ``g`` is a Compensator, ``u = log ω_b``."""
+    gam = g_response(g, sc.omega, sc.ts)
+    gl = gam[None, :, None] * sc.lam
+    d = 1.0 + gl
+    Smat = (sc.V * (1.0 / d)[..., None, :]) @ sc.Vi
+    hS = smooth_sigma_max(Smat)  # (S, N) log of the σ̄(S) bound
+    lw = jnp.log(sc.omega)
+    log_w = jax.nn.log_sigmoid((u - lw) / req.tau + 5.0)
+    out = {"bw": _lse(hS - np.log(req.threshold) + log_w[None, :], -1, req.beta)}
+    loc = -jnp.log(jnp.abs(d))
+    out["ms"] = _lse(loc.reshape(loc.shape[0], -1), -1, req.beta) - np.log(req.ms)
+    if req.disk_alpha is not None:
+        SmT = (sc.V * ((1.0 - gl) / d)[..., None, :]) @ sc.Vi
+        out["disk"] = _lse(smooth_sigma_max(SmT), -1, req.beta) - np.log(2.0 / req.disk_alpha)
+    return out
+
+
+def cvar(c, k: int):
+    """Mean of the ``k`` largest entries of ``c`` (``(S,)``)."""
+    return jnp.mean(jax.lax.top_k(c, k)[0])
+
+
+def aggregate(g, families, u, req: Requirements) -> dict[str, jax.Array]:
+    """``{"<family>/<constraint>": CVaR}`` over every family (the constraints of the problem),
+    plus ``"g/dc"`` with ``min_dc_gain``."""
+    out = {}
+    if req.min_dc_gain is not None:
+        log_dc = jnp.log(g.k) + jnp.sum(jnp.log(g.lag_zeros)) - jnp.sum(jnp.log(g.lag_poles))
+        out["g/dc"] = np.log(req.min_dc_gain) - log_dc
+    for fam in families:
+        c = scenario_constraints(g, fam.scenarios, u, req)
+        if fam.bandwidth:
+            out[f"{fam.name}/bw"] = cvar(c["bw"], fam.k_worst(fam.bw_quantile))
+        if fam.margins:
+            out[f"{fam.name}/ms"] = cvar(c["ms"], fam.k_worst())
+            if "disk" in c:
+                out[f"{fam.name}/disk"] = cvar(c["disk"], fam.k_worst())
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class Box:
+    """Soft box in log coordinates: ``lo ≤ x ≤ hi`` (penalized quadratically outside)."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @classmethod
+    def default(cls, pm: ParamMap, f_max_hz: float, f_min_hz: float = 0.01) -> Box:
+        """Frequencies in [f_min, f_max] Hz, damping ratios in [0.02, 2], gain in [1e-3, 1e3]."""
+        lo, hi = [], []
+        for name, isf in zip(pm.names, pm.is_frequency, strict=True):
+            if isf:
+                lo.append(np.log(TWO_PI * f_min_hz))
+                hi.append(np.log(TWO_PI * f_max_hz))
+            elif name.startswith("notch ζ"):
+                lo.append(np.log(0.02))
+                hi.append(np.log(2.0))
+            else:
+                lo.append(np.log(1e-3))
+                hi.append(np.log(1e3))
+        return cls(np.asarray(lo), np.asarray(hi))
+
+    def penalty(self, x):
+        return jnp.sum(jax.nn.relu(x - self.hi) ** 2 + jax.nn.relu(self.lo - x) ** 2)
+
+
+BOX_WEIGHT = 1e4
+"""Minimum weight of the box penalty (kept large from the first stage: the box is not a
+design trade-off but the domain where g is meaningful)."""
+
+
+def penalized(z, mu, pm: ParamMap, families, req: Requirements, box: Box, x0, rho: float):
+    """The penalized objective of the module docstring at ``z = (x, u)``. ``u`` is boxed to
+    the first family's grid (beyond it the bandwidth claim would be unbounded)."""
+    x, u = z[:-1], z[-1]
+    g = pm.compensator(x)
+    cons = aggregate(g, families, u, req)
+    pen = sum(jax.nn.relu(v) ** 2 for v in cons.values())
+    lw = jnp.log(families[0].scenarios.omega)
+    u_box = jax.nn.relu(u - lw[-1]) ** 2 + jax.nn.relu(lw[0] - u) ** 2
+    wbox = jnp.maximum(mu, BOX_WEIGHT)
+    return -u + mu * pen + wbox * (box.penalty(x) + u_box) + rho * jnp.sum((x - x0) ** 2)

@@ -1,0 +1,204 @@
+"""Gradient tuning of g(s): continuation on a quadratic penalty, BFGS (optimistix) per stage.
+
+See :mod:`._objective` for the problem. Each stage minimizes the penalized objective for one
+penalty weight μ (default 10² → 10⁴), warm-started from the previous stage; the claimed
+bandwidth ``u = log ω_b`` starts at the smooth robust bandwidth of the initial g. Gradients
+come from JAX through g's response and the diagonalized loops (no LAPACK in the gradient).
+After each stage a non-smooth guard (:func:`phase_counts`) checks that no training
+scenario's Nyquist count changed — the smooth margin constraints keep loci away from −1 at
+the grid points, but a long BFGS step can jump a locus across it; the step is then halved
+back towards the previous stage's point (``step_fraction`` in the history). The smooth
+result is still *not* the verdict: re-check it with :func:`.validate`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from .. import _config  # noqa: F401  (float64)
+from ..control import Compensator
+from ._objective import Box, Requirements, aggregate, penalized
+from ._params import ParamMap
+from ._response import g_response
+
+TWO_PI = 2.0 * np.pi
+
+
+@dataclasses.dataclass(frozen=True)
+class TuneResult:
+    """Outcome of :func:`tune`.
+
+    ``g`` tuned compensator, ``g0`` the start; ``x``, ``x0`` their log-parameters;
+    ``bandwidth_hz`` the claimed smooth robust bandwidth ω_b/2π at the end (``bandwidth0_hz``
+    at the start); ``constraints`` the final CVaR constraint values (≤ 0 met, in log
+    units); ``history`` one dict per μ stage (μ, steps, result, claimed bandwidth,
+    constraints, wall time); ``names`` parameter names; ``requirements``.
+    """
+
+    g: Compensator
+    g0: Compensator
+    x: np.ndarray
+    x0: np.ndarray
+    bandwidth_hz: float
+    bandwidth0_hz: float
+    constraints: dict
+    history: list
+    names: list
+    requirements: Requirements
+    wall_s: float
+
+    @property
+    def feasible(self) -> bool:
+        """Every smooth constraint met (to 1e-3 in log units) on the training scenarios."""
+        return all(v <= 1e-3 for v in self.constraints.values())
+
+    def parameters(self) -> list[dict]:
+        """Rows ``{name, start, tuned}`` (frequencies in Hz)."""
+        pm = ParamMap.from_template(self.g0)
+        a, b = pm.describe(self.x0), pm.describe(self.x)
+        return [{"name": n, "start": a[n], "tuned": b[n]} for n in pm.names]
+
+
+def phase_counts(g: Compensator, families) -> tuple[np.ndarray, np.ndarray]:
+    """Net phase change of ``det(I + g Q) = Π_i (1 + g λ_i)`` along each scenario's grid, in
+    units of π (rounded), and whether the grid resolved it (every step < π/2).
+
+    The closed-loop RHP-pole count of a scenario can only change when this count does (same
+    open-loop poles, same grid): :func:`tune` uses it as the non-smooth guard that the smooth
+    margin constraints cannot give — a BFGS step may jump a locus across −1 between iterates.
+    """
+    counts, ok = [], []
+    for f in families:
+        sc = f.scenarios
+        gam = np.asarray(g_response(g, sc.omega, sc.ts))
+        d = np.prod(1.0 + gam[None, :, None] * np.asarray(sc.lam), axis=-1)
+        ang = np.unwrap(np.angle(d), axis=1)
+        counts.append(np.round((ang[:, -1] - ang[:, 0]) / np.pi))
+        ok.append(np.all(np.abs(np.diff(ang, axis=1)) < np.pi / 2, axis=1))
+    return np.concatenate(counts), np.concatenate(ok)
+
+
+def smooth_bandwidth(g: Compensator, families, req: Requirements, n_grid: int = 200) -> float:
+    """Largest ω_b (rad/s) on a log grid whose aggregated bandwidth constraints are all ≤ 0
+    (the smooth robust bandwidth of ``g``); the grid's lowest point if none."""
+    om = np.asarray(families[0].scenarios.omega)
+    us = np.linspace(np.log(om[0]), np.log(om[-1]), n_grid)
+    fams = [f for f in families if f.bandwidth]
+    if not fams:
+        raise ValueError("no family constrains the bandwidth")
+
+    @jax.jit
+    def worst(u):
+        c = aggregate(g, fams, u, req)
+        return jnp.max(jnp.stack([v for k, v in c.items() if k.endswith("/bw")]))
+
+    vals = np.array([float(worst(u)) for u in us])
+    ok = np.nonzero(vals <= 0.0)[0]
+    if ok.size == 0:
+        return float(np.exp(us[0]))
+    # the first violation ends the feasible stretch (c_bw grows with u)
+    bad = np.nonzero(vals > 0.0)[0]
+    k = (bad[0] - 1) if bad.size and bad[0] > 0 else ok[-1]
+    return float(np.exp(us[max(k, 0)]))
+
+
+def tune(
+    families,
+    g0: Compensator | None = None,
+    *,
+    requirements: Requirements | None = None,
+    box: Box | None = None,
+    mu_schedule=(100.0, 1e3, 1e4),
+    max_steps: int = 300,
+    rho: float = 1e-4,
+    f_max_hz: float | None = None,
+    progress=None,
+) -> TuneResult:
+    """Tune g's parameters (log coordinates) for the largest robust isotropic bandwidth.
+
+    - ``families``: list of :class:`.Family` (scenario plants with a required quantile).
+    - ``g0``: starting compensator, also fixing the structure (default the paper's g).
+    - ``requirements``: :class:`.Requirements` (6 dB, 30°, threshold 0.293).
+    - ``box``: soft box on the log-parameters (default :meth:`.Box.default` with frequencies
+      up to ``f_max_hz``: 0.45·f_s for a sampled design, else a quarter of the grid's top).
+    - ``mu_schedule``, ``max_steps``: continuation stages and BFGS steps per stage.
+    - ``rho``: weight of ``‖x − x₀‖²`` (keeps flat directions near the start).
+    """
+    t0 = time.perf_counter()
+    families = list(families)
+    if not families:
+        raise ValueError("tune: no scenario families")
+    req = Requirements() if requirements is None else requirements
+    g0 = Compensator.paper() if g0 is None else g0
+    pm = ParamMap.from_template(g0)
+    x0 = pm.vector(g0)
+    if f_max_hz is None:
+        ts = next((f.scenarios.ts for f in families if f.scenarios.ts), None)
+        top = min(float(f.scenarios.omega[-1]) for f in families) / TWO_PI
+        # a sampled g lives below Nyquist; a continuous one must roll off inside the grid
+        f_max_hz = 0.45 / ts if ts else top / 4.0
+    box = Box.default(pm, f_max_hz) if box is None else box
+    wb0 = smooth_bandwidth(g0, families, req)
+    z = jnp.concatenate([x0, jnp.array([np.log(wb0)])])
+    scens = [f.scenarios for f in families]
+
+    def rebuild(sc):
+        return [dataclasses.replace(f, scenarios=s) for f, s in zip(families, sc, strict=True)]
+
+    def fn(z, args):
+        mu, sc = args
+        return penalized(z, mu, pm, rebuild(sc), req, box, x0, rho)
+
+    @eqx.filter_jit
+    def cons(z, sc):
+        return aggregate(pm.compensator(z[:-1]), rebuild(sc), z[-1], req)
+
+    solver = optx.BFGS(rtol=1e-8, atol=1e-8)
+    history = []
+    count0, res0 = phase_counts(g0, families)
+
+    def same_topology(zc):
+        cnt, res = phase_counts(pm.compensator(zc[:-1]), families)
+        keep = res0  # scenarios whose start was resolved must keep their count, resolved
+        return bool(np.all(np.isfinite(np.asarray(zc)))) and bool(
+            np.all((cnt == count0) & res | ~keep)
+        )
+
+    for mu in mu_schedule:
+        ts_ = time.perf_counter()
+        sol = optx.minimise(
+            fn, solver, z, args=(jnp.asarray(mu), scens), max_steps=max_steps, throw=False
+        )
+        z_new, frac = sol.value, 1.0
+        # non-smooth guard: back off towards the previous stage's point until no scenario's
+        # Nyquist count has changed (see phase_counts); give up the stage if none works
+        while not same_topology(z_new) and frac > 1e-3:
+            frac *= 0.5
+            z_new = z + frac * (sol.value - z)
+        stop = frac <= 1e-3
+        if not stop:
+            z = z_new
+        c = {k: float(v) for k, v in cons(z, scens).items()}
+        rec = {"mu": float(mu), "steps": int(sol.stats["num_steps"]), "result": str(sol.result),
+               "bandwidth_hz": float(np.exp(z[-1]) / TWO_PI), "constraints": c,
+               "wall_s": time.perf_counter() - ts_, "step_fraction": 0.0 if stop else frac}  # fmt: skip
+        history.append(rec)
+        if progress:
+            progress(rec)
+        if stop:
+            break
+    x = np.asarray(z[:-1])
+    c = {k: float(v) for k, v in cons(z, scens).items()}
+    return TuneResult(
+        g=pm.compensator(x), g0=g0, x=x, x0=np.asarray(x0),
+        bandwidth_hz=float(np.exp(z[-1]) / TWO_PI), bandwidth0_hz=wb0 / TWO_PI,
+        constraints=c, history=history, names=pm.names, requirements=req,
+        wall_s=time.perf_counter() - t0,
+    )  # fmt: skip

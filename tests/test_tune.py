@@ -1,0 +1,232 @@
+"""hapid.tune: differentiable pieces against references, gradients against finite
+differences, and a small tuning run re-checked by the non-smooth analysis."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hapid
+from hapid.control import Compensator, analyze_loop, discretize_compensator, inverse_model_response
+from hapid.tune import (
+    Family,
+    ParamMap,
+    Requirements,
+    aggregate,
+    g_response,
+    make_scenarios,
+    penalized,
+    scenario_constraints,
+    smooth_sigma_max,
+    tune,
+    validate,
+)
+from hapid.tune._objective import Box
+from tests.helpers import random_spd
+
+TWO_PI = 2 * np.pi
+TS = 1e-3
+
+
+def _model(n, seed, jitter=0.0):
+    rng = np.random.default_rng(seed)
+    hand = hapid.SecondOrder(
+        random_spd(rng, n, 0.3), random_spd(rng, n, 10.0), random_spd(rng, n, 800.0)
+    )
+    mech = hapid.SecondOrder(
+        random_spd(rng, n, 0.6), random_spd(rng, n, 40.0), random_spd(rng, n, 200.0)
+    )
+    total = hapid.SecondOrder(hand.M + mech.M, hand.B + mech.B, hand.K + mech.K)
+    m = hapid.ImpedanceModel(hand, total)
+    if jitter:
+        r = np.random.default_rng(seed + 100)
+
+        def f(A):
+            E = r.normal(size=A.shape)
+            return A * (1.0 + jitter * (E + E.T) / 2)
+
+        hand2 = hapid.SecondOrder(
+            f(np.asarray(hand.M)), f(np.asarray(hand.B)), f(np.asarray(hand.K))
+        )
+        m = hapid.ImpedanceModel(hand2, total)
+    return m
+
+
+@pytest.fixture(scope="module")
+def small():
+    """n = 2 nominal model, 4 perturbed plants with a one-sample delay, on a short grid."""
+    n = 2
+    model = _model(n, 0)
+    om = TWO_PI * np.geomspace(1e-3, 450.0, 160)  # the Nyquist contour needs the low end
+    delay = np.exp(-1j * om * TS)[:, None, None]
+    P = np.stack([np.asarray(_model(n, 0, jitter=0.04 * (k + 1)).P(1j * om)) for k in range(4)])
+    sc_d = make_scenarios(P * delay, model, om, ts=TS)  # sampled-data flavour: a delay
+    sc_c = make_scenarios(P, model, om, ts=None)
+    return model, om, P, sc_d, sc_c
+
+
+def test_g_response_matches_discretize_compensator_and_continuous():
+    g = Compensator.paper()
+    om = TWO_PI * np.geomspace(0.01, 499.0, 200)
+    gd = np.asarray(discretize_compensator(g, TS).at_omega(om)).reshape(-1)
+    np.testing.assert_allclose(np.asarray(g_response(g, om, TS)), gd, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(
+        np.asarray(g_response(g, om)), np.asarray(g.at_omega(om)), rtol=1e-12
+    )
+    # overdamped notch sections (ζ > 1) and ζ ≈ 1 take the other branches of cosh(√u)
+    g2 = Compensator.paper(notch_zeta_num=[0.2, 1.0 + 1e-9, 1.5], notch_zeta_den=[1.2, 0.5, 1.0])
+    gd2 = np.asarray(discretize_compensator(g2, TS).at_omega(om)).reshape(-1)
+    np.testing.assert_allclose(np.asarray(g_response(g2, om, TS)), gd2, rtol=1e-7)
+
+
+@pytest.mark.parametrize("n", [1, 3, 5])
+def test_smooth_sigma_max_brackets_the_largest_singular_value(n):
+    rng = np.random.default_rng(n)
+    X = rng.normal(size=(50, n, n)) + 1j * rng.normal(size=(50, n, n))
+    X[0] = np.eye(n)  # all singular values equal: the upper end of the bracket
+    X[1] *= 1e-80  # tiny and
+    X[2] *= 1e80  # huge entries do not under/overflow
+    s = np.linalg.svd(X, compute_uv=False)[:, 0]
+    k = 6
+    sp = np.exp(np.asarray(smooth_sigma_max(jnp.asarray(X), k)))
+    assert np.all(sp >= s * (1 - 1e-12))
+    assert np.all(sp <= s * n ** (1 / 2 ** (k + 1)) * (1 + 1e-12))
+    np.testing.assert_allclose(sp[0], n ** (1 / 2 ** (k + 1)), rtol=1e-12)
+
+
+def test_param_map_round_trip_and_requirements():
+    g = Compensator.paper()
+    pm = ParamMap.from_template(g)
+    assert pm.dim == 14 and len(pm.names) == 14
+    x = pm.vector(g)
+    g2 = pm.compensator(x)
+    om = TWO_PI * np.geomspace(0.1, 400, 50)
+    np.testing.assert_allclose(np.asarray(g2.at_omega(om)), np.asarray(g.at_omega(om)), rtol=1e-12)
+    assert pm.describe(x)["notch 2"] == pytest.approx(55.0)
+    req = Requirements()
+    assert req.ms == pytest.approx(1 / (2 * np.sin(np.radians(15))))
+    # the disc |1 + ℓ| ≥ 1/Ms implies GM ≥ Ms/(Ms − 1) ≥ 6 dB
+    assert 20 * np.log10(req.ms / (req.ms - 1)) >= 6.0
+    with pytest.raises(ValueError, match="> 0"):
+        pm.vector(Compensator.paper(k=-1.0))
+
+
+def test_scenarios_reproduce_loop_matrices_and_loci(small):
+    model, om, P, sc_d, sc_c = small
+    g = Compensator.paper()
+    assert sc_c.recon_err < 1e-10
+    gam = np.asarray(g.at_omega(om))
+    G = np.asarray(inverse_model_response(model, g, om))
+    L = P[1] @ G
+    S_ref = np.linalg.inv(np.eye(2) + L)
+    lam, V, Vi = (np.asarray(a[1]) for a in (sc_c.lam, sc_c.V, sc_c.Vi))
+    S_eig = (V * (1 / (1 + gam[:, None] * lam))[:, None, :]) @ Vi
+    np.testing.assert_allclose(S_eig, S_ref, rtol=1e-8, atol=1e-10)
+    loci = np.sort_complex(np.linalg.eigvals(L))
+    np.testing.assert_allclose(np.sort_complex(gam[:, None] * lam), loci, rtol=1e-8, atol=1e-10)
+
+
+@pytest.mark.parametrize("discrete", [True, False])
+def test_gradients_of_objective_and_constraints_match_finite_differences(small, discrete):
+    """d/dz of every per-scenario constraint, every CVaR aggregate and the penalized
+    objective, for every tuned parameter and the claimed bandwidth, vs central differences."""
+    model, om, P, sc_d, sc_c = small
+    sc = sc_d if discrete else sc_c
+    g0 = Compensator.paper()
+    pm = ParamMap.from_template(g0)
+    req = Requirements(disk_alpha=0.5, min_dc_gain=10.0, beta=20.0, tau=0.1)
+    x0 = pm.vector(g0)
+    z = jnp.concatenate(
+        [x0 + 0.05 * jnp.sin(jnp.arange(pm.dim) + 1.0), jnp.array([np.log(TWO_PI * 3.0)])]
+    )
+    fams = [Family(sc, quantile=0.75, bw_quantile=0.5)]
+    box = Box.default(pm, 450.0)
+
+    def f_all(z):
+        g = pm.compensator(z[:-1])
+        per = scenario_constraints(g, sc, z[-1], req)
+        agg = aggregate(g, fams, z[-1], req)
+        obj = penalized(z, 100.0, pm, fams, req, box, x0, 1e-4)
+        return jnp.concatenate(
+            [per["bw"], per["ms"], per["disk"], jnp.stack(list(agg.values())), obj[None]]
+        )
+
+    J = np.asarray(jax.jit(jax.jacrev(f_all))(z))  # (m, dim + 1)
+    h = 1e-6
+    E = h * jnp.eye(z.size)
+    fp = np.asarray(jax.jit(jax.vmap(f_all))(z + E))
+    fm = np.asarray(jax.jit(jax.vmap(f_all))(z - E))
+    FD = ((fp - fm) / (2 * h)).T
+    assert np.all(np.isfinite(J))
+    scale = np.maximum(np.abs(FD), 1e-3 * np.max(np.abs(FD), axis=1, keepdims=True) + 1e-9)
+    assert np.max(np.abs(J - FD) / scale) < 1e-4
+    S = sc.n_scenarios
+    assert np.all(J[:S, -1] != 0.0)  # the claimed bandwidth enters every bandwidth constraint
+    assert np.all(J[-1, :-1] != 0.0)  # every tuned parameter moves the objective
+
+
+def test_tune_small_problem_meets_margins_on_held_out_plants(small):
+    model, om, P, sc_d, sc_c = small
+    fam = Family(sc_c.subset([0, 1, 2]), quantile=1.0, name="train")
+    res = tune([fam], Compensator.paper(), mu_schedule=(100.0, 1e4), max_steps=150)
+    assert res.feasible, res.constraints
+    assert res.bandwidth_hz > res.bandwidth0_hz
+    # non-smooth re-check (generalized Nyquist first) on the training plants
+    G = np.asarray(inverse_model_response(model, res.g, om))
+    for k in range(3):
+        rep = analyze_loop(P[k], G, om)
+        assert bool(rep.stable)
+        assert float(rep.gm_db) >= 6.0 - 0.2 and float(rep.pm_deg) >= 30.0 - 1.0
+        assert float(rep.iso_bandwidth_hz) >= 0.95 * res.bandwidth_hz
+    batch = jax.tree.map(
+        lambda *a: jnp.stack(a), *[_model(2, 0, jitter=0.04 * (k + 1)) for k in range(4)]
+    )
+    v = validate(res.g, model, samples=batch, omega_c=om)
+    assert v["posterior"]["n"] == 4 and 0.0 <= v["posterior"]["p_stable"] <= 1.0
+
+
+def test_design_file_round_trip_and_cli_errors(tmp_path):
+    from hapid.cli import main
+    from hapid.tune import load_design, save_design
+
+    g = Compensator.paper(k=1.3)
+    p = save_design(tmp_path / "d.npz", g, note="x", arr=np.arange(3))
+    g2, info = load_design(p)
+    om = TWO_PI * np.geomspace(0.1, 400, 30)
+    np.testing.assert_allclose(np.asarray(g2.at_omega(om)), np.asarray(g.at_omega(om)), rtol=1e-12)
+    assert info["note"] == "x" and info["arr"] == [0, 1, 2]
+    with pytest.raises(FileNotFoundError):
+        load_design(tmp_path / "missing.npz")
+    np.savez(tmp_path / "bad.npz", k=1.0)
+    with pytest.raises(ValueError, match="not a design file"):
+        load_design(tmp_path / "bad.npz")
+    # the command refuses to run without scenarios, one line, no file written
+    assert main(["tune", "--model", str(tmp_path / "m.npz"), "--out", str(tmp_path / "o.npz")]) == 2
+    assert not (tmp_path / "o.npz").exists()
+
+
+@pytest.mark.slow
+def test_tuning_notebook_runs_in_fast_mode(tmp_path):
+    """notebooks/04_robust_tuning.ipynb in HAPID_FAST=1 mode (slow: a few minutes on 2 cores)."""
+    from tests.test_notebooks import kernel_env, run_notebook  # noqa: F401
+
+    mp = pytest.MonkeyPatch()
+    try:
+        import ipykernel.kernelspec as ks
+
+        prefix = tmp_path / "jupyter"
+        ks.install(kernel_name="hapid-test-python", prefix=str(prefix))
+        mp.setenv("JUPYTER_PATH", str(prefix / "share" / "jupyter"))
+        mp.setenv("HAPID_FAST", "1")
+        mp.setenv("MPLBACKEND", "Agg")
+        probe, _ = run_notebook(
+            "04_robust_tuning",
+            tmp_path,
+            "{'grad': grad_rel_err, 'stable': bool(true_tuned['stable']), 'n': tab['tuned'].get('posterior_n')}",
+        )
+    finally:
+        mp.undo()
+    assert probe["grad"] < 1e-4
+    assert probe["stable"]
+    assert probe["n"] == 20
+    assert (tmp_path / "04_robust_tuning" / "tuned_vs_paper.png").exists()
