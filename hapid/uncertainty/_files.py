@@ -22,13 +22,15 @@ def posterior_from_files(
     backend_path=None,
     fit_options: dict | None = None,
     posterior_options: dict | None = None,
+    sampler_options: dict | None = None,
 ):
     """FRF file → NLS fit (start point) → posterior samples file (``.npz``).
 
     ``method``: ``"emcee"`` (default; ``n_steps`` None = run to 50 τ) or ``"laplace"``
     (``n_samples`` draws of the NLS Laplace Gaussian). ``fit_options`` go to ``fit_nls``
     (default relative weights, 40 Hz band); ``posterior_options`` to ``make_log_posterior``
-    (its ``f_max_hz`` defaults to the fit's). Returns the :class:`PosteriorSamples`.
+    (its ``f_max_hz`` defaults to the fit's); ``sampler_options`` (``n_walkers``, ``moves``,
+    ``max_steps``…) to ``sample_posterior``. Returns the :class:`PosteriorSamples`.
     """
     from ..fit import fit_nls
     from ..io import load_frf
@@ -46,7 +48,7 @@ def posterior_from_files(
         popts = {"f_max_hz": fit_options["f_max_hz"]} | dict(posterior_options or {})
         post = make_log_posterior(frf, nls.scale, **popts)
         ps = sample_posterior(post, nls, n_steps=n_steps, seed=seed, progress=progress,
-                              backend_path=backend_path)  # fmt: skip
+                              backend_path=backend_path, **dict(sampler_options or {}))  # fmt: skip
     save_samples(out_path, ps)
     return ps
 
@@ -93,6 +95,27 @@ def robust_from_files(
     if out_json is not None:
         Path(out_json).write_text(json.dumps(out, indent=2, default=_jsonable))
     return out
+
+
+def side_by_side(results: dict) -> str:
+    """Markdown table of robust-check summaries of several controllers (``{label: output of
+    robust_from_files}``): one row per controller and batch (posterior, device)."""
+    cols = [("P(stable)", "p_stable", "{:.3f}"), ("GM q05 dB", "gm_db_q05", "{:.2f}"),
+            ("GM q50 dB", "gm_db_q50", "{:.2f}"), ("PM q05°", "pm_deg_q05", "{:.1f}"),
+            ("PM q50°", "pm_deg_q50", "{:.1f}"), ("disk q05", "disk_margin_q05", "{:.3f}"),
+            ("iso-bw q05 Hz", "iso_bandwidth_hz_q05", "{:.2f}"),
+            ("iso-bw q50 Hz", "iso_bandwidth_hz_q50", "{:.2f}"),
+            ("T peak q50 dB", "t_peak_db_q50", "{:.2f}"), ("passed", "passed", "{}")]  # fmt: skip
+    lines = ["| controller | plants | n | " + " | ".join(c[0] for c in cols) + " |",
+             "|" + "---|" * (3 + len(cols))]  # fmt: skip
+    for label, res in results.items():
+        for batch in ("posterior", "device"):
+            sm = res.get(batch)
+            if sm is None:
+                continue
+            vals = [fmt.format(sm[key]) for _, key, fmt in cols]
+            lines.append(f"| {label} | {batch} | {sm['n']} | " + " | ".join(vals) + " |")
+    return "\n".join(lines)
 
 
 def _jsonable(x):
