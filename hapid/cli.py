@@ -340,7 +340,7 @@ def cmd_posterior(a):
                               n_steps=a.steps, seed=a.seed, backend_path=a.hdf5,
                               fit_options={"f_max_hz": a.f_max_hz},
                               sampler_options={"moves": a.moves} | ({"n_walkers": a.walkers} if a.walkers else {}),
-                              )  # fmt: skip
+                              fix_boundary=not a.free_boundary)  # fmt: skip
     print(ps.summary())
     print(f"samples → {a.out}")
 
@@ -414,6 +414,8 @@ def _register_stages(sub):
     po.add_argument("--model", help="(unused: the NLS fit is redone as the start point)")
     po.add_argument("--method", choices=["emcee", "laplace"], default="emcee")
     po.add_argument("--walkers", type=int, default=0, help="0 = 2·dim + 2")
+    po.add_argument("--free-boundary", action="store_true",
+                    help="also sample matrices the NLS fit put on the PSD boundary (default: hold them)")
     po.add_argument("--moves", default="de", help="emcee moves: de (default), laplace_de, de_mix, stretch")
     po.add_argument("--steps", type=int, help="emcee steps (default: run to 50 τ)")
     po.add_argument("--samples", type=int, default=4000, help="Laplace draws")

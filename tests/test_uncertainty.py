@@ -59,16 +59,27 @@ def _upper(m):
 # --- likelihood ----------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("model_error,rho", [(False, 0.0), (True, 0.0), (True, 0.4)])
-def test_log_prob_matches_numpy(case, model_error, rho):
+@pytest.mark.parametrize(
+    "model_error,rho,param,fix",
+    [(False, 0.0, "cholesky", False), (True, 0.0, "cholesky", False), (True, 0.4, "cholesky", False),
+     (True, 0.0, "matrix", False), (True, 0.4, "matrix", True)],
+)  # fmt: skip
+def test_log_prob_matches_numpy(case, model_error, rho, param, fix):
     _, frf, nls = case
-    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error=model_error, noise_corr=rho)
+    fixed = {"K_M": np.asarray(nls.model.mechanism.K)} if fix else None
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error=model_error, noise_corr=rho,
+                              parameterization=param, fixed=fixed)  # fmt: skip
     x0 = initial_point(post, nls)
     rng = np.random.default_rng(0)
     X = x0 + 1e-3 * rng.standard_normal((7, post.dim))
-    X[3, : post.n_theta] *= -1.0  # a reflected walker
+    if param == "cholesky":
+        X[3, : post.n_theta] *= -1.0  # a reflected walker
+    else:
+        X[3, : post.n_free] *= -1.0  # every matrix negative definite: outside the PSD cone
     got = post.log_prob_numpy(X)
     ref = log_prob_numpy(post, X)
+    if param == "matrix":
+        assert got[3] == -np.inf and np.all(np.isfinite(np.delete(got, 3)))
     np.testing.assert_allclose(got, ref, rtol=1e-10, atol=1e-8)
     # single evaluation == batched, and jit/vmap do not change values
     np.testing.assert_allclose(float(post(X[0])), got[0], rtol=1e-12)
@@ -76,7 +87,7 @@ def test_log_prob_matches_numpy(case, model_error, rho):
 
 def test_folding_invariance(case):
     _, frf, nls = case
-    post = make_log_posterior(frf, nls.scale, f_max_hz=None)
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, parameterization="cholesky")
     x = initial_point(post, nls)
     th = x[: post.n_theta]
     flipped_col = np.asarray(canonical_theta(-th))  # column flips of every factor
@@ -87,6 +98,41 @@ def test_folding_invariance(case):
     np.testing.assert_allclose(lp[0], lp[1], rtol=1e-12)
     np.testing.assert_allclose(lp[0], lp[2], rtol=1e-12)
     np.testing.assert_array_equal(fold_theta(refl), fold_theta(th))
+
+
+def test_matrix_coordinates_round_trip_and_boundary_matrices_held_fixed():
+    """A truth whose mechanism has no stiffness (K_M = 0, like cu5): the NLS fit puts K_M on
+    the PSD boundary; the matrix-parameterized posterior holds it (boundary_fixed), samples
+    the rest, and its projected Laplace draws are PSD models with K_M at the fitted value.
+    The Cholesky ↔ matrix maps invert each other."""
+    from hapid.uncertainty import (
+        boundary_fixed,
+        matrix_to_theta,
+        posterior_laplace_samples,
+        theta_to_matrix,
+    )
+
+    truth = random_truth(N_RODS, seed=5)
+    truth = hapid.ImpedanceModel.from_hand_mechanism(
+        truth.hand, hapid.SecondOrder(truth.mechanism.M, truth.mechanism.B, np.zeros((N_RODS, N_RODS))))
+    frf = synthetic_frf(truth, rel_noise=NOISE, seed=6)
+    nls = fit_nls(frf, weight="noise", f_max_hz=None).raise_if_failed()
+    assert "K_M" in nls.boundary
+    th = np.asarray(nls.theta)
+    np.testing.assert_allclose(theta_to_matrix(matrix_to_theta(theta_to_matrix(th, N_RODS), N_RODS), N_RODS),
+                               theta_to_matrix(th, N_RODS), atol=1e-9)  # fmt: skip
+    fixed = boundary_fixed(nls)
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, fixed=fixed)
+    t = N_RODS * (N_RODS + 1) // 2
+    assert post.dim == post.n_theta - t * len(fixed) + 2 and "K_M" in post.fixed_names
+    ps = posterior_laplace_samples(post, 200, nls, key=0)
+    phys = ps.physical()
+    for name, v in phys.items():
+        assert np.all(np.linalg.eigvalsh(v)[:, 0] >= -1e-9 * np.abs(v).max()), name
+    np.testing.assert_allclose(phys["K_M"], np.broadcast_to(fixed["K_M"], phys["K_M"].shape), atol=1e-6)
+    # the hand's sampled matrices scatter around the truth
+    z = (phys["K_H"].mean(0) - np.asarray(truth.hand.K)) / phys["K_H"].std(0)
+    assert np.all(np.abs(z) < 5)
 
 
 # --- coverage ------------------------------------------------------------------------

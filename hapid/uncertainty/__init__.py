@@ -17,9 +17,12 @@ from ._files import posterior_from_files as posterior_from_files
 from ._files import robust_from_files as robust_from_files
 from ._likelihood import LogPosterior as LogPosterior
 from ._likelihood import batched_log_prob as batched_log_prob
+from ._likelihood import boundary_fixed as boundary_fixed
 from ._likelihood import fold_theta as fold_theta
 from ._likelihood import make_log_posterior as make_log_posterior
+from ._likelihood import matrix_to_theta as matrix_to_theta
 from ._likelihood import param_names as param_names
+from ._likelihood import theta_to_matrix as theta_to_matrix
 from ._poses import identify as identify
 from ._poses import pose_grid as pose_grid
 from ._poses import pose_study as pose_study
@@ -38,5 +41,6 @@ from ._sampler import initial_point as initial_point
 from ._sampler import laplace_posterior as laplace_posterior
 from ._sampler import laplace_samples as laplace_samples
 from ._sampler import load_samples as load_samples
+from ._sampler import posterior_laplace_samples as posterior_laplace_samples
 from ._sampler import sample_posterior as sample_posterior
 from ._sampler import save_samples as save_samples

@@ -23,30 +23,35 @@ def posterior_from_files(
     fit_options: dict | None = None,
     posterior_options: dict | None = None,
     sampler_options: dict | None = None,
+    fix_boundary: bool = True,
 ):
     """FRF file → NLS fit (start point) → posterior samples file (``.npz``).
 
     ``method``: ``"emcee"`` (default; ``n_steps`` None = run to 50 τ) or ``"laplace"``
-    (``n_samples`` draws of the NLS Laplace Gaussian). ``fit_options`` go to ``fit_nls``
+    (``n_samples`` draws of the posterior's Laplace Gaussian in matrix coordinates, projected
+    onto the PSD cone: :func:`posterior_laplace_samples`). ``fit_options`` go to ``fit_nls``
     (default relative weights, 40 Hz band); ``posterior_options`` to ``make_log_posterior``
-    (its ``f_max_hz`` defaults to the fit's); ``sampler_options`` (``n_walkers``, ``moves``,
+    (its ``f_max_hz`` defaults to the fit's; with ``fix_boundary`` the fit's matrices at the
+    PSD boundary are held fixed, :func:`boundary_fixed`); ``sampler_options`` (``n_walkers``, ``moves``,
     ``max_steps``…) to ``sample_posterior``. Returns the :class:`PosteriorSamples`.
     """
     from ..fit import fit_nls
     from ..io import load_frf
-    from ._likelihood import make_log_posterior
-    from ._sampler import laplace_samples, sample_posterior, save_samples
+    from ._likelihood import boundary_fixed, make_log_posterior
+    from ._sampler import posterior_laplace_samples, sample_posterior, save_samples
 
     if method not in ("emcee", "laplace"):
         raise ValueError(f"method must be 'emcee' or 'laplace', got {method!r}")
     frf = load_frf(frf_path)
     fit_options = {"weight": "relative", "f_max_hz": 40.0} | dict(fit_options or {})
     nls = fit_nls(frf, **fit_options).raise_if_failed()
+    popts = {"f_max_hz": fit_options["f_max_hz"]} | dict(posterior_options or {})
+    if fix_boundary and nls.boundary and "fixed" not in popts:
+        popts["fixed"] = boundary_fixed(nls)
+    post = make_log_posterior(frf, nls.scale, **popts)
     if method == "laplace":
-        ps = laplace_samples(nls, int(n_samples), key=seed)
+        ps = posterior_laplace_samples(post, int(n_samples), nls, key=seed)
     else:
-        popts = {"f_max_hz": fit_options["f_max_hz"]} | dict(posterior_options or {})
-        post = make_log_posterior(frf, nls.scale, **popts)
         ps = sample_posterior(post, nls, n_steps=n_steps, seed=seed, progress=progress,
                               backend_path=backend_path, **dict(sampler_options or {}))  # fmt: skip
     save_samples(out_path, ps)

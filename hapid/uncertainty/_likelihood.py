@@ -1,15 +1,26 @@
 # ruff: noqa: F722  (jaxtyping shape strings in annotations)
 """Log-posterior of the PD-parameterized impedance model given a measured FRF.
 
-Parameters (the vector ``x`` the sampler moves, length ``d = p + n_tau``):
+Parameters (the vector ``x`` the sampler moves, length ``d = p + n_tau``), in one of two
+parameterizations (``parameterization=``):
 
-- ``x[:p]`` — ``theta'`` of ``hapid.fit._pd`` (``p = 6·n(n+1)/2``, six lower-triangular
-  blocks ``M_H, B_H, K_H, M_M, B_M, K_M``) in the *scaled* units of a :class:`Scale`, so the
-  NLS optimum ``NLSResult.theta`` (with ``NLSResult.scale``) is a valid starting point.
+- ``"matrix"`` (default) — ``x[:p]`` are the lower-triangular *entries of the six symmetric
+  matrices* ``M_H, B_H, K_H, M_M, B_M, K_M`` themselves (scaled units), with the prior
+  restricted to the PSD cone (``−inf`` outside, tested by ``eigvalsh``). The model is linear
+  in these coordinates, so for fixed τ the posterior is a Gaussian truncated to the cone: its
+  Laplace approximation is well defined even when a matrix sits on the PSD boundary, and
+  ensemble moves mix as on a Gaussian. This matters on real devices: on ``cu5`` the
+  mechanism has no stiffness, ``K̂_M ≈ 0``, and in Cholesky coordinates the likelihood is
+  *quartic* in that factor (``K = L Lᵀ``) — zero curvature at the optimum, a Laplace variance
+  set by the prior alone (draws with K_M ≈ 10¹⁰ N/m) and emcee autocorrelation times of
+  thousands of steps. Samples are returned as canonical Cholesky θ (:meth:`LogPosterior.split`)
+  so everything downstream uses one representation.
+- ``"cholesky"`` — ``x[:p]`` is ``theta'`` of ``hapid.fit._pd`` (``p = 6·n(n+1)/2``, six
+  lower-triangular factor blocks) in the *scaled* units of a :class:`Scale`, as in the NLS fit.
 - ``x[p:]`` — with ``model_error=True`` (default), ``log τ_H`` and ``log τ_M``: relative
   model-error scales of the hand and mechanism impedances (``n_tau = 2``); none otherwise.
 
-**Sign symmetry (folding).** ``L Lᵀ`` is unchanged by flipping the sign of any column of
+**Sign symmetry (folding, ``"cholesky"`` only).** ``L Lᵀ`` is unchanged by flipping the sign of any column of
 ``L``, so the raw θ-posterior has ``2^(6n)`` mirror-image modes. Here the diagonal of each
 factor enters as ``|θ'_jj|`` (the sampler's coordinate is *reflected* at 0): the density is
 then symmetric under ``θ'_jj → −θ'_jj`` alone, it is continuous through 0 (no hard wall for
@@ -42,7 +53,7 @@ circular complex Gaussian, ``log p(r) = −2 log π − log det C − rᴴ C⁻�
 ``C`` does not depend on θ, so the normalization depends only on τ (cheap).
 
 **Prior** (proper, on the sampled coordinates, so no Jacobian): ``θ'_i ~ N(0, prior_scale²)``
-independently (scaled units are O(1); the default ``prior_scale = 10`` is weak but keeps a
+(Cholesky entries, or matrix entries truncated to the PSD cone) independently (scaled units are O(1); the default ``prior_scale = 10`` is weak but keeps a
 Cholesky diagonal of an unidentified direction from drifting off, DESIGN.md "Priors and
 misspecification"), and ``log τ ~ N(log_tau_mean, log_tau_sd²)`` (default ``log 0.03``,
 sd 2: τ from ~5·10⁻⁴ to ~1.6 within ±2 sd).
@@ -57,6 +68,8 @@ information twice.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import equinox as eqx
 import jax
@@ -98,10 +111,57 @@ def fold_theta(theta: Float[Array, "... p"]) -> Float[Array, "... p"]:
     return theta.at[..., idx].set(jnp.abs(theta[..., idx]))
 
 
-def param_names(n: int, model_error: bool = True) -> list[str]:
-    """Names of the ``d`` sampled coordinates, e.g. ``"L_M_H[1,0]"``, ``"log_tau_H"``."""
+def _unvech(v: np.ndarray, n: int) -> np.ndarray:
+    """``(…, p)`` lower-triangular entries of six symmetric matrices → ``(…, 6, n, n)``."""
     rows, cols = np.tril_indices(n)
-    names = [f"L_{m}[{i},{j}]" for m in MATRIX_NAMES for i, j in zip(rows, cols, strict=True)]
+    t = len(rows)
+    v = np.asarray(v, dtype=np.float64).reshape(v.shape[:-1] + (6, t))
+    A = np.zeros(v.shape[:-1] + (n, n))
+    A[..., rows, cols] = v
+    A[..., cols, rows] = v
+    return A
+
+
+def _vech(A: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`_unvech` (``(…, 6, n, n)`` → ``(…, p)``)."""
+    n = A.shape[-1]
+    rows, cols = np.tril_indices(n)
+    return A[..., rows, cols].reshape(A.shape[:-3] + (-1,))
+
+
+def _psd_clip(A: np.ndarray, floor: float) -> np.ndarray:
+    A = 0.5 * (A + np.swapaxes(A, -1, -2))
+    lam, V = np.linalg.eigh(A)
+    top = np.max(np.abs(lam), axis=-1, keepdims=True)
+    lam = np.maximum(lam, np.maximum(floor * top, 1e-300))
+    return (V * lam[..., None, :]) @ np.swapaxes(V, -1, -2)
+
+
+def matrix_to_theta(v: np.ndarray, n: int, floor: float = 1e-12) -> np.ndarray:
+    """Matrix-entry coordinates ``(…, p)`` → canonical Cholesky θ ``(…, p)`` (numpy)."""
+    L = np.linalg.cholesky(_psd_clip(_unvech(v, n), floor))
+    rows, cols = np.tril_indices(n)
+    return L[..., rows, cols].reshape(L.shape[:-3] + (-1,))
+
+
+def theta_to_matrix(theta: np.ndarray, n: int) -> np.ndarray:
+    """Cholesky θ ``(…, p)`` → matrix-entry coordinates ``(…, p)`` (``L Lᵀ``, numpy)."""
+    rows, cols = np.tril_indices(n)
+    th = np.asarray(theta, dtype=np.float64)
+    L = np.zeros(th.shape[:-1] + (6, n, n))
+    L[..., rows, cols] = th.reshape(th.shape[:-1] + (6, -1))
+    return _vech(L @ np.swapaxes(L, -1, -2))
+
+
+PARAMETERIZATIONS = ("matrix", "cholesky")
+
+
+def param_names(n: int, model_error: bool = True, parameterization: str = "cholesky") -> list[str]:
+    """Names of the ``d`` sampled coordinates, e.g. ``"L_M_H[1,0]"`` (Cholesky factor entry),
+    ``"M_H[1,0]"`` (matrix entry), ``"log_tau_H"``."""
+    rows, cols = np.tril_indices(n)
+    pre = "L_" if parameterization == "cholesky" else ""
+    names = [f"{pre}{m}[{i},{j}]" for m in MATRIX_NAMES for i, j in zip(rows, cols, strict=True)]
     return names + (list(TAU_NAMES) if model_error else [])
 
 
@@ -126,6 +186,10 @@ class LogPosterior(eqx.Module):
     prior_scale: float = eqx.field(static=True)
     log_tau_mean: float = eqx.field(static=True)
     log_tau_sd: float = eqx.field(static=True)
+    parameterization: str = eqx.field(static=True, default="matrix")
+    psd_constraint: bool = eqx.field(static=True, default=True)
+    theta_fixed: Float[Array, " p"] | None = None  # full θ holding the fixed matrices' entries
+    free_idx: tuple[int, ...] = eqx.field(static=True, default=())  # () = every entry is free
 
     @property
     def n(self) -> int:
@@ -140,20 +204,59 @@ class LogPosterior(eqx.Module):
         return 2 if self.model_error else 0
 
     @property
+    def n_free(self) -> int:
+        """Sampled θ coordinates (``n_theta`` minus the entries of fixed matrices)."""
+        return len(self.free_idx) if self.free_idx else self.n_theta
+
+    @property
     def dim(self) -> int:
-        return self.n_theta + self.n_tau
+        return self.n_free + self.n_tau
+
+    def full_theta(self, x: Float[Array, " d"]) -> Float[Array, " p"]:
+        """The full θ (``p``) of a sampled ``x``: free coordinates scattered into the fixed."""
+        if not self.free_idx:
+            return x[: self.n_theta]
+        return self.theta_fixed.at[np.asarray(self.free_idx)].set(x[: self.n_free])
+
+    def full_theta_numpy(self, xs) -> np.ndarray:
+        """:meth:`full_theta` for numpy ``(…, d)`` → ``(…, p)``."""
+        xs = np.asarray(xs, dtype=np.float64)
+        if not self.free_idx:
+            return xs[..., : self.n_theta]
+        out = np.broadcast_to(np.asarray(self.theta_fixed), xs.shape[:-1] + (self.n_theta,)).copy()
+        out[..., np.asarray(self.free_idx)] = xs[..., : self.n_free]
+        return out
 
     @property
     def names(self) -> list[str]:
-        return param_names(self.n, self.model_error)
+        names = param_names(self.n, self.model_error, self.parameterization)
+        if not self.free_idx:
+            return names
+        return [names[i] for i in self.free_idx] + names[self.n_theta :]
+
+    @property
+    def fixed_names(self) -> list[str]:
+        """Matrices held at fixed values (see ``fixed`` of :func:`make_log_posterior`)."""
+        t = self.n * (self.n + 1) // 2
+        free = set(self.free_idx) if self.free_idx else set(range(self.n_theta))
+        return [m for k, m in enumerate(MATRIX_NAMES) if k * t not in free]
+
+    def unconstrained(self) -> LogPosterior:
+        """The same density without the PSD-cone restriction (``"matrix"``): the Gaussian
+        whose mode and curvature :func:`laplace_posterior` uses."""
+        return dataclasses.replace(self, psd_constraint=False) if self.parameterization == "matrix" else self
 
     # --- pieces --------------------------------------------------------------------------
     def model_matrices(self, theta: Float[Array, " p"]) -> Float[Array, "6 n n"]:
-        """The six scaled PSD matrices ``L Lᵀ`` with the folded (``|diag|``) factors."""
+        """The six scaled matrices: ``L Lᵀ`` with folded (``|diag|``) factors (Cholesky), or
+        the symmetric matrices of the entries (matrix)."""
         n = self.n
         rows, cols = np.tril_indices(n)
         t = n * (n + 1) // 2
         vals = theta.reshape(6, t)
+        if self.parameterization == "matrix":
+            A = jnp.zeros((6, n, n), dtype=theta.dtype).at[:, rows, cols].set(vals)
+            return A + jnp.swapaxes(A, -1, -2) - A * jnp.eye(n, dtype=theta.dtype)
         vals = jnp.where(jnp.asarray(rows == cols), jnp.abs(vals), vals)
         L = jnp.zeros((6, n, n), dtype=theta.dtype).at[:, rows, cols].set(vals)
         # elementwise product-sum: much faster than a batched 5×5 matmul under vmap on CPU
@@ -175,8 +278,8 @@ class LogPosterior(eqx.Module):
         return c11, c12, c22
 
     def log_likelihood(self, x: Float[Array, " d"]) -> Float[Array, ""]:
-        p = self.n_theta
-        mats = self.model_matrices(x[:p])
+        p = self.n_free
+        mats = self.model_matrices(self.full_theta(x))
         # s = jw (w real): Z = (K − w² M) + j w B, so no complex arithmetic is needed
         w = jnp.imag(self.s)[:, None, None]
         w2 = w**2
@@ -192,13 +295,17 @@ class LogPosterior(eqx.Module):
         return -jnp.sum(quad) - jnp.sum(jnp.log(det)) - 2.0 * np.log(np.pi) * det.size
 
     def log_prior(self, x: Float[Array, " d"]) -> Float[Array, ""]:
-        p = self.n_theta
+        p = self.n_free
         lp = -0.5 * jnp.sum((x[:p] / self.prior_scale) ** 2) - p * np.log(
             self.prior_scale * np.sqrt(2 * np.pi)
         )
         if self.model_error:
             z = (x[p:] - self.log_tau_mean) / self.log_tau_sd
             lp = lp - 0.5 * jnp.sum(z**2) - self.n_tau * np.log(self.log_tau_sd * np.sqrt(2 * np.pi))
+        if self.parameterization == "matrix" and self.psd_constraint:
+            lam = jnp.linalg.eigvalsh(self.model_matrices(self.full_theta(x)))  # (6, n)
+            tol = 1e-12 * jnp.max(jnp.abs(lam))  # rounding of a boundary matrix (scaled units O(1))
+            lp = jnp.where(jnp.all(lam[:, 0] >= -tol), lp, -jnp.inf)
         return lp
 
     def __call__(self, x: Float[Array, " d"]) -> Float[Array, ""]:
@@ -214,9 +321,31 @@ class LogPosterior(eqx.Module):
         return np.asarray(self.log_prob(np.asarray(xs, dtype=np.float64)))
 
     def split(self, xs):
-        """``(theta (…, p) folded, log_tau (…, n_tau))`` of sampled coordinates."""
+        """``(theta (…, p), log_tau (…, n_tau))`` of sampled coordinates, θ the canonical
+        Cholesky θ (folded; for ``"matrix"``, the Cholesky factors of the matrices, each
+        matrix's eigenvalues first clipped at ``1e-12 ×`` its largest so a boundary matrix has
+        a factor)."""
         xs = np.asarray(xs)
-        return fold_theta(xs[..., : self.n_theta]), xs[..., self.n_theta :]
+        th, tau = self.full_theta_numpy(xs), xs[..., self.n_free :]
+        if self.parameterization == "matrix":
+            return matrix_to_theta(th, self.n), tau
+        return fold_theta(th), tau
+
+    def project(self, xs, floor: float = 1e-9):
+        """Walkers ``(…, d)`` moved into the support: for ``"matrix"``, each matrix's
+        eigenvalues clipped at ``floor ×`` its largest |eigenvalue| (nearest PSD matrix up to
+        the floor); unchanged for ``"cholesky"``."""
+        xs = np.array(xs, dtype=np.float64)
+        if self.parameterization != "matrix":
+            return xs
+        th = _vech(_psd_clip(_unvech(self.full_theta_numpy(xs), self.n), floor))
+        xs[..., : self.n_free] = th[..., np.asarray(self.free_idx)] if self.free_idx else th
+        return xs
+
+    def free_part(self, theta) -> np.ndarray:
+        """The sampled coordinates of a full θ ``(…, p)``."""
+        theta = np.asarray(theta, dtype=np.float64)
+        return theta[..., np.asarray(self.free_idx)] if self.free_idx else theta
 
 
 def batched_log_prob(post: LogPosterior):
@@ -254,6 +383,8 @@ def make_log_posterior(
     prior_scale: float = DEFAULT_PRIOR_SCALE,
     log_tau_mean: float = DEFAULT_LOG_TAU_MEAN,
     log_tau_sd: float = DEFAULT_LOG_TAU_SD,
+    parameterization: str = "matrix",
+    fixed: dict | None = None,
 ) -> LogPosterior:
     """Build the :class:`LogPosterior` of ``frf`` (module docstring for the model).
 
@@ -265,6 +396,14 @@ def make_log_posterior(
       Without it the FRF's stds must be > 0 everywhere (pure measurement-noise likelihood).
     - ``noise_corr``: correlation ρ ∈ (−1, 1) of the Z_H/Z_T measurement errors per element.
     - ``prior_scale``, ``log_tau_mean``, ``log_tau_sd``: the priors.
+    - ``parameterization``: ``"matrix"`` (default; matrix entries on the PSD cone) or
+      ``"cholesky"`` (the NLS fit's factors); module docstring.
+    - ``fixed``: ``{name: (n, n) matrix in physical units}`` for matrices of
+      ``M_H, B_H, K_H, M_M, B_M, K_M`` held at a value rather than sampled (the posterior
+      *conditional* on them; matrix parameterization only). :func:`boundary_fixed` gives the
+      NLS fit's matrices at the PSD boundary — e.g. ``K_M ≈ 0`` on a mechanism without
+      stiffness, where the cone-truncated posterior of that matrix is nearly all boundary and
+      makes ensemble moves crawl.
 
     Raises ``ValueError`` for a missing std, non-finite data, fewer than 3 band frequencies,
     zero std without ``model_error``, or bad options.
@@ -280,6 +419,8 @@ def make_log_posterior(
         )
     if np.ndim(frf.omega) != 1:
         raise ValueError("make_log_posterior: a single (unbatched) FRF is required")
+    if parameterization not in PARAMETERIZATIONS:
+        raise ValueError(f"parameterization must be one of {PARAMETERIZATIONS}, got {parameterization!r}")
     if not (-1.0 < noise_corr < 1.0):
         raise ValueError(f"noise_corr must be in (-1, 1), got {noise_corr}")
     if not (prior_scale > 0 and log_tau_sd > 0 and np.isfinite(log_tau_mean)):
@@ -303,6 +444,26 @@ def make_log_posterior(
     scale = data_scale(frf, f_max_hz) if scale is None else scale
     zr = scale.z_ref
     n = frf.n
+    theta_fixed, free_idx = None, ()
+    if fixed:
+        if parameterization != "matrix":
+            raise ValueError("fixed matrices need parameterization='matrix'")
+        unknown = set(fixed) - set(MATRIX_NAMES)
+        if unknown:
+            raise ValueError(f"fixed: unknown matrix names {sorted(unknown)}; use {MATRIX_NAMES}")
+        t = n * (n + 1) // 2
+        rows, cols = np.tril_indices(n)
+        fac = [float(np.asarray(f)) for f in scale.factors()]
+        th = np.zeros(n_params(n))
+        for name, A in fixed.items():
+            A = np.asarray(A, dtype=np.float64)
+            if A.shape != (n, n) or not np.all(np.isfinite(A)):
+                raise ValueError(f"fixed[{name!r}] must be a finite ({n}, {n}) matrix, got shape {A.shape}")
+            k = MATRIX_NAMES.index(name)
+            th[k * t : (k + 1) * t] = (0.5 * (A + A.T) * fac[k % 3])[rows, cols]
+        blocks = [MATRIX_NAMES.index(nm) for nm in fixed]
+        free_idx = tuple(i for i in range(n_params(n)) if i // t not in blocks)
+        theta_fixed = jnp.asarray(th)
     Z_H, Z_T = band.Z_H / zr, band.Z_T / zr
     rms = lambda Z: jnp.linalg.norm(Z, axis=(-2, -1)) / n  # noqa: E731
     return LogPosterior(
@@ -319,4 +480,18 @@ def make_log_posterior(
         prior_scale=float(prior_scale),
         log_tau_mean=float(log_tau_mean),
         log_tau_sd=float(log_tau_sd),
+        parameterization=parameterization,
+        theta_fixed=theta_fixed,
+        free_idx=free_idx,
     )
+
+
+def boundary_fixed(nls_result) -> dict:
+    """``{name: matrix}`` of the NLS fit's matrices at the PSD boundary (physical units,
+    projected to PSD), to pass as ``fixed`` to :func:`make_log_posterior`."""
+    from ..fit._pd import project_pd
+
+    m = project_pd(nls_result.model, floor=0.0)
+    mats = dict(zip(MATRIX_NAMES, (m.hand.M, m.hand.B, m.hand.K, m.mechanism.M, m.mechanism.B,
+                                   m.mechanism.K), strict=True))  # fmt: skip
+    return {name: np.asarray(mats[name]) for name in nls_result.boundary}

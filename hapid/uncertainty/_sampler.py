@@ -35,7 +35,14 @@ from .. import _config  # noqa: F401  (float64)
 from ..fit._pd import Scale, n_from_params, n_params, theta_to_model
 from ..fit._result import NLSResult
 from ..impedance import ImpedanceModel
-from ._likelihood import LogPosterior, batched_log_prob, diag_positions, fold_theta, param_names
+from ._likelihood import (
+    LogPosterior,
+    batched_log_prob,
+    diag_positions,
+    fold_theta,
+    param_names,
+    theta_to_matrix,
+)
 
 MOVES = ("de", "stretch", "de_mix", "laplace_de")
 TAU_MULTIPLE = 50.0
@@ -255,15 +262,45 @@ def laplace_posterior(
         raise ValueError("laplace_posterior: x0 contains NaN or inf")
     if not np.isfinite(float(post(x0))):
         raise ValueError("laplace_posterior: the log-posterior at x0 is not finite")
-    xm, steps, ok, H = _map_hessian(post, x0, max_steps, rtol, atol)
+    post_u = post.unconstrained()  # matrix coordinates: the Gaussian before the PSD cone
+    xm, steps, ok, H = _map_hessian(post_u, x0, max_steps, rtol, atol)
     xm, H = np.asarray(xm), np.asarray(H)
     lam, V = np.linalg.eigh(0.5 * (H + H.T))
     floor = 1.0 / post.prior_scale**2
     lam = np.maximum(lam, floor)
     cov = (V / lam) @ V.T
-    xm = np.concatenate([fold_theta(xm[: post.n_theta]), xm[post.n_theta :]])
-    info = {"steps": int(steps), "converged": bool(ok), "log_prob": float(post(jnp.asarray(xm)))}
+    if post.parameterization == "cholesky" and not post.free_idx:
+        xm = np.concatenate([fold_theta(xm[: post.n_theta]), xm[post.n_theta :]])
+    info = {"steps": int(steps), "converged": bool(ok), "log_prob": float(post_u(jnp.asarray(xm))),
+            "mode_in_cone": bool(np.isfinite(float(post(jnp.asarray(xm)))))}  # fmt: skip
     return xm, cov, info
+
+
+def posterior_laplace_samples(post: LogPosterior, n_samples: int, init, key=0) -> PosteriorSamples:
+    """Fast path from a :class:`LogPosterior`: its Laplace Gaussian (:func:`laplace_posterior`
+    from ``init``, an :class:`NLSResult` or a start ``x0``), ``n_samples`` draws, each moved
+    into the PSD cone (:meth:`LogPosterior.project`; matrix parameterization) and returned as
+    canonical Cholesky θ with the model-error coordinates.
+
+    In matrix coordinates this is the Gaussian of the untruncated linear-Gaussian posterior
+    (exact for fixed τ) *projected* onto the cone — not the truncated posterior emcee samples:
+    draws of a matrix at the PSD boundary pile up on the boundary instead of being reweighted.
+    Fine for margins and bands; use :func:`sample_posterior` for calibrated intervals.
+    """
+    if not (isinstance(n_samples, int | np.integer) and n_samples > 0):
+        raise ValueError(f"n_samples must be a positive int, got {n_samples!r}")
+    x0 = initial_point(post, init) if isinstance(init, NLSResult) else np.asarray(init, dtype=np.float64)
+    mean, cov, info = laplace_posterior(post, x0)
+    draws = post.project(_mvn(_check_key(key), mean, cov, n_samples))
+    theta, extra = post.split(draws)
+    return PosteriorSamples(
+        samples=np.concatenate([theta, extra], axis=1),
+        log_prob=np.asarray(post.log_prob_numpy(draws)),
+        scale=post.scale,
+        n=post.n,
+        names=tuple(param_names(post.n, post.model_error)),
+        diagnostics={"method": f"laplace_{post.parameterization}", "laplace": info},
+    )
 
 
 @eqx.filter_jit
@@ -291,7 +328,12 @@ def initial_point(post: LogPosterior, nls_result: NLSResult | None = None) -> np
     ):
         raise ValueError("the NLS result's scale differs from the posterior's: build it with scale=nls.scale")
     th, _ = _canonical_with_cov(th, np.eye(th.shape[0]))
-    return np.concatenate([th, np.full(post.n_tau, post.log_tau_mean)])
+    if post.parameterization == "matrix":
+        th = theta_to_matrix(th, post.n)
+    x0 = np.concatenate([post.free_part(th), np.full(post.n_tau, post.log_tau_mean)])
+    if post.parameterization == "matrix":
+        x0 = post.project(x0)  # a boundary matrix's −1e-17 eigenvalue is outside the cone
+    return x0
 
 
 # --- emcee -----------------------------------------------------------------------------
@@ -422,13 +464,13 @@ def sample_posterior(
             raise ValueError(f"init (mean, cov) must be ({d},) and ({d}, {d}), got {mean.shape}, {cov.shape}")
         if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
             raise ValueError("init: the Gaussian's mean or covariance contains NaN or inf")
-        x0 = _mvn(jax.random.PRNGKey(int(rng.integers(2**31))), mean, cov, W)
+        x0 = post.project(_mvn(jax.random.PRNGKey(int(rng.integers(2**31))), mean, cov, W))
         lp = lp_fn(x0)
         for _ in range(20):  # redraw the rare walker in a region of zero density
             bad = ~np.isfinite(lp)
             if not bad.any():
                 break
-            x0[bad] = _mvn(jax.random.PRNGKey(int(rng.integers(2**31))), mean, cov, int(bad.sum()))
+            x0[bad] = post.project(_mvn(jax.random.PRNGKey(int(rng.integers(2**31))), mean, cov, int(bad.sum())))
             lp = lp_fn(x0)
     else:
         x0 = np.asarray(init, dtype=np.float64)
@@ -489,7 +531,7 @@ def sample_posterior(
         log_prob=np.asarray(lps),
         scale=post.scale,
         n=post.n,
-        names=tuple(post.names),
+        names=tuple(param_names(post.n, post.model_error)),
         diagnostics=diag,
     )
 
