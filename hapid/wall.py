@@ -143,24 +143,30 @@ def closed_loop_wall_steady_state(device: ParallelDevice, controller, direction,
 
 
 def max_wall_stiffness(device: ParallelDevice, controller, direction, *, k_max: float = 1e6,
-                       rtol: float = 1e-3) -> float:  # fmt: skip
-    """Largest wall stiffness ``k_w`` whose contact loop is stable (spectral radius of the
-    linear sampled loop with the wall closed ``< 1``), by bisection in ``log k_w``. Returns 0
-    if even a vanishing wall is unstable (the force loop itself is) and ``k_max`` if every
-    stiffness up to it is stable. A stability limit, not a recommendation: near it the contact
-    rings."""
+                       k_min: float = 1e-2, n_scan: int = 60, rtol: float = 1e-3) -> float:  # fmt: skip
+    """Largest ``k_w`` below which *every* wall stiffness gives a stable contact loop
+    (spectral radius of the linear sampled loop with the wall closed ``< 1``).
+
+    Stability need not be monotone in ``k_w`` (a loop can lose and regain stability), so a
+    log-spaced scan of ``n_scan`` stiffnesses from ``k_min`` to ``k_max`` finds the first
+    unstable one and bisection (in ``log k_w``, to ``rtol``) refines the boundary below it.
+    Returns 0 if the loop is unstable already at ``k_min`` (the force loop itself is) and
+    ``k_max`` if no scanned stiffness is unstable. A stability limit, not a recommendation:
+    near it the contact rings."""
 
     def stable(k):
-        return (
-            closed_loop_wall_steady_state(device, controller, direction, k, 1.0)["spectral_radius"]
-            < 1.0
-        )
+        return closed_loop_wall_steady_state(device, controller, direction, k, 1.0)["spectral_radius"] < 1.0
 
-    lo, hi = 1e-9, float(k_max)
-    if not stable(lo):
+    ks = np.geomspace(k_min, k_max, n_scan)
+    if not stable(ks[0]):
         return 0.0
-    if stable(hi):
-        return hi
+    lo = hi = None
+    for k_prev, k in zip(ks[:-1], ks[1:], strict=True):
+        if not stable(k):
+            lo, hi = k_prev, k
+            break
+    if lo is None:
+        return float(k_max)
     while hi / lo > 1.0 + rtol:
         mid = np.sqrt(lo * hi)
         lo, hi = (mid, hi) if stable(mid) else (lo, mid)
