@@ -29,8 +29,10 @@ lint: setup
 	$(BIN)/ruff check hapid tests benchmarks paper_figures
 	$(BIN)/ruff format --check hapid tests benchmarks paper_figures
 
+## benchmark suite → out/bench/report.md (`make bench BENCH=--quick` for the reduced run)
 bench: setup
-	$(BIN)/python benchmarks/run_all.py
+	$(BIN)/python -c "import skrf" 2>/dev/null || $(BIN)/pip install --quiet -e '.[bench]'
+	$(BIN)/python benchmarks/run_all.py $(BENCH)
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

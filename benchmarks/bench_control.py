@@ -1,6 +1,7 @@
 """Benchmark: loop analysis (``hapid.control.analyze_loop``) for one model and vmapped batches.
 
-Run: ``.venv/bin/python benchmarks/bench_control.py [--batch 1000] [--freqs 1000] [--n 5]``.
+Run: ``.venv/bin/python benchmarks/bench_control.py [--quick] [--out out/bench]`` (batch 50
+with --quick, 500 otherwise).
 Prints machine and versions, then a table of compile and run times (best of 3 runs after
 compilation). Plants are random n-rod second-order models (``hapid.control._examples``)
 under the inverse-model controller designed on a perturbed model, so every loop is a
@@ -20,44 +21,31 @@ the eigenvalues, the rest loci tracking (120-permutation matching for n = 5; the
 
 from __future__ import annotations
 
-import argparse
-import os
-import platform
-import time
+import sys
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-import hapid
-from hapid.control import Compensator, analyze_loop, inverse_model_response
-from hapid.control._examples import example_model
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import Section, fs, measure, standalone, table  # noqa: E402
+
+import hapid  # noqa: E402,F401
+from hapid.control import Compensator, analyze_loop, inverse_model_response  # noqa: E402
+from hapid.control._examples import example_model  # noqa: E402
 
 
-def _timeit(f, *args, repeat=3):
-    t0 = time.perf_counter()
-    jax.block_until_ready(f(*args))
-    first = time.perf_counter() - t0
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        jax.block_until_ready(f(*args))
-        best = min(best, time.perf_counter() - t0)
-    return first - best, best
-
-
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--batch", type=int, default=1000)
-    ap.add_argument("--freqs", type=int, default=1000)
-    ap.add_argument("--n", type=int, default=5)
-    args = ap.parse_args()
-    B, N, n = args.batch, args.freqs, args.n
-
-    print(f"machine: {platform.machine()} {platform.processor() or ''} cpus={os.cpu_count()}")
-    print(f"python {platform.python_version()}, jax {jax.__version__}, hapid {hapid.__version__}")
-    print(f"devices: {jax.devices()}")
-
+def run(
+    quick: bool = False,
+    out: str = "out/bench",
+    batch: int | None = None,
+    freqs: int = 1000,
+    n: int = 5,
+) -> Section:
+    sec = Section("Loop analysis: one model and vmapped batches")
+    B = batch if batch is not None else (50 if quick else 500)
+    N = freqs
     w = jnp.logspace(-1, 3.5, N)
     g = Compensator.paper()
     models = [example_model(n, seed=s) for s in range(8)]
@@ -68,21 +56,31 @@ def main():
 
     single = jax.jit(lambda P, G: analyze_loop(P, G, w))
     batched = jax.jit(jax.vmap(lambda P, G: analyze_loop(P, G, w)))
+    greedy = jax.jit(jax.vmap(lambda P, G: analyze_loop(P, G, w, loci_method="greedy")))
     rows = []
-    c, r = _timeit(single, Pj[0], Gj[0])
-    rows.append(("1 model", 1, c, r))
+
+    def add(name, b, fn, *args, repeat):
+        _, first, r = measure(lambda: fn(*args), repeat=repeat)
+        rows.append({"case": name, "loops": b, "compile ≈": fs(max(first - r, 0)), "run": fs(r),
+                     "per loop": fs(r / b), "loops/s": f"{b / r:,.1f}"})  # fmt: skip
+
+    add("1 model (jit)", 1, single, Pj[0], Gj[0], repeat=5)
     for b in sorted({min(100, B), B}):
-        c, r = _timeit(batched, PB[:b], GB[:b])
-        rows.append((f"vmap batch {b}", b, c, r))
-    print(f"\nanalyze_loop, n = {n}, N = {N} frequencies")
-    print(f"{'case':<18}{'compile [s]':>12}{'run [s]':>10}{'per loop [ms]':>15}")
-    for name, b, c, r in rows:
-        print(f"{name:<18}{c:>12.2f}{r:>10.3f}{1e3 * r / b:>15.3f}")
+        add(f"vmap batch {b}", b, batched, PB[:b], GB[:b], repeat=1 if b >= 500 else 3)
+    if not quick:
+        b = min(100, B)
+        add(f"vmap batch {b}, loci_method='greedy'", b, greedy, PB[:b], GB[:b], repeat=3)
+    sec.add(f"analyze_loop, n = {n}, N = {N} frequencies, random second-order plants under an "
+            "inverse-model controller designed on a perturbed model (`hapid.control._examples`).\n\n"
+            + table(rows))  # fmt: skip
     rep = single(Pj[0], Gj[0])
-    print(
-        "\nexample summary:",
-        {k: round(v, 3) if isinstance(v, float) else v for k, v in rep.summary().items()},
-    )
+    summ = {k: round(v, 3) if isinstance(v, float) else v for k, v in rep.summary().items()}
+    sec.add(f"example summary: {summ}")
+    return sec
+
+
+def main(argv=None):
+    return standalone(run, __doc__, argv)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """Simulate → FRF for the paper's protocol (28 frequencies, 5 experiments, 1 kHz, 4 periods):
 hapid against a plain numpy/scipy implementation of the same steps, side by side.
 
-    python benchmarks/bench_experiment.py [--periods 4]
+    python benchmarks/bench_experiment.py [--quick] [--out out/bench]
 
 Rows: hapid's exact periodic synthesis (frequency domain) and its lax.scan time-domain
 simulation, against numpy/scipy doing what a user would write — ZOH discretization with
@@ -11,7 +11,6 @@ scipy.linalg.expm, a per-sample state-space loop (scipy.signal.dlsim) — and th
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -20,7 +19,7 @@ import scipy.linalg
 import scipy.signal
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _common import header, table, timeit  # noqa: E402
+from _common import Section, fs, standalone, table, timeit  # noqa: E402
 
 import hapid  # noqa: E402,F401
 from hapid.device import cu5  # noqa: E402
@@ -67,44 +66,49 @@ def numpy_frf(sim, prot, n):
     return Z_H, Z_T
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--periods", type=int, default=4)
-    a = ap.parse_args(argv)
+def run(quick: bool = False, out: str = "out/bench", periods: int = 4) -> Section:
+    sec = Section("Simulate → FRF: frequency domain, time domain (lax.scan), numpy/scipy")
     dev = cu5()
-    prot = Protocol(n_periods=a.periods).noiseless()
-    print(header("simulate → FRF, paper protocol on cu5"))
+    prot = Protocol(n_periods=periods).noiseless()
     ref = estimate_frf(periodic_run(dev, prot))
     Zs = dev.sampled_impedances(ref.omega)
 
     def err(Z_H):
-        return float(np.max(np.abs(np.asarray(Z_H) - np.asarray(Zs[0]))) / np.max(np.abs(np.asarray(Zs[0]))))
+        return float(
+            np.max(np.abs(np.asarray(Z_H) - np.asarray(Zs[0]))) / np.max(np.abs(np.asarray(Zs[0])))
+        )
 
+    r = 1 if quick else 3
     sim = numpy_simulate(dev, prot)
+    estimate_frf(time_domain_run(dev, prot))  # warm-up (compile of the scan)
     rows = []
-    t_per = timeit(lambda: estimate_frf(periodic_run(dev, prot)), repeat=5)
-    t_td = timeit(lambda: estimate_frf(time_domain_run(dev, prot)), repeat=3)
-    t_np_sim = timeit(lambda: numpy_simulate(dev, prot), repeat=2)
-    t_np_frf = timeit(lambda: numpy_frf(sim, prot, dev.n), repeat=3)
-    run = time_domain_run(dev, prot)
-    t_frf = timeit(lambda: estimate_frf(run), repeat=5)
+    t_per = timeit(lambda: estimate_frf(periodic_run(dev, prot)), repeat=r + 2)
+    t_td = timeit(lambda: estimate_frf(time_domain_run(dev, prot)), repeat=r)
+    t_np_sim = timeit(lambda: numpy_simulate(dev, prot), repeat=r)
+    t_np_frf = timeit(lambda: numpy_frf(sim, prot, dev.n), repeat=r)
+    run_td = time_domain_run(dev, prot)
+    t_frf = timeit(lambda: estimate_frf(run_td), repeat=r + 2)
     e_np = err(numpy_frf(sim, prot, dev.n)[0])
-    rows.append({"pipeline": "hapid periodic steady state + FRF", "time (s)": f"{t_per:.4f}",
-                 "vs numpy": f"{(t_np_sim + t_np_frf) / t_per:.1f}×", "rel. error Z_H": f"{err(ref.Z_H):.1e}"})  # fmt: skip
-    rows.append({"pipeline": "hapid time domain (lax.scan) + FRF", "time (s)": f"{t_td:.4f}",
-                 "vs numpy": f"{(t_np_sim + t_np_frf) / t_td:.1f}×",
-                 "rel. error Z_H": f"{err(estimate_frf(run).Z_H):.1e}"})  # fmt: skip
-    rows.append({"pipeline": "numpy/scipy dlsim + per-frequency FRF", "time (s)": f"{t_np_sim + t_np_frf:.4f}",
-                 "vs numpy": "1.0×", "rel. error Z_H": f"{e_np:.1e}"})  # fmt: skip
-    rows.append({"pipeline": "FRF step only: hapid", "time (s)": f"{t_frf:.4f}",
-                 "vs numpy": f"{t_np_frf / t_frf:.1f}×", "rel. error Z_H": "—"})  # fmt: skip
-    rows.append({"pipeline": "FRF step only: numpy loop", "time (s)": f"{t_np_frf:.4f}",
-                 "vs numpy": "1.0×", "rel. error Z_H": "—"})  # fmt: skip
-    print(table(rows))
-    print("numpy/scipy starts from rest as a user would: its error is the undecayed transient (cu5's "
-          "slowest pole ≈ −0.24 rad/s); hapid starts from the exact periodic steady state.")
-    print("(time after warm-up, best of several; ratios measured in this run; 'vs numpy' > 1 means "
-          "hapid is faster than the numpy/scipy pipeline)")  # fmt: skip
+    rows.append({"pipeline": "hapid periodic steady state + FRF", "time": fs(t_per),
+                 "numpy ÷ hapid": f"{(t_np_sim + t_np_frf) / t_per:.1f}×", "rel. error Z_H": f"{err(ref.Z_H):.1e}"})  # fmt: skip
+    rows.append({"pipeline": "hapid time domain (lax.scan) + FRF", "time": fs(t_td),
+                 "numpy ÷ hapid": f"{(t_np_sim + t_np_frf) / t_td:.1f}×",
+                 "rel. error Z_H": f"{err(estimate_frf(run_td).Z_H):.1e}"})  # fmt: skip
+    rows.append({"pipeline": "numpy/scipy dlsim + per-frequency FRF", "time": fs(t_np_sim + t_np_frf),
+                 "numpy ÷ hapid": "1.0×", "rel. error Z_H": f"{e_np:.1e}"})  # fmt: skip
+    rows.append({"pipeline": "FRF step only: hapid", "time": fs(t_frf),
+                 "numpy ÷ hapid": f"{t_np_frf / t_frf:.1f}×", "rel. error Z_H": "—"})  # fmt: skip
+    rows.append({"pipeline": "FRF step only: numpy loop", "time": fs(t_np_frf),
+                 "numpy ÷ hapid": "1.0×", "rel. error Z_H": "—"})  # fmt: skip
+    sec.add(f"cu5, paper protocol, {periods} periods (+1 transient), noiseless.\n\n" + table(rows) + "\n\n"
+            "numpy/scipy starts from rest as a user would: its error is the undecayed transient (cu5's "
+            "slowest pole ≈ −0.24 rad/s); hapid starts from the exact periodic steady state "
+            "(the time-domain run from the same state). Best of several runs after a warm-up.")  # fmt: skip
+    return sec
+
+
+def main(argv=None):
+    return standalone(run, __doc__, argv)
 
 
 if __name__ == "__main__":

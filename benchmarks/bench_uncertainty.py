@@ -1,6 +1,8 @@
 """Benchmark and deliverable numbers of hapid.uncertainty (not part of the test run).
 
-Run: ``.venv/bin/python benchmarks/bench_uncertainty.py [--quick]``.
+Run: ``.venv/bin/python benchmarks/bench_uncertainty.py [--quick] [--full-chain]``.
+``run_all.py`` runs it with the quick chain lengths (3000 emcee steps; the full-length chains
+to ≥ 50 τ take many minutes: ``--full-chain``), and skips it under ``run_all.py --quick``.
 
 1. log-probability evaluations/s: jitted + vmapped JAX vs the plain-numpy reference, cu5.
 2. emcee move comparison (DE vs stretch vs DE + 10 % γ = 1) on a small strictly
@@ -14,6 +16,8 @@ Run: ``.venv/bin/python benchmarks/bench_uncertainty.py [--quick]``.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import sys
 import time
 import warnings
@@ -24,7 +28,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-from _common import header, table, timeit  # noqa: E402
+from _common import Section, standalone, table, timeit  # noqa: E402
 
 import hapid  # noqa: E402,F401
 from hapid.control import Compensator  # noqa: E402
@@ -45,15 +49,15 @@ from hapid.uncertainty import (  # noqa: E402
 )
 from hapid.uncertainty._reference import log_prob_numpy  # noqa: E402
 
-QUICK = "--quick" in sys.argv
+QUICK = "--full-chain" not in sys.argv
 
 
 def fmt(x, p=3):
     return f"{x:.{p}g}" if isinstance(x, float) else str(x)
 
 
-def main():
-    print(header("hapid.uncertainty benchmark" + (" (quick)" if QUICK else "")))
+def _body():
+    print(f"chains: {'quick (3000 steps)' if QUICK else 'full (to >= 50 tau)'}")
     dev = cu5()
     t = time.perf_counter()
     frf = estimate_frf(periodic_run(dev, Protocol(), noise_seed=0))
@@ -75,7 +79,12 @@ def main():
     tn = timeit(lambda: log_prob_numpy(post, X[:20]), repeat=3) * W / 20
     rows = [
         {"implementation": "jax jit+vmap", "walkers": W, "s/call": fmt(tj), "evals/s": fmt(W / tj)},
-        {"implementation": "numpy reference", "walkers": W, "s/call": fmt(tn), "evals/s": fmt(W / tn)},
+        {
+            "implementation": "numpy reference",
+            "walkers": W,
+            "s/call": fmt(tn),
+            "evals/s": fmt(W / tn),
+        },
     ]
     print(f"\n## 1. log-probability, cu5 (d = {post.dim}, {post.Z_H.shape[0]} band frequencies)")
     print(table(rows))
@@ -92,7 +101,9 @@ def main():
     for moves in ("de", "de_mix", "stretch"):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ShortChainWarning)
-            ps = sample_posterior(spost, (sm, sc), n_steps=1500 if QUICK else 4000, moves=moves, seed=0)
+            ps = sample_posterior(
+                spost, (sm, sc), n_steps=1500 if QUICK else 4000, moves=moves, seed=0
+            )
         d = ps.diagnostics
         rows.append({"moves": moves, "steps": d["n_steps"], "acc": fmt(d["acceptance_fraction"]),
                      "tau_max": fmt(d["tau_max"]), "steps/tau": fmt(d["steps_over_tau"]),
@@ -126,7 +137,17 @@ def main():
     omega = robust_omega(1000)
     g = Compensator.paper()
     models = {"WLS": wls(frf), "NLS": nls.model}
-    poses = [dev.pose.moved(*o) for o in ((.04, 0, 0), (-.04, 0, 0), (0, .04, 0), (0, -.04, 0), (0, 0, .04), (0, 0, -.04))]
+    poses = [
+        dev.pose.moved(*o)
+        for o in (
+            (0.04, 0, 0),
+            (-0.04, 0, 0),
+            (0, 0.04, 0),
+            (0, -0.04, 0),
+            (0, 0, 0.04),
+            (0, 0, -0.04),
+        )
+    ]
     labels, Pdev = device_plants(dev, omega, poses=poses, n_subjects=10, key=0)
     rows = []
     for name, m in models.items():
@@ -148,7 +169,9 @@ def main():
     print(table(rows))
     t = time.perf_counter()
     rv = robust_check(ps, (nls.model, g), omega, max_samples=1000, vectorize=True)
-    print(f"vmapped variant (vectorize=True): {time.perf_counter() - t:.1f} s, P(stable) {rv.p_stable}")
+    print(
+        f"vmapped variant (vectorize=True): {time.perf_counter() - t:.1f} s, P(stable) {rv.p_stable}"
+    )
 
     # 6. pose study -------------------------------------------------------------------------
     t = time.perf_counter()
@@ -158,6 +181,27 @@ def main():
             "reidentified_stable", "reidentified_iso_bandwidth_hz", "reidentified_gm_db", "reidentified_pm_deg")  # fmt: skip
     print(table([{"d (m)": f"({r['dx']:+.2f},{r['dy']:+.2f},{r['dz']:+.2f})"}
                  | {k.replace("reidentified", "reid"): fmt(r[k]) for k in keys} for r in rows]))  # fmt: skip
+
+
+class _Tee(io.StringIO):
+    def write(self, s):
+        sys.__stdout__.write(s)
+        return super().write(s)
+
+
+def run(quick: bool = False, out: str = "out/bench") -> Section:
+    """The sections above as one report section (their printed markdown, headings demoted)."""
+    sec = Section("Uncertainty: log-prob, emcee moves and chains, robust check, poses")
+    buf = _Tee()
+    with contextlib.redirect_stdout(buf):
+        _body()
+    sec.markdown = buf.getvalue().replace("\n## ", "\n### ")
+    return sec
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else argv
+    return standalone(run, __doc__, [a for a in argv if a != "--full-chain"])
 
 
 if __name__ == "__main__":

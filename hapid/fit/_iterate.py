@@ -8,7 +8,10 @@ rounding, and its Cauchy test only counts accepted steps — so Levenberg–Marq
 loop uses the solver's own ``init``/``step``/``terminate`` (the documented
 ``AbstractLeastSquaresSolver``/``AbstractMinimiser`` interface) and also stops when the cost
 has not decreased by a relative ``ftol`` over ``patience`` consecutive steps (scipy's
-``ftol`` idea). Either criterion counts as converged.
+``ftol`` idea). Either criterion counts as converged — a stall only while the cost is
+flat: if the last iterate's cost is above the best seen by more than ``ftol`` (a diverging
+Gauss–Newton, measured at cost 1e29 after a stall), the status is *failed* and the best
+iterate is returned, never the diverged one.
 """
 
 from __future__ import annotations
@@ -48,14 +51,14 @@ def iterate(
     term0, result0 = solver.terminate(fn, y0, args, options, state0, tags)
     dyn0, static = eqx.partition(state0, eqx.is_array)
     c0 = cost(y0)
-    carry0 = (y0, jnp.array(0), dyn0, term0, result0, c0, jnp.array(0), jnp.array(False))
+    carry0 = (y0, jnp.array(0), dyn0, term0, result0, c0, jnp.array(0), jnp.array(False), y0, c0)
 
     def cond(carry):
-        _, k, _, term, result, _, _, stalled = carry
+        _, k, _, term, result, _, _, stalled, _, _ = carry
         return (~term) & (~stalled) & (result == optx.RESULTS.successful) & (k < max_steps)
 
     def body(carry):
-        y, k, dyn, _, _, ref, since, _ = carry
+        y, k, dyn, _, _, ref, since, _, y_best, c_best = carry
         state = eqx.combine(static, dyn)
         new_y, new_state, _ = solver.step(fn, y, args, options, state, tags)
         term, result = solver.terminate(fn, y, args, options, new_state, tags)
@@ -65,13 +68,21 @@ def iterate(
         improved = c < ref * (1.0 - ftol)
         ref = jnp.where(improved, c, jnp.minimum(ref, c))
         since = jnp.where(improved, 0, since + 1)
+        better = jnp.isfinite(c) & (c < c_best)
+        y_best = jnp.where(better, new_y, y_best)
+        c_best = jnp.where(better, c, c_best)
         new_dyn, _ = eqx.partition(new_state, eqx.is_array)
-        return new_y, k + 1, new_dyn, term, result, ref, since, stall & (since >= patience)
+        return (new_y, k + 1, new_dyn, term, result, ref, since, stall & (since >= patience),
+                y_best, c_best)  # fmt: skip
 
-    y, k, _, term, result, _, _, stalled = lax.while_loop(cond, body, carry0)
-    ok = (term | stalled) & (result == optx.RESULTS.successful)
+    y, k, _, term, result, _, _, stalled, y_best, c_best = lax.while_loop(cond, body, carry0)
+    c_last = cost(y)
+    diverged = ~(c_last <= c_best * (1.0 + 10.0 * ftol) + 1e-300)
+    ok = (term | stalled) & (result == optx.RESULTS.successful) & ~(stalled & ~term & diverged)
+    y = jnp.where(stalled & diverged, y_best, y)
     maxed = (result == optx.RESULTS.nonlinear_max_steps_reached) | (
         (result == optx.RESULTS.successful) & ~ok
     )
+    maxed = maxed & ~(stalled & ~term & diverged)
     code = jnp.where(ok, CONVERGED, jnp.where(maxed, MAX_STEPS, FAILED))
     return y, k, code

@@ -1,0 +1,271 @@
+"""The paper pipeline step by step: hapid against the plain numpy/scipy code a user would write.
+
+    python benchmarks/bench_pipeline.py [--quick] [--out out/bench]
+
+Steps on cu5 with the paper protocol (28 frequencies, 5 experiments, 1 kHz, 4 periods + 1
+transient, noiseless so both sides estimate the same FRF):
+
+1. simulate — hapid ``periodic_run`` (exact periodic steady state, frequency domain) vs
+   ZOH discretization with ``scipy.linalg.expm`` + ``scipy.signal.dlsim`` per experiment;
+2. FRF — ``estimate_frf`` vs a per-frequency numpy loop (DFT bins, ``np.linalg.inv``);
+3. WLS — ``wls`` vs the paper's formula per element with explicit loops over (i, j);
+4. positize — ``positize`` vs ``np.linalg.eig`` per matrix, ``V·abs(D)·V⁻¹``;
+5. controller — ``inverse_model_response`` (G = g Ẑ_T Ẑ_H⁻¹) vs numpy ``solve`` per frequency;
+6. loop analysis — ``analyze_loop`` (eager, as called, and under ``jax.jit``) vs numpy: T,
+   σ(T − I), isotropic bandwidth, σ̄(T) peak, characteristic loci (``np.linalg.eigvals`` +
+   greedy tracking), the winding number of det(I + L), loci gain/phase margins, disk margin.
+
+Steps 5–6 use the paper's analysis grid (1500 log-spaced frequencies to Nyquist) and the
+true sampled plant; the numpy side gets g(jω) precomputed (a scalar, not timed). Times are
+best of several runs after a warm-up; the ratio column is numpy time ÷ hapid time (> 1:
+hapid faster). The last column compares the two sides' outputs.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import jax  # noqa: E402
+from _common import Section, fs, measure, standalone, table, timeit  # noqa: E402
+from bench_experiment import numpy_frf, numpy_simulate  # noqa: E402
+
+import hapid  # noqa: E402,F401
+from hapid.control import ISO_THRESHOLD, Compensator, analyze_loop, inverse_model_response  # noqa: E402
+from hapid.device import cu5  # noqa: E402
+from hapid.experiment import Protocol, estimate_frf, periodic_run  # noqa: E402
+from hapid.fit import OMEGA_C_PAPER, positize, wls  # noqa: E402
+
+
+def numpy_wls(freq_hz, Z, omega_c=OMEGA_C_PAPER):
+    """Paper section 4.2 per element: (Re φ̃φ̃ᴴ)⁻¹ Re(φ̃ Z̃), φ̃ᴴ rows h·[s², s, 1]."""
+    s = 2j * np.pi * np.asarray(freq_hz)
+    h = 1.0 / (s + omega_c) ** 2
+    phiH = h[:, None] * np.stack([s**2, s, np.ones_like(s)], axis=1)
+    phi = phiH.conj().T
+    n = Z.shape[-1]
+    out = np.zeros((3, n, n))
+    for i in range(n):
+        for j in range(n):
+            out[:, i, j] = np.linalg.solve(np.real(phi @ phiH), np.real(phi @ (h * Z[:, i, j])))
+    return out
+
+
+def numpy_positize(A):
+    lam, V = np.linalg.eig(A)
+    return np.real(V @ np.diag(np.abs(lam)) @ np.linalg.inv(V))
+
+
+def numpy_controller(mats_H, mats_T, gjw, omega):
+    s = 1j * omega[:, None, None]
+    ZH = mats_H[0] * s**2 + mats_H[1] * s + mats_H[2]
+    ZT = mats_T[0] * s**2 + mats_T[1] * s + mats_T[2]
+    # G = g Z_T Z_H⁻¹  ⇔  Gᵀ = g Z_H⁻ᵀ Z_Tᵀ
+    Gt = np.linalg.solve(np.swapaxes(ZH, 1, 2), np.swapaxes(ZT, 1, 2))
+    return gjw[:, None, None] * np.swapaxes(Gt, 1, 2)
+
+
+def _crossing_up(x, f, thr):
+    k = np.flatnonzero(x >= thr)
+    if k.size == 0:
+        return np.inf
+    k = k[0]
+    if k == 0:
+        return 0.0
+    lf = np.log(f[k - 1]) + (thr - x[k - 1]) / (x[k] - x[k - 1]) * (np.log(f[k]) - np.log(f[k - 1]))
+    return float(np.exp(lf))
+
+
+def numpy_loop(P, G, omega, p_ol=0):
+    """What a user writes for the paper's loop analysis, in numpy."""
+    f = omega / (2 * np.pi)
+    n = P.shape[-1]
+    I = np.eye(n)
+    L = P @ G
+    S = np.linalg.inv(I + L)
+    T = I - S
+    sv_TI = np.linalg.svd(T - I, compute_uv=False)
+    iso = _crossing_up(sv_TI[:, 0], f, ISO_THRESHOLD)
+    svT = np.linalg.svd(T, compute_uv=False)[:, 0]
+    k = int(np.argmax(svT))
+    # characteristic loci, greedy nearest-neighbour tracking
+    ev = np.linalg.eigvals(L)
+    loci = np.empty_like(ev)
+    loci[0] = ev[0]
+    for i in range(1, len(ev)):
+        free = list(range(n))
+        for j in range(n):
+            m = min(free, key=lambda q, j=j: abs(ev[i, q] - loci[i - 1, j]))
+            loci[i, j] = ev[i, m]
+            free.remove(m)
+    # generalized Nyquist: winding of det(I + L) over ω ∈ (0, Nyquist] (mirrored)
+    ph = np.unwrap(np.angle(np.linalg.det(I + L)))
+    n_cw = -round(2 * (ph[-1] - ph[0]) / (2 * np.pi))
+    stable = n_cw + p_ol == 0
+    # loci margins: gain margin where a locus crosses the negative real axis, phase margin
+    # where |λ| crosses 1
+    gm, pm = np.inf, np.inf
+    for j in range(n):
+        lj = loci[:, j]
+        im = np.imag(lj)
+        for i in np.flatnonzero(np.sign(im[:-1]) != np.sign(im[1:])):
+            t = im[i] / (im[i] - im[i + 1])
+            re = np.real(lj[i]) + t * (np.real(lj[i + 1]) - np.real(lj[i]))
+            if re < 0:
+                gm = min(gm, -20 * np.log10(-re))
+        mag = np.abs(lj)
+        for i in np.flatnonzero((mag[:-1] - 1) * (mag[1:] - 1) < 0):
+            t = (1 - mag[i]) / (mag[i + 1] - mag[i])
+            z = lj[i] + t * (lj[i + 1] - lj[i])
+            pm = min(pm, 180 - abs(np.degrees(np.angle(z))))
+    disk = 2 / np.max(np.linalg.svd(S - T, compute_uv=False)[:, 0])
+    return {"stable": bool(stable), "iso_bandwidth_hz": iso if stable else np.nan,
+            "t_peak_db": 20 * np.log10(svT[k]), "gm_db": gm, "pm_deg": pm, "disk_margin": disk}  # fmt: skip
+
+
+def run(quick: bool = False, out: str = "out/bench") -> Section:
+    sec = Section("Against the plain numpy/scipy pipeline, step by step")
+    rep = 2 if quick else 5
+    dev = cu5()
+    prot = Protocol().noiseless()
+    rows = []
+
+    def row(step, t_h, t_n, agree, hapid_call, numpy_call):
+        rows.append({"step": step, "hapid": fs(t_h), "numpy/scipy": fs(t_n), "numpy ÷ hapid": f"{t_n / t_h:.1f}×",
+                     "agreement": agree, "hapid call": hapid_call, "numpy/scipy call": numpy_call})  # fmt: skip
+        return t_h, t_n
+
+    totals = []
+    # 1. simulate
+    run_h, _, t_h = measure(lambda: periodic_run(dev, prot), repeat=rep)
+    sim = numpy_simulate(dev, prot)
+    t_n = timeit(lambda: numpy_simulate(dev, prot), repeat=1 if quick else 2)
+    totals.append(row("1. simulate experiments", t_h, t_n, "(FRF below)", "`periodic_run`",
+                      "`expm` + `signal.dlsim` per experiment"))  # fmt: skip
+    # 2. FRF
+    frf, _, t_h = measure(lambda: estimate_frf(run_h), repeat=rep)
+    ZH_n, ZT_n = numpy_frf(sim, prot, dev.n)
+    t_n = timeit(lambda: numpy_frf(sim, prot, dev.n), repeat=rep)
+    Zs = np.asarray(dev.sampled_impedances(frf.omega)[0])
+    e_h = np.max(np.abs(np.asarray(frf.Z_H) - Zs)) / np.max(np.abs(Zs))
+    e_n = np.max(np.abs(ZH_n - Zs)) / np.max(np.abs(Zs))
+    totals.append(row("2. FRF estimate", t_h, t_n, f"rel. err Z_H vs truth: hapid {e_h:.1e}, numpy {e_n:.1e} "
+                      "(numpy starts from rest: undecayed transient)", "`estimate_frf`",
+                      "per-frequency DFT + `inv`"))  # fmt: skip
+    # 3. WLS (both on hapid's FRF, so the comparison isolates the step)
+    f_hz = np.asarray(frf.freq_hz)
+    ZH, ZT = np.asarray(frf.Z_H), np.asarray(frf.Z_T)
+    raw, _, t_h = measure(lambda: wls(frf), repeat=rep)
+    num = lambda: (numpy_wls(f_hz, ZH), numpy_wls(f_hz, ZT))  # noqa: E731
+    wH, wT = num()
+    t_n = timeit(num, repeat=rep)
+    d = max(np.max(np.abs(np.asarray(raw.hand.M) - wH[0])) / np.max(np.abs(wH[0])),
+            np.max(np.abs(np.asarray(raw.total.K) - wT[2])) / np.max(np.abs(wT[2])))  # fmt: skip
+    row("3. WLS (paper 4.2), eager", t_h, t_n, f"max rel. diff M, K: {d:.1e}", "`wls`",
+        "loops over (i, j), `solve`")  # fmt: skip
+    jw = jax.jit(wls)
+    _, _, t_j = measure(lambda: jw(frf), repeat=rep)
+    totals.append(row("3. WLS, jax.jit", t_j, t_n, "", "`jax.jit(wls)`", "same"))
+    # 4. positize
+    pos, _, t_h = measure(lambda: positize(raw), repeat=rep)
+    mats_raw = [np.asarray(a) for so in (raw.hand, raw.total) for a in (so.M, so.B, so.K)]
+    num = lambda: [numpy_positize(a) for a in mats_raw]  # noqa: E731
+    pn = num()
+    t_n = timeit(num, repeat=rep)
+    mats_pos = [np.asarray(a) for so in (pos.hand, pos.total) for a in (so.M, so.B, so.K)]
+    d = max(np.max(np.abs(a - b)) / np.max(np.abs(b)) for a, b in zip(mats_pos, pn, strict=True))
+    row("4. positize, eager", t_h, t_n, f"max rel. diff: {d:.1e}", "`positize`",
+        "`eig`, V·abs(D)·V⁻¹ per matrix")  # fmt: skip
+    jp = jax.jit(positize)
+    _, _, t_j = measure(lambda: jp(raw), repeat=rep)
+    totals.append(row("4. positize, jax.jit", t_j, t_n, "", "`jax.jit(positize)`", "same"))
+    # 5. controller on the paper's analysis grid
+    fg_ = np.geomspace(1e-3, 0.49999 * dev.fs_hz, 1499)
+    omega = 2 * np.pi * np.append(fg_, 0.5 * dev.fs_hz)
+    g = Compensator.paper()
+    gjw = np.asarray(g.at_omega(omega))
+    G, _, t_h = measure(lambda: inverse_model_response(pos, g, omega), repeat=rep)
+    num = lambda: numpy_controller(mats_pos[:3], mats_pos[3:], gjw, omega)  # noqa: E731
+    Gn = num()
+    t_n = timeit(num, repeat=rep)
+    d = np.max(np.abs(np.asarray(G) - Gn)) / np.max(np.abs(Gn))
+    row("5. controller G = g Ẑ_T Ẑ_H⁻¹ (1500 freqs), eager", t_h, t_n, f"max rel. diff: {d:.1e}",
+        "`inverse_model_response`", "`solve` per frequency")  # fmt: skip
+    jc = jax.jit(lambda m, om: inverse_model_response(m, g, om))
+    _, _, t_j = measure(lambda: jc(pos, omega), repeat=rep)
+    totals.append(
+        row("5. controller, jax.jit", t_j, t_n, "", "`jax.jit(inverse_model_response)`", "same")
+    )
+    # 6. loop analysis
+    P = np.asarray(dev.sampled_P(omega))
+    Gh = np.asarray(G)
+    rep_e, _, t_e = measure(lambda: analyze_loop(P, Gh, omega), repeat=1 if quick else 2)
+    al = jax.jit(lambda P, G: analyze_loop(P, G, omega))
+    rep_j, _, t_j = measure(lambda: al(P, Gh), repeat=rep)
+    ln = numpy_loop(P, Gh, omega)
+    t_n = timeit(lambda: numpy_loop(P, Gh, omega), repeat=1 if quick else 3)
+    sh = rep_j.summary()
+    agree = (f"stable {sh['stable']}/{ln['stable']}, iso-bw {sh['iso_bandwidth_hz']:.3g}/{ln['iso_bandwidth_hz']:.3g} Hz, "
+             f"GM {sh['gm_db']:.2f}/{ln['gm_db']:.2f} dB, PM {sh['pm_deg']:.1f}/{ln['pm_deg']:.1f}°, "
+             f"disk {sh['disk_margin']:.3f}/{ln['disk_margin']:.3f} (hapid/numpy)")  # fmt: skip
+    row(
+        "6. loop analysis, eager",
+        t_e,
+        t_n,
+        "same as below",
+        "`analyze_loop`",
+        "numpy, see docstring",
+    )
+    totals.append(row("6. loop analysis, jax.jit", t_j, t_n, agree, "`jax.jit(analyze_loop)`",
+                      "numpy, see docstring"))  # fmt: skip
+    th, tn = sum(t[0] for t in totals), sum(t[1] for t in totals)
+    rows.append({"step": "**total (1–6, jit rows for 3–6)**", "hapid": fs(th), "numpy/scipy": fs(tn),
+                 "numpy ÷ hapid": f"{tn / th:.1f}×", "agreement": "", "hapid call": "", "numpy/scipy call": ""})  # fmt: skip
+    sec.add("cu5, paper protocol (noiseless); warm times (best of several calls after a warm-up call). "
+            "Both sides of steps 3–6 start from the same inputs (hapid's FRF, model, G).\n\n" + table(rows))  # fmt: skip
+    sec.rows["pipeline"] = rows
+    fig = str(Path(out) / "pipeline_steps.png")
+    _figure(rows, fig)
+    sec.figures.append(fig)
+    return sec
+
+
+def _seconds(txt: str) -> float:
+    v, unit = txt.split()
+    return float(v) * {"s": 1.0, "ms": 1e-3, "µs": 1e-6}[unit]
+
+
+def _figure(rows, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in rows if not r["step"].startswith("**")]
+    y = np.arange(len(rows))
+    th = [_seconds(r["hapid"]) for r in rows]
+    tn = [_seconds(r["numpy/scipy"]) for r in rows]
+    fig, ax = plt.subplots(figsize=(8, 0.45 * len(rows) + 1.2))
+    ax.barh(y - 0.2, th, 0.4, label="hapid")
+    ax.barh(y + 0.2, tn, 0.4, label="numpy/scipy")
+    ax.set_yticks(y, [r["step"] for r in rows], fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xscale("log")
+    ax.set_xlabel("time per call after warm-up [s]")
+    ax.set_title("paper pipeline step by step (cu5, paper protocol)", fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(True, axis="x", which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None):
+    return standalone(run, __doc__, argv)
+
+
+if __name__ == "__main__":
+    main()
