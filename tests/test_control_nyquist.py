@@ -119,6 +119,7 @@ def _check_family(n_loops, seed, N=2500):
     return counts
 
 
+@pytest.mark.slow  # the hypothesis property (tests/test_properties.py) covers this in the fast suite
 def test_nyquist_agrees_with_state_space_poles_small_family():
     c = _check_family(40, seed=1, N=2000)
     assert c["cl_stable"] >= 10 and c["cl_unstable"] >= 10 and c["ol_unstable_cl_stable"] >= 2
