@@ -31,6 +31,7 @@ from ._predictive import credible_bands as credible_bands
 from ._predictive import predictive_samples as predictive_samples
 from ._robust import RobustReport as RobustReport
 from ._robust import device_plants as device_plants
+from ._robust import posterior_omega as posterior_omega
 from ._robust import robust_check as robust_check
 from ._robust import robust_omega as robust_omega
 from ._sampler import MOVES as MOVES

@@ -80,14 +80,14 @@ def robust_from_files(
     """
     from ..control import Compensator
     from ..io import load_model
-    from ._robust import device_plants, robust_check, robust_omega
+    from ._robust import device_plants, posterior_omega, robust_check, robust_omega
     from ._sampler import load_samples
 
     model = load_model(model_path)
     ps = load_samples(samples_path, n=model.n)
     g = Compensator.paper() if g is None else g
-    omega = robust_omega()
-    out = {"posterior": robust_check(ps, (model, g), omega, gm_db=gm_db, pm_deg=pm_deg,
+    omega = robust_omega()  # sampled device plants: below Nyquist
+    out = {"posterior": robust_check(ps, (model, g), posterior_omega(), gm_db=gm_db, pm_deg=pm_deg,
                                      max_samples=max_samples).summary(), "device": None}  # fmt: skip
     if device is not None:
         from ..device import preset
