@@ -35,6 +35,7 @@ from hapid.control import Compensator  # noqa: E402
 from hapid.device import cu5  # noqa: E402
 from hapid.experiment import Protocol, estimate_frf, periodic_run  # noqa: E402
 from hapid.fit import fit_nls, wls  # noqa: E402
+from hapid.tune._recipe import TRAIN_OFFSETS  # noqa: E402
 from hapid.uncertainty import (  # noqa: E402
     ShortChainWarning,
     batched_log_prob,
@@ -137,17 +138,7 @@ def _body():
     omega = robust_omega(1000)
     g = Compensator.paper()
     models = {"WLS": wls(frf), "NLS": nls.model}
-    poses = [
-        dev.pose.moved(*o)
-        for o in (
-            (0.04, 0, 0),
-            (-0.04, 0, 0),
-            (0, 0.04, 0),
-            (0, -0.04, 0),
-            (0, 0, 0.04),
-            (0, 0, -0.04),
-        )
-    ]
+    poses = [dev.pose.moved(*o) for o in TRAIN_OFFSETS]  # ±4 cm along each axis
     labels, Pdev = device_plants(dev, omega, poses=poses, n_subjects=10, key=0)
     rows = []
     for name, m in models.items():

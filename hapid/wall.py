@@ -123,7 +123,7 @@ def closed_loop_wall_steady_state(device: ParallelDevice, controller, direction,
     the wall closed (``< 1``: the contact is stable)."""
     from .closed_loop import closed_loop
 
-    n, d = device.n, device.delay_samples
+    n = device.n
     e = _unit(direction, n)
     cl = closed_loop(device, controller)
     A, B, C = (np.asarray(x) for x in (cl.A, cl.B, cl.C))
@@ -137,7 +137,6 @@ def closed_loop_wall_steady_state(device: ParallelDevice, controller, direction,
     y = C @ x
     xi_hat = np.linalg.solve(np.asarray(device.jacobian()), y[:n])
     rho = float(np.max(np.abs(np.linalg.eigvals(Aw))))
-    del d
     return {"penetration": float(e @ xi), "estimate": float(e @ xi_hat), "spectral_radius": rho,
             "R_I": y[n:], "R_D": W @ y[:n]}  # fmt: skip
 

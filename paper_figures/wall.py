@@ -13,8 +13,13 @@ from pathlib import Path
 import numpy as np
 
 import hapid  # noqa: F401  (float64)
-from hapid.control import Compensator, discretize_compensator, discretize_controller, max_siso_gain
-from hapid.control._discrete import DiscreteStateSpace
+from hapid.control import (
+    Compensator,
+    discretize_compensator,
+    discretize_controller,
+    discretize_siso_controller,
+    max_siso_gain,
+)
 from hapid.device import cu5
 from hapid.experiment import Protocol, estimate_frf, periodic_run
 from hapid.fit import fit_nls, positize, wls
@@ -37,9 +42,7 @@ def controllers(dev):
     omega = analysis_grid(merge({})["analysis"], dev.fs_hz)
     gd = discretize_compensator(g, dev.ts)
     c = float(max_siso_gain(np.asarray(dev.sampled_P(omega)), omega, np.asarray(gd.at_omega(omega)).reshape(-1)))
-    eye = np.eye(dev.n)
-    out[f"SISO c={c:.2f}"] = DiscreteStateSpace(np.kron(eye, gd.A), np.kron(eye, gd.B), c * np.kron(eye, gd.C),
-                                                c * np.kron(eye, gd.D), ts=dev.ts)  # fmt: skip
+    out[f"SISO c={c:.2f}"] = discretize_siso_controller(g, c, dev.ts, dev.n)
     return out
 
 

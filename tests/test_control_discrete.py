@@ -64,3 +64,13 @@ def test_discrete_step_in_scan_reproduces_frequency_response():
     Hd = np.asarray(D.at_omega(jnp.array([2 * np.pi * f])))[0][:, 1]
     ref = np.real(Hd[None, :] * np.exp(1j * 2 * np.pi * f * tt)[:, None])
     np.testing.assert_allclose(y, ref, atol=1e-6 * np.abs(Hd).max())
+
+
+def test_siso_controller_is_c_times_the_sampled_g_on_the_diagonal():
+    from hapid.control import discretize_compensator, discretize_siso_controller
+
+    g, ts, c, n = Compensator.paper(), 1e-3, 0.37, 4
+    omega = 2 * np.pi * np.geomspace(0.1, 450, 60)
+    G = np.asarray(discretize_siso_controller(g, c, ts, n).at_omega(omega))
+    gd = np.asarray(discretize_compensator(g, ts).at_omega(omega)).reshape(-1)
+    np.testing.assert_allclose(G, c * gd[:, None, None] * np.eye(n), rtol=1e-10, atol=1e-12)

@@ -44,10 +44,11 @@ def _freq_resp(A, B, C, D, w):
     return C @ X + D
 
 
-def _random_loop(rng):
+def _random_loop(rng, n=None):
     """(n, plant, controller): 35 % square plants with RHP modes stabilizable by gain,
-    else random plants (20 % with RHP modes); controllers static, low-pass or unstable."""
-    n = int(rng.integers(2, 6))
+    else random plants (20 % with RHP modes); controllers static, low-pass or unstable.
+    ``n`` rods (default: random 2–5)."""
+    n = int(rng.integers(2, 6)) if n is None else n
     if rng.random() < 0.35:
         A = _random_A(rng, n, int(rng.integers(1, 3)))
         B = rng.standard_normal((n, n)) + 2 * np.eye(n)

@@ -163,33 +163,12 @@ N_GRID = 1500
 
 
 def _random_loop(rng):
-    """(P, G) state spaces, n = 3: plants with 0–2 RHP modes, static or first-order G."""
-    from test_control_nyquist import _random_A
+    """(P, G) state spaces, n = 3, from the seeded family of test_control_nyquist (plants
+    with 0–2 RHP modes; static, low-pass or unstable first-order G)."""
+    from test_control_nyquist import _random_loop as family_loop
 
-    n = N_ROD
-    if rng.random() < 0.35:  # square plant with RHP modes, stabilizable by high gain
-        A = _random_A(rng, n, int(rng.integers(1, 3)))
-        B = rng.standard_normal((n, n)) + 2 * np.eye(n)
-        C = (np.eye(n) + 0.2 * rng.standard_normal((n, n))) @ np.linalg.inv(B)
-        K, c = np.eye(n), 10 ** rng.uniform(0, 2.5)
-    else:
-        nx = n + int(rng.integers(0, 4))
-        A = _random_A(rng, nx, int(rng.integers(1, 3)) if rng.random() < 0.2 else 0)
-        B, C = rng.standard_normal((nx, n)), rng.standard_normal((n, nx))
-        K = np.eye(n) + 0.5 * rng.standard_normal((n, n))
-        w = np.logspace(-2, 3, 100)
-        Pw = C @ np.linalg.solve(
-            1j * w[:, None, None] * np.eye(nx) - A, np.broadcast_to(B, (100,) + B.shape)
-        )
-        c = 10 ** rng.uniform(-1.5, 1.5) / np.median(np.linalg.norm(Pw, 2, axis=(1, 2)))
-    Ps = StateSpace(jnp.asarray(A), jnp.asarray(B), jnp.asarray(C), jnp.zeros((n, n)))
-    if rng.random() < 0.5:
-        Gs = StateSpace(jnp.zeros((0, 0)), jnp.zeros((0, n)), jnp.zeros((n, 0)), jnp.asarray(c * K))
-    else:
-        a = 10 ** rng.uniform(0, 2.5) * (1 if rng.random() < 0.85 else -0.05)
-        Gs = StateSpace(jnp.asarray(-a * np.eye(n)), jnp.asarray(abs(a) * c * K),
-                        jnp.eye(n), jnp.zeros((n, n)))  # fmt: skip
-    return Ps, Gs
+    _, P, G = family_loop(rng, N_ROD)
+    return tuple(StateSpace(*(jnp.asarray(m) for m in ss)) for ss in (P, G))
 
 
 @settings(max_examples=12, **SETTINGS)

@@ -4,8 +4,13 @@ import equinox as eqx
 import numpy as np
 import pytest
 
-from hapid.control import Compensator, discretize_compensator, discretize_controller, max_siso_gain
-from hapid.control._discrete import DiscreteStateSpace
+from hapid.control import (
+    Compensator,
+    discretize_compensator,
+    discretize_controller,
+    discretize_siso_controller,
+    max_siso_gain,
+)
 from hapid.device import SecondOrderDevice, cu5, tripod3
 from hapid.experiment import Protocol, estimate_frf, periodic_run
 from hapid.fit import fit_nls
@@ -37,10 +42,7 @@ def loops():
             np.asarray(dev.sampled_P(omega)), omega, np.asarray(gd.at_omega(omega)).reshape(-1)
         )
     )
-    eye = np.eye(dev.n)
-    siso = DiscreteStateSpace(np.kron(eye, gd.A), np.kron(eye, gd.B), c * np.kron(eye, gd.C),
-                              c * np.kron(eye, gd.D), ts=dev.ts)  # fmt: skip
-    return dev, mimo, siso
+    return dev, mimo, discretize_siso_controller(g, c, dev.ts, dev.n)
 
 
 @pytest.mark.parametrize("make", [cu5, tripod3])

@@ -463,12 +463,17 @@ def case_noise(fast=False):
 # ---------------------------------------------------------------------------------------
 
 
+def _sym_with_eigenvalues(rng, n: int):
+    """``ev ↦ Q diag(ev) Qᵀ`` for one random orthogonal ``Q`` drawn from ``rng`` (symmetric
+    matrices with prescribed eigenvalues sharing eigenvectors)."""
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    return lambda ev: jnp.asarray((Q * np.asarray(ev, float)) @ Q.T)
+
+
 def case_stiff(fast=False):
     rows = []
     n = 3
-    rng = np.random.default_rng(0)
-    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
-    sym = lambda ev: jnp.asarray((Q * np.asarray(ev, float)) @ Q.T)  # noqa: E731
+    sym = _sym_with_eigenvalues(np.random.default_rng(0), n)
     B, K = sym([20.0, 10.0, 5.0]), sym([1e3, 5e2, 2e2])
     for label, Mev in (("M ratio 1e6", [1.0, 1e-3, 1e-6]), ("M ratio 1e12", [1.0, 1e-6, 1e-12]),
                        ("M singular (rank 2)", [1.0, 0.5, 0.0])):  # fmt: skip
@@ -596,8 +601,7 @@ def case_positize(fast=False):
     rows = []
     n = 3
     rng = np.random.default_rng(10)
-    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
-    sym = lambda ev: jnp.asarray((Q * np.asarray(ev, float)) @ Q.T)  # noqa: E731
+    sym = _sym_with_eigenvalues(rng, n)
     M, K = sym([1.0, 0.5, 0.2]), sym([1e3, 500.0, 200.0])
     for label, b0 in (("B eigenvalue +1e-9 (roots Re ≈ −5e-10)", 1e-9),
                       ("B eigenvalue −1e-9 (roots Re ≈ +5e-10)", -1e-9)):  # fmt: skip

@@ -26,6 +26,7 @@ from ._discrete import DiscreteController as DiscreteController
 from ._discrete import DiscreteStateSpace as DiscreteStateSpace
 from ._discrete import discretize_compensator as discretize_compensator
 from ._discrete import discretize_controller as discretize_controller
+from ._discrete import discretize_siso_controller as discretize_siso_controller
 from ._discrete import discretize_state_space as discretize_state_space
 from ._loop import ISO_THRESHOLD as ISO_THRESHOLD
 from ._loop import LoopReport as LoopReport

@@ -199,6 +199,13 @@ def discretize_controller(
     return DiscreteStateSpace(s.A, s.B, s.C, s.D, ts=float(ts))
 
 
+def discretize_siso_controller(g, c: float, ts: float, n: int) -> DiscreteStateSpace:
+    """The SISO baseline ``G = c·g(s)·I_n`` sampled at ``ts`` (matched pole-zero ``g``, as
+    :func:`discretize_controller` uses): ``n`` decoupled copies, output scaled by ``c``."""
+    gbig = _blockdiag_g_discrete(discretize_compensator(g, ts), n)
+    return DiscreteStateSpace(gbig.A, gbig.B, c * gbig.C, c * gbig.D, ts=float(ts))
+
+
 def _blockdiag_g_discrete(gd: DiscreteStateSpace, n: int) -> StateSpace:
     eye = jnp.eye(n)
     return StateSpace(

@@ -14,16 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..control import Compensator
-
-_FIELDS = (
-    "k",
-    "lag_zeros",
-    "lag_poles",
-    "notch_omega",
-    "notch_zeta_num",
-    "notch_zeta_den",
-    "lowpass",
-)
+from ._params import _FIELDS
 
 
 def save_design(path, g: Compensator, **info) -> Path:
