@@ -26,7 +26,17 @@ plant's are the roots of det Ẑ_T,s with ``Re > 0`` (none for PD matrices); a d
 Summary statistics. An unstable sample counts as the worst possible value of every margin
 (``−inf`` dB/deg, disk margin 0) and of the bandwidth (0 Hz), so a 5 % quantile is only
 finite when fewer than 5 % of the samples are unstable. ``passed``: ``P(stable) ≥
-p_stable_required`` and the 5 % quantiles of GM and PM meet ``gm_db`` / ``pm_deg``.
+p_stable_required`` and the 5 % quantiles of GM and PM meet ``gm_db`` / ``pm_deg``;
+:meth:`RobustReport.reasons` says which requirement failed and by how much.
+
+**Margin sign convention** (the same as :func:`hapid.control.max_siso_gain`). The raw
+``gm_db``/``pm_deg`` of a plant are *signed* (``pm = ∠λ + 180°`` wrapped to [−180°, 180°) at
+the gain crossing nearest −1; a negative value means the locus crosses beyond −180°, a
+conditionally stable crossing that a phase *lead* or gain *decrease* would destabilize).
+Stability is decided by the generalized Nyquist count, not by the sign; on a loop that count
+calls stable, the margin is the size of the smallest perturbation that reaches −1, i.e.
+``|GM|`` and ``|PM|``. Quantiles and ``passed`` therefore use ``|GM|``, ``|PM|`` of stable
+plants (unstable: ``−inf``); :meth:`RobustReport.rows` keeps the signed values.
 
 CPU hang (jax 0.10.2). A ``vmap`` of ``analyze_loop`` over a chunk of plants hung
 intermittently on this project's 2-core CPU machine (about 1 process in 4, CPU idle inside
@@ -54,7 +64,15 @@ from ..impedance import ImpedanceModel
 from ._sampler import PosteriorSamples
 
 TWO_PI = 2.0 * np.pi
-FIELDS = ("gm_db", "pm_deg", "disk_margin", "disk_gm_db", "disk_pm_deg", "iso_bandwidth_hz", "t_peak_db")
+FIELDS = (
+    "gm_db",
+    "pm_deg",
+    "disk_margin",
+    "disk_gm_db",
+    "disk_pm_deg",
+    "iso_bandwidth_hz",
+    "t_peak_db",
+)
 _WORST = {"gm_db": -np.inf, "pm_deg": -np.inf, "disk_margin": 0.0, "disk_gm_db": 0.0,
           "disk_pm_deg": 0.0, "iso_bandwidth_hz": 0.0, "t_peak_db": np.inf}  # fmt: skip
 
@@ -66,7 +84,9 @@ def robust_omega(n_freq: int = 1000, f_min_hz: float = 0.05, f_max_hz: float = 4
     return TWO_PI * np.geomspace(f_min_hz, f_max_hz, n_freq)
 
 
-def posterior_omega(n_freq: int = 1500, f_min_hz: float = 0.005, f_max_hz: float = 5000.0) -> np.ndarray:
+def posterior_omega(
+    n_freq: int = 1500, f_min_hz: float = 0.005, f_max_hz: float = 5000.0
+) -> np.ndarray:
     """Grid for *continuous* model plants (posterior samples), rad/s: 0.005 Hz – 5 kHz.
 
     The generalized Nyquist count of a continuous loop ``P̂_s · g Ẑ_T Ẑ_H⁻¹`` is only
@@ -109,8 +129,11 @@ class RobustReport:
         return float(np.mean(self.stable))
 
     def penalized(self, name: str) -> np.ndarray:
-        """Field ``name`` with unstable plants set to the worst value (module docstring)."""
+        """Field ``name`` with unstable plants set to the worst value; GM and PM as
+        magnitudes ``|GM|``, ``|PM|`` (module docstring, "Margin sign convention")."""
         v = np.asarray(getattr(self, name), dtype=float)
+        if name in ("gm_db", "pm_deg"):
+            v = np.abs(v)
         return np.where(self.stable, v, _WORST[name])
 
     def quantile(self, name: str, q: float) -> float:
@@ -128,11 +151,27 @@ class RobustReport:
 
     @property
     def passed(self) -> bool:
-        return (
-            self.p_stable >= self.p_stable_required
-            and self.quantile("gm_db", 0.05) >= self.gm_req_db
-            and self.quantile("pm_deg", 0.05) >= self.pm_req_deg
-        )
+        return not self.reasons()
+
+    def reasons(self) -> list[str]:
+        """Why the check did not pass — one line per failed requirement, with how far the
+        5 % quantile (or ``P(stable)``) is from the requirement and what fraction of plants
+        miss it; empty when it passed."""
+        out = []
+        if self.p_stable < self.p_stable_required:
+            out.append(f"P(stable) {self.p_stable:.3f} < required {self.p_stable_required:.3f} "
+                       f"({int(np.sum(~np.asarray(self.stable, bool)))} of {self.n} plants unstable)")  # fmt: skip
+        for name, req, unit, label in (("gm_db", self.gm_req_db, "dB", "|GM|"),
+                                       ("pm_deg", self.pm_req_deg, "°", "|PM|")):  # fmt: skip
+            q = self.quantile(name, 0.05)
+            if not q >= req:
+                frac = float(np.mean(self.penalized(name) < req))
+                short = (
+                    "unstable plants" if not np.isfinite(q) else f"short by {req - q:.3g} {unit}"
+                )
+                out.append(f"{label} 5 % quantile {q:.4g} {unit} < required {req:g} {unit} ({short}; "
+                           f"{100 * frac:.1f} % of plants below {req:g} {unit})")  # fmt: skip
+        return out
 
     def summary(self) -> dict:
         """Plain-python summary: P(stable), 5 %/50 % quantiles, worst plant, pass/fail."""
@@ -143,17 +182,23 @@ class RobustReport:
             out[f"{f}_q50"] = self.quantile(f, 0.50)
         out["worst_index"] = w
         out["worst_label"] = None if self.labels is None else self.labels[w]
-        out["worst"] = {f: float(getattr(self, f)[w]) for f in FIELDS} | {"stable": bool(self.stable[w])}
+        out["worst"] = {f: float(getattr(self, f)[w]) for f in FIELDS} | {
+            "stable": bool(self.stable[w])
+        }
         out["requirements"] = {"gm_db": self.gm_req_db, "pm_deg": self.pm_req_deg,
                                "p_stable": self.p_stable_required}  # fmt: skip
         out["passed"] = self.passed
+        out["reasons"] = self.reasons()
         return out
 
     def rows(self) -> list[dict]:
         """One dict per plant (label, stable, margins, bandwidth)."""
         rows = []
         for i in range(self.n):
-            r = {"label": None if self.labels is None else self.labels[i], "stable": bool(self.stable[i])}
+            r = {
+                "label": None if self.labels is None else self.labels[i],
+                "stable": bool(self.stable[i]),
+            }
             r |= {f: float(getattr(self, f)[i]) for f in FIELDS}
             rows.append(r)
         return rows
@@ -207,7 +252,9 @@ def controller_response(controller, omega):
     if isinstance(controller, tuple) and len(controller) == 2:
         model, g = controller
         if not isinstance(model, ImpedanceModel) or not isinstance(g, Compensator):
-            raise ValueError("controller must be (nominal ImpedanceModel, Compensator) or G (N, n, n)")
+            raise ValueError(
+                "controller must be (nominal ImpedanceModel, Compensator) or G (N, n, n)"
+            )
         G = inverse_model_response(model, g, omega)
         return G, int(controller_unstable_poles(model, g))
     G = jnp.asarray(controller, dtype=jnp.complex128)
@@ -252,7 +299,11 @@ def robust_check(
     Returns a :class:`RobustReport`.
     """
     if omega is None:
-        omega = posterior_omega() if isinstance(plants, PosteriorSamples | ImpedanceModel) else robust_omega()
+        omega = (
+            posterior_omega()
+            if isinstance(plants, PosteriorSamples | ImpedanceModel)
+            else robust_omega()
+        )
     omega = np.asarray(omega, dtype=float)
     if omega.ndim != 1 or np.any(np.diff(omega) <= 0) or np.any(omega <= 0):
         raise ValueError("omega must be a strictly increasing (N,) array of positive rad/s")
@@ -281,12 +332,18 @@ def robust_check(
         get = lambda i, j: (P[i:j], pol[i:j])  # noqa: E731
     if S == 0:
         raise ValueError("robust_check: no plants")
-    if G.shape[-1] != (plants.n if isinstance(plants, PosteriorSamples | ImpedanceModel) else G.shape[-1]):
-        raise ValueError(f"controller is {G.shape[-1]}×{G.shape[-1]} but the plants have n = {plants.n}")
+    if G.shape[-1] != (
+        plants.n if isinstance(plants, PosteriorSamples | ImpedanceModel) else G.shape[-1]
+    ):
+        raise ValueError(
+            f"controller is {G.shape[-1]}×{G.shape[-1]} but the plants have n = {plants.n}"
+        )
     parts = []
     for i in range(0, S, chunk):
         Pc, pol = get(i, min(S, i + chunk))
-        parts.append(_analyze_chunk(Pc, jnp.asarray(pol, dtype=jnp.float64) + c_rhp, G, om, vectorize))
+        parts.append(
+            _analyze_chunk(Pc, jnp.asarray(pol, dtype=jnp.float64) + c_rhp, G, om, vectorize)
+        )
     res = {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in parts[0]}
     if labels is not None and len(labels) != S:
         raise ValueError(f"{len(labels)} labels for {S} plants")
@@ -304,7 +361,9 @@ def _sampled_P(device, omega):
     return device.sampled_P(omega)
 
 
-def device_plants(device, omega=None, *, poses=(), n_subjects: int = 0, key=0, include_nominal: bool = True):
+def device_plants(
+    device, omega=None, *, poses=(), n_subjects: int = 0, key=0, include_nominal: bool = True
+):
     """True sampled plants of a simulated device's variants: ``(labels, P (S, N, n, n))``.
 
     - ``device``: a :class:`hapid.device.ParallelDevice` (e.g. ``cu5()``).
