@@ -33,12 +33,8 @@ def _protocol_args(p):
     g.add_argument("--freqs", default="paper",
                    help="excited frequencies in Hz: 'paper' (1..10, 15..100) or a comma list")  # fmt: skip
     g.add_argument("--fs", type=float, default=1000.0, help="sampling rate (Hz), default 1000")
-    g.add_argument(
-        "--period", type=int, default=1000, help="period length in samples (default 1000)"
-    )
-    g.add_argument(
-        "--periods", type=int, default=4, help="measured periods per experiment (default 4)"
-    )
+    g.add_argument("--period", type=int, default=1000, help="period length in samples (default 1000)")
+    g.add_argument("--periods", type=int, default=4, help="measured periods per experiment (default 4)")
     g.add_argument("--transient", type=int, default=1, help="discarded periods (time domain)")
     g.add_argument("--pattern", default="paper", choices=["paper", "one_at_a_time", "hadamard"])
     g.add_argument("--phases", default="random", choices=["random", "schroeder", "min_crest"])
@@ -46,9 +42,7 @@ def _protocol_args(p):
     g.add_argument("--seed", type=int, default=0, help="seed of phases and noise")
     g.add_argument("--noise", type=float, default=5e-3, help="force-sensor noise std (N)")
     g.add_argument("--position-noise", type=float, default=0.0, help="encoder noise std (m)")
-    g.add_argument(
-        "--encoder-res", type=float, default=2e-6, help="encoder resolution (m), 0 = off"
-    )
+    g.add_argument("--encoder-res", type=float, default=2e-6, help="encoder resolution (m), 0 = off")
 
 
 def _protocol(a):
@@ -276,14 +270,10 @@ def cmd_fit(a):
     after = crhp_report(model)
     lo, hi = pphat_band_db(frf.P, model, frf.omega, a.band_hz)
     out = io.save_model(a.out, model, **meta)
-    print(
-        f"{meta['method']}: status {status}" + (f", cost {cost:.4g}" if np.isfinite(cost) else "")
-    )
+    print(f"{meta['method']}: status {status}" + (f", cost {cost:.4g}" if np.isfinite(cost) else ""))
     print(f"CRHP roots of det Ẑ_H, det Ẑ_T: before {int(before.hand)}, {int(before.total)} → "
           f"after {int(after.hand)}, {int(after.total)}")  # fmt: skip
-    print(
-        f"P·P̂⁻¹ band to {a.band_hz:g} Hz (measured P): {float(lo):+.1f} / {float(hi):+.1f} dB → {out}"
-    )
+    print(f"P·P̂⁻¹ band to {a.band_hz:g} Hz (measured P): {float(lo):+.1f} / {float(hi):+.1f} dB → {out}")
 
 
 TWO_PI = 6.283185307179586
@@ -328,11 +318,7 @@ def cmd_analyze(a):
     if a.out:
         Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         Path(a.out).write_text(json.dumps(out, indent=2, default=float))
-    verdict = (
-        "STABLE"
-        if s["stable"]
-        else ("UNSTABLE" if s.get("nyquist_resolved", True) else "UNDECIDED (grid too coarse)")
-    )
+    verdict = "STABLE" if s["stable"] else ("UNSTABLE" if s.get("nyquist_resolved", True) else "UNDECIDED (grid too coarse)")
     print(f"closed loop: {verdict} (generalized Nyquist, {s['n_encirclements']} encirclements)")
     if s["stable"]:
         print(f"isotropic bandwidth {s['iso_bandwidth_hz']:.2f} Hz (paper-literal "
@@ -432,14 +418,9 @@ def _register_stages(sub):
     po.add_argument("--model", help="(unused: the NLS fit is redone as the start point)")
     po.add_argument("--method", choices=["emcee", "laplace"], default="emcee")
     po.add_argument("--walkers", type=int, default=0, help="0 = 2·dim + 2")
-    po.add_argument(
-        "--free-boundary",
-        action="store_true",
-        help="also sample matrices the NLS fit put on the PSD boundary (default: hold them)",
-    )
-    po.add_argument(
-        "--moves", default="de", help="emcee moves: de (default), laplace_de, de_mix, stretch"
-    )
+    po.add_argument("--free-boundary", action="store_true",
+                    help="also sample matrices the NLS fit put on the PSD boundary (default: hold them)")
+    po.add_argument("--moves", default="de", help="emcee moves: de (default), laplace_de, de_mix, stretch")
     po.add_argument("--steps", type=int, help="emcee steps (default: run to 50 τ)")
     po.add_argument("--samples", type=int, default=4000, help="Laplace draws")
     po.add_argument("--f-max-hz", type=float, default=40.0)
@@ -552,25 +533,13 @@ def _register_tune(sub):
                         epilog="example: hapid tune --model nls.npz --samples samples.npz --device cu5 --out design.npz")  # fmt: skip
     tu.add_argument("--model", required=True, help="nominal model file (the controller inverts it)")
     tu.add_argument("--samples", help="posterior samples file (hapid posterior)")
-    tu.add_argument(
-        "--device",
-        help="preset device: tune on its pose/subject variants, validate on its true plant",
-    )
+    tu.add_argument("--device", help="preset device: tune on its pose/subject variants, validate on its true plant")
     tu.add_argument("--out", required=True, help="design file (.npz)")
     tu.add_argument("--report", help="JSON report of the re-check")
     tu.add_argument("--n-train", type=int, default=80, help="posterior samples used for tuning")
-    tu.add_argument(
-        "--n-holdout", type=int, default=200, help="held-out posterior samples for the re-check"
-    )
-    tu.add_argument(
-        "--quantile",
-        type=float,
-        default=0.95,
-        help="fraction of samples that must meet the margins",
-    )
-    tu.add_argument(
-        "--subjects", type=int, default=16, help="virtual subjects among the device variants"
-    )
+    tu.add_argument("--n-holdout", type=int, default=200, help="held-out posterior samples for the re-check")
+    tu.add_argument("--quantile", type=float, default=0.95, help="fraction of samples that must meet the margins")
+    tu.add_argument("--subjects", type=int, default=16, help="virtual subjects among the device variants")
     tu.add_argument("--max-steps", type=int, default=300, help="BFGS steps per continuation stage")
     tu.add_argument("--free-dc", action="store_true",
                     help="let |g(0)| drop below the paper g's (trades static force accuracy for bandwidth)")  # fmt: skip
@@ -584,13 +553,7 @@ def _register_predict(sub):
     register(sub)
 
 
-_EXTRA: list = [
-    _register_scene,
-    _register_stages,
-    _register_sweep,
-    _register_tune,
-    _register_predict,
-]  # later stages register their subcommands here
+_EXTRA: list = [_register_scene, _register_stages, _register_sweep, _register_tune, _register_predict]  # later stages register their subcommands here
 
 
 def main(argv=None) -> int:

@@ -125,9 +125,7 @@ def _run_csv(run: Run) -> str:
     buf.write(f"# fs_hz={run.fs_hz!r}; period_samples={run.period_samples}; ")
     buf.write("freq_hz=" + " ".join(repr(float(f)) for f in run.freq_hz) + "\n")
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(
-        ["experiment", "sample"] + [f"{k}_{i}" for k in ("R_A", "R_I", "L") for i in range(n)]
-    )
+    w.writerow(["experiment", "sample"] + [f"{k}_{i}" for k in ("R_A", "R_I", "L") for i in range(n)])
     for e in range(E):
         block = np.concatenate([run.R_A[e], run.R_I[e], run.L[e]], axis=1)
         for t in range(T):
@@ -142,9 +140,7 @@ def _read_run_csv(path) -> dict:
     with open(path) as fh:
         head = fh.readline()
         if not head.startswith("#"):
-            raise FileFormatError(
-                f"{path}: first line must be '# fs_hz=…; period_samples=…; freq_hz=…'"
-            )
+            raise FileFormatError(f"{path}: first line must be '# fs_hz=…; period_samples=…; freq_hz=…'")
         meta = dict(part.strip().split("=", 1) for part in head[1:].split(";") if "=" in part)
         rows = list(csv.reader(fh))
     try:

@@ -64,15 +64,7 @@ from ..impedance import ImpedanceModel
 from ._sampler import PosteriorSamples
 
 TWO_PI = 2.0 * np.pi
-FIELDS = (
-    "gm_db",
-    "pm_deg",
-    "disk_margin",
-    "disk_gm_db",
-    "disk_pm_deg",
-    "iso_bandwidth_hz",
-    "t_peak_db",
-)
+FIELDS = ("gm_db", "pm_deg", "disk_margin", "disk_gm_db", "disk_pm_deg", "iso_bandwidth_hz", "t_peak_db")
 _WORST = {"gm_db": -np.inf, "pm_deg": -np.inf, "disk_margin": 0.0, "disk_gm_db": 0.0,
           "disk_pm_deg": 0.0, "iso_bandwidth_hz": 0.0, "t_peak_db": np.inf}  # fmt: skip
 
@@ -84,9 +76,7 @@ def robust_omega(n_freq: int = 1000, f_min_hz: float = 0.05, f_max_hz: float = 4
     return TWO_PI * np.geomspace(f_min_hz, f_max_hz, n_freq)
 
 
-def posterior_omega(
-    n_freq: int = 1500, f_min_hz: float = 0.005, f_max_hz: float = 5000.0
-) -> np.ndarray:
+def posterior_omega(n_freq: int = 1500, f_min_hz: float = 0.005, f_max_hz: float = 5000.0) -> np.ndarray:
     """Grid for *continuous* model plants (posterior samples), rad/s: 0.005 Hz – 5 kHz.
 
     The generalized Nyquist count of a continuous loop ``P̂_s · g Ẑ_T Ẑ_H⁻¹`` is only
@@ -159,16 +149,15 @@ class RobustReport:
         miss it; empty when it passed."""
         out = []
         if self.p_stable < self.p_stable_required:
+            n_bad = int(np.sum(~np.asarray(self.stable, bool)))
             out.append(f"P(stable) {self.p_stable:.3f} < required {self.p_stable_required:.3f} "
-                       f"({int(np.sum(~np.asarray(self.stable, bool)))} of {self.n} plants unstable)")  # fmt: skip
+                       f"({n_bad} of {self.n} plants unstable)")  # fmt: skip
         for name, req, unit, label in (("gm_db", self.gm_req_db, "dB", "|GM|"),
                                        ("pm_deg", self.pm_req_deg, "°", "|PM|")):  # fmt: skip
             q = self.quantile(name, 0.05)
             if not q >= req:
                 frac = float(np.mean(self.penalized(name) < req))
-                short = (
-                    "unstable plants" if not np.isfinite(q) else f"short by {req - q:.3g} {unit}"
-                )
+                short = "unstable plants" if not np.isfinite(q) else f"short by {req - q:.3g} {unit}"
                 out.append(f"{label} 5 % quantile {q:.4g} {unit} < required {req:g} {unit} ({short}; "
                            f"{100 * frac:.1f} % of plants below {req:g} {unit})")  # fmt: skip
         return out
@@ -182,9 +171,7 @@ class RobustReport:
             out[f"{f}_q50"] = self.quantile(f, 0.50)
         out["worst_index"] = w
         out["worst_label"] = None if self.labels is None else self.labels[w]
-        out["worst"] = {f: float(getattr(self, f)[w]) for f in FIELDS} | {
-            "stable": bool(self.stable[w])
-        }
+        out["worst"] = {f: float(getattr(self, f)[w]) for f in FIELDS} | {"stable": bool(self.stable[w])}
         out["requirements"] = {"gm_db": self.gm_req_db, "pm_deg": self.pm_req_deg,
                                "p_stable": self.p_stable_required}  # fmt: skip
         out["passed"] = self.passed
@@ -195,10 +182,7 @@ class RobustReport:
         """One dict per plant (label, stable, margins, bandwidth)."""
         rows = []
         for i in range(self.n):
-            r = {
-                "label": None if self.labels is None else self.labels[i],
-                "stable": bool(self.stable[i]),
-            }
+            r = {"label": None if self.labels is None else self.labels[i], "stable": bool(self.stable[i])}
             r |= {f: float(getattr(self, f)[i]) for f in FIELDS}
             rows.append(r)
         return rows
@@ -252,9 +236,7 @@ def controller_response(controller, omega):
     if isinstance(controller, tuple) and len(controller) == 2:
         model, g = controller
         if not isinstance(model, ImpedanceModel) or not isinstance(g, Compensator):
-            raise ValueError(
-                "controller must be (nominal ImpedanceModel, Compensator) or G (N, n, n)"
-            )
+            raise ValueError("controller must be (nominal ImpedanceModel, Compensator) or G (N, n, n)")
         G = inverse_model_response(model, g, omega)
         return G, int(controller_unstable_poles(model, g))
     G = jnp.asarray(controller, dtype=jnp.complex128)
@@ -299,11 +281,7 @@ def robust_check(
     Returns a :class:`RobustReport`.
     """
     if omega is None:
-        omega = (
-            posterior_omega()
-            if isinstance(plants, PosteriorSamples | ImpedanceModel)
-            else robust_omega()
-        )
+        omega = posterior_omega() if isinstance(plants, PosteriorSamples | ImpedanceModel) else robust_omega()
     omega = np.asarray(omega, dtype=float)
     if omega.ndim != 1 or np.any(np.diff(omega) <= 0) or np.any(omega <= 0):
         raise ValueError("omega must be a strictly increasing (N,) array of positive rad/s")
@@ -332,18 +310,12 @@ def robust_check(
         get = lambda i, j: (P[i:j], pol[i:j])  # noqa: E731
     if S == 0:
         raise ValueError("robust_check: no plants")
-    if G.shape[-1] != (
-        plants.n if isinstance(plants, PosteriorSamples | ImpedanceModel) else G.shape[-1]
-    ):
-        raise ValueError(
-            f"controller is {G.shape[-1]}×{G.shape[-1]} but the plants have n = {plants.n}"
-        )
+    if G.shape[-1] != (plants.n if isinstance(plants, PosteriorSamples | ImpedanceModel) else G.shape[-1]):
+        raise ValueError(f"controller is {G.shape[-1]}×{G.shape[-1]} but the plants have n = {plants.n}")
     parts = []
     for i in range(0, S, chunk):
         Pc, pol = get(i, min(S, i + chunk))
-        parts.append(
-            _analyze_chunk(Pc, jnp.asarray(pol, dtype=jnp.float64) + c_rhp, G, om, vectorize)
-        )
+        parts.append(_analyze_chunk(Pc, jnp.asarray(pol, dtype=jnp.float64) + c_rhp, G, om, vectorize))
     res = {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in parts[0]}
     if labels is not None and len(labels) != S:
         raise ValueError(f"{len(labels)} labels for {S} plants")
@@ -361,9 +333,7 @@ def _sampled_P(device, omega):
     return device.sampled_P(omega)
 
 
-def device_plants(
-    device, omega=None, *, poses=(), n_subjects: int = 0, key=0, include_nominal: bool = True
-):
+def device_plants(device, omega=None, *, poses=(), n_subjects: int = 0, key=0, include_nominal: bool = True):
     """True sampled plants of a simulated device's variants: ``(labels, P (S, N, n, n))``.
 
     - ``device``: a :class:`hapid.device.ParallelDevice` (e.g. ``cu5()``).
