@@ -48,7 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
-from ..control import Compensator, analyze_loop, controller_unstable_poles, inverse_model_response
+from ..control import Compensator, analyze_loop
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
 from ._sampler import PosteriorSamples
@@ -208,8 +208,10 @@ def controller_response(controller, omega):
         model, g = controller
         if not isinstance(model, ImpedanceModel) or not isinstance(g, Compensator):
             raise ValueError("controller must be (nominal ImpedanceModel, Compensator) or G (N, n, n)")
-        G = inverse_model_response(model, g, omega)
-        return G, int(controller_unstable_poles(model, g))
+        from ..pipeline import controller as make_controller
+
+        ctrl = make_controller(model, g)  # continuous inverse-model controller (hapid.pipeline)
+        return ctrl.response(omega), int(ctrl.p_rhp)
     G = jnp.asarray(controller, dtype=jnp.complex128)
     if G.ndim != 3 or G.shape[0] != omega.shape[0] or G.shape[1] != G.shape[2]:
         raise ValueError(f"G must be ({omega.shape[0]}, n, n), got shape {G.shape}")
