@@ -10,6 +10,8 @@ import sys
 import warnings
 from pathlib import Path
 
+from ._constants import TWO_PI
+
 EXAMPLES = """examples:
   hapid simulate --device cu5 --out run.npz            # the paper's protocol on cu5
   hapid frf run.npz --out frf.npz --plot frf.png       # empirical Z_H, Z_T (+ std)
@@ -274,9 +276,6 @@ def cmd_fit(a):
     print(f"CRHP roots of det Ẑ_H, det Ẑ_T: before {int(before.hand)}, {int(before.total)} → "
           f"after {int(after.hand)}, {int(after.total)}")  # fmt: skip
     print(f"P·P̂⁻¹ band to {a.band_hz:g} Hz (measured P): {float(lo):+.1f} / {float(hi):+.1f} dB → {out}")
-
-
-TWO_PI = 6.283185307179586
 
 
 def cmd_analyze(a):

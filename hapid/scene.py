@@ -31,9 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ._constants import TWO_PI
+from ._grids import nyquist_grid
 from ._stages import Graph, Stage
-
-TWO_PI = 2 * np.pi
 
 DEFAULTS: dict = {
     "device": {"preset": "cu5", "move": [0.0] * 6, "subject_seed": None, "light_damping": False,
@@ -177,8 +177,7 @@ def compensator(o):
 def analysis_grid(o, fs_hz: float) -> np.ndarray:
     """Analysis frequencies (rad/s): log-spaced from ``f_min_hz`` to just below Nyquist, plus
     the Nyquist frequency itself (the discrete loop's contour ends there)."""
-    f = np.geomspace(float(o["f_min_hz"]), 0.49999 * fs_hz, int(o["n_freq"]) - 1)
-    return TWO_PI * np.append(f, 0.5 * fs_hz)
+    return nyquist_grid(fs_hz, int(o["n_freq"]), float(o["f_min_hz"]))
 
 
 def _plant(o, device):

@@ -18,17 +18,11 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from .._grids import nyquist_grid as device_grid
 from ..control import Compensator, analyze_loop, controller_unstable_poles, discretize_controller
 
-TWO_PI = 2.0 * np.pi
 _LOOP_KEYS = ("stable", "iso_bandwidth_hz", "gm_db", "pm_deg", "disk_margin", "disk_gm_db",
               "disk_pm_deg", "t_peak_db", "t_peak_hz", "nyquist_resolved")  # fmt: skip
-
-
-def device_grid(fs_hz: float, n_freq: int = 1500, f_min_hz: float = 1e-3) -> np.ndarray:
-    """The paper analysis grid (rad/s): log-spaced to just below Nyquist, plus Nyquist."""
-    f = np.geomspace(f_min_hz, 0.49999 * fs_hz, n_freq - 1)
-    return TWO_PI * np.append(f, 0.5 * fs_hz)
 
 
 def _clean(d):
