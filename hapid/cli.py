@@ -191,7 +191,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     for register in _EXTRA:
         register(sub)
-    return p
+    from ._cli_help import annotate
+
+    return annotate(p)  # missing help texts; every option's default in its help
 
 
 def cmd_paper(a):
@@ -518,8 +520,25 @@ def _register_tune(sub):
 _EXTRA: list = [_register_scene, _register_stages, _register_sweep, _register_tune]  # later stages register their subcommands here
 
 
+def _one_line_errors(parser) -> None:
+    """argparse's own errors (bad type, missing option) as one ``hapid: error:`` line too."""
+
+    def error(p, message):
+        p.print_usage(sys.stderr)
+        cmd = p.prog.removeprefix("hapid").strip()
+        print(f"hapid: error: {cmd + ': ' if cmd else ''}{message}", file=sys.stderr)
+        sys.exit(2)
+
+    parser.error = error.__get__(parser)
+    for act in parser._actions:
+        for sub in (getattr(act, "choices", None) or {}).values():
+            if isinstance(sub, argparse.ArgumentParser):
+                sub.error = error.__get__(sub)
+
+
 def main(argv=None) -> int:
     parser = build_parser()
+    _one_line_errors(parser)
     a = parser.parse_args(argv)
     if not getattr(a, "command", None):
         parser.print_help()
@@ -527,12 +546,21 @@ def main(argv=None) -> int:
     warnings.simplefilter("default")
     warnings.formatwarning = lambda m, c, *_: f"hapid: warning: {m}\n"
     try:
+        from ._cli_checks import check_args
+
+        check_args(parser, a)  # every option and scene key, before any work
         a.func(a)
     except (ValueError, FileNotFoundError, CLIError, OSError) as e:
         if os.environ.get("HAPID_DEBUG"):
             raise
         print(f"hapid: error: {e}", file=sys.stderr)
         return 2
+    except Exception as e:  # a bug: still one line (HAPID_DEBUG=1 for the traceback)
+        if os.environ.get("HAPID_DEBUG"):
+            raise
+        print(f"hapid: internal error ({type(e).__name__}, please report; HAPID_DEBUG=1 shows "
+              f"the traceback): {e}", file=sys.stderr)  # fmt: skip
+        return 1
     return 0
 
 

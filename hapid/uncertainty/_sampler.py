@@ -354,7 +354,8 @@ def check_initial_state(post: LogPosterior, x0: np.ndarray, log_prob_fn=None) ->
         )
     if not np.all(np.isfinite(x0)):
         bad = np.argwhere(~np.isfinite(x0))[0]
-        raise ValueError(f"initial state contains NaN or inf (walker {bad[0]}, parameter {bad[1]})")
+        w, k = int(bad[0]), int(bad[1])
+        raise ValueError(f"initial state contains NaN or inf (walker {w}, parameter {k})")
     lp = (post.log_prob_numpy if log_prob_fn is None else log_prob_fn)(x0)
     if not np.all(np.isfinite(lp)):
         k = int(np.flatnonzero(~np.isfinite(lp))[0])
@@ -569,13 +570,18 @@ def load_samples(path, n: int | None = None) -> PosteriorSamples:
     path = Path(path)
     if not path.exists():
         raise ValueError(f"samples file {path} does not exist")
-    with np.load(path, allow_pickle=False) as f:
-        missing = [k for k in ("samples", "log_prob", "n", "omega_ref", "z_ref", "names") if k not in f]
-        if missing:
-            raise ValueError(f"{path}: not a posterior-samples file (missing {missing})")
-        d = {k: f[k] for k in f.files}
-    file_n = int(d["n"])
-    s = d["samples"]
+    from ..io import _numeric, _read_arrays, _scalar
+
+    d = _read_arrays(path, "a posterior-samples file (hapid posterior)")
+    missing = [k for k in ("samples", "log_prob", "n", "omega_ref", "z_ref", "names") if k not in d]
+    if missing:
+        raise ValueError(f"{path}: not a posterior-samples file (missing {missing})")
+    file_n = _scalar(d, "n", path, integer=True)
+    if file_n < 1:
+        raise ValueError(f"{path}: n = {file_n} rods; expected n ≥ 1")
+    s = _numeric(d, "samples", path)
+    log_prob = _numeric(d, "log_prob", path)
+    omega_ref, z_ref = _scalar(d, "omega_ref", path), _scalar(d, "z_ref", path)
     if n is not None and file_n != int(n):
         raise ValueError(
             f"{path}: samples are for an n = {file_n} rod device, but n = {n} was expected"
@@ -588,12 +594,19 @@ def load_samples(path, n: int | None = None) -> PosteriorSamples:
         )
     if not np.all(np.isfinite(s)):
         raise ValueError(f"{path}: samples contain NaN or inf")
+    if s.shape[0] == 0 or log_prob.shape != (s.shape[0],):
+        raise ValueError(
+            f"{path}: {s.shape[0]} samples with log_prob of shape {log_prob.shape}; expected "
+            f"≥ 1 sample and log_prob of shape ({s.shape[0]},)"
+        )
+    if not (np.isfinite(omega_ref) and omega_ref > 0 and np.isfinite(z_ref) and z_ref > 0):
+        raise ValueError(f"{path}: omega_ref = {omega_ref:g}, z_ref = {z_ref:g}; expected both > 0")
     diag = {k[5:]: (v.item() if v.ndim == 0 else v) for k, v in d.items() if k.startswith("diag_")}
     diag["method"] = str(d["method"]) if "method" in d else ""
     return PosteriorSamples(
         samples=s,
-        log_prob=d["log_prob"],
-        scale=Scale(jnp.asarray(float(d["omega_ref"])), jnp.asarray(float(d["z_ref"]))),
+        log_prob=log_prob,
+        scale=Scale(jnp.asarray(omega_ref), jnp.asarray(z_ref)),
         n=file_n,
         names=tuple(str(x) for x in d["names"]),
         diagnostics=diag,
