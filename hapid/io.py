@@ -783,3 +783,16 @@ def load_impedance_model(path) -> SecondOrder:
     if len(shapes) != 1 or len(next(iter(shapes))) != 2:
         raise FileFormatError(f"{path}: M, B, K must all be (n, n), got {sorted(shapes)}")
     return SecondOrder(mats["M"], mats["B"], mats["K"])
+
+
+# ---- stage cache entries (hapid._stages): arrays + one JSON string, never pickle ----------------
+def save_cache_entry(path, arrays: dict, meta: str) -> Path:
+    """Write a stage-cache entry atomically: ``arrays`` by name plus the JSON string ``meta``."""
+    return _atomic_write(path, lambda fh: np.savez(fh, __meta__=np.asarray(meta), **arrays))
+
+
+def load_cache_entry(path) -> tuple[dict, str]:
+    """``(arrays, meta)`` of a stage-cache entry (``allow_pickle=False``)."""
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files if k != "__meta__"}
+        return arrays, str(z["__meta__"])
