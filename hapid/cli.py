@@ -10,8 +10,6 @@ import sys
 import warnings
 from pathlib import Path
 
-from ._constants import TWO_PI
-
 EXAMPLES = """examples:
   hapid simulate --device cu5 --out run.npz            # the paper's protocol on cu5
   hapid frf run.npz --out frf.npz --plot frf.png       # empirical Z_H, Z_T (+ std)

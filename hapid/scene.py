@@ -37,7 +37,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ._constants import TWO_PI
 from ._grids import nyquist_grid
 from ._stages import Graph, Stage
 
