@@ -87,7 +87,7 @@ def cmd_frf(a):
     from . import io
     from .experiment import estimate_frf, estimate_frf_h1
 
-    kind = "timeseries" if a.add or a.force_key != "force" else io.file_kind(a.run)
+    kind = "timeseries" if a.add or a.force_key != "force" else io.file_kind(a.run, "a run file or a time-series file")
     if kind == "timeseries" or (kind == "unknown" and a.h1):
         from ._cli_fit import run_frf_lab
 

@@ -441,7 +441,13 @@ def _read_mat73(path) -> dict:
             "(or save it in MATLAB with save(..., '-v7'))"
         ) from None
     out = {}
-    with h5py.File(path, "r") as h:
+    try:
+        h = h5py.File(path, "r")
+    except OSError as e:
+        raise FileFormatError(
+            f"{path}: damaged MATLAB v7.3 (HDF5) file ({e}); expected a readable MAT-file"
+        ) from None
+    with h:
         for k, ds in h.items():
             if k.startswith("#") or not isinstance(ds, h5py.Dataset):
                 continue
@@ -477,7 +483,7 @@ def _text(d: dict, key: str, default: str) -> str:
     return str(a.reshape(-1)[0]) if a.dtype.kind in "US" and a.size else default
 
 
-def file_kind(path) -> str:
+def file_kind(path, what: str = "a hapid .npz or .mat file") -> str:
     """What a file holds, from its arrays: ``"run"``, ``"timeseries"``, ``"frf"`` (the haptic
     Z_H/Z_T pair), ``"impedance_frf"``, ``"model"`` (hand/total), ``"impedance_model"``, or
     ``"unknown"``. CSV files are told apart by their header."""
@@ -496,7 +502,7 @@ def file_kind(path) -> str:
         if "force_" in head:
             return "timeseries"
         return "unknown"
-    keys = set(_read_lab_arrays(path))
+    keys = set(_read_lab_arrays(path, what))
     for kind, need in (("run", {"R_A", "R_I", "L"}), ("frf", {"Z_H", "Z_T"}),
                        ("impedance_frf", {"Z", "freq_hz"}), ("model", set(MODEL_KEYS)),
                        ("impedance_model", {"M", "B", "K"}), ("timeseries", {"force", "response"})):  # fmt: skip
