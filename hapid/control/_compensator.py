@@ -20,7 +20,7 @@ from jaxtyping import Array, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
-from ._statespace import StateSpace, series
+from ..lti import StateSpace, series
 
 
 def _vec(x) -> Array:
