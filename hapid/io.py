@@ -159,7 +159,7 @@ def _numeric(d: dict, key: str, path, *, complex_ok: bool = False) -> np.ndarray
     """``d[key]`` as float64 (complex128 with ``complex_ok``), or a FileFormatError naming the
     file, the array and its dtype (strings, objects, or complex where real is expected)."""
     a = np.asarray(d[key])
-    kinds = "biufc" if complex_ok else "biuf"
+    kinds = "iufc" if complex_ok else "iuf"
     if a.dtype.kind not in kinds:
         want = "real or complex numbers" if complex_ok else "real numbers"
         raise FileFormatError(f"{path}: array {key!r} has dtype {a.dtype}; expected {want}")

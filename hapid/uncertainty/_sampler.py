@@ -402,6 +402,27 @@ def _diagnostics(sampler, discard, thin_by, n_walkers, wall_s, method_name, tau_
     return out
 
 
+def _adaptive_bar(progress, max_steps: int):
+    """One tqdm bar for an adaptive (chunked) run: total = ``max_steps``, the run's upper bound
+    (it usually stops earlier, at 50 τ); ``None`` without ``progress``."""
+    if not progress:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=int(max_steps), desc="emcee (to 50 τ)", unit="step")
+
+
+def _run_chunk(sampler, state, n: int, thin_by: int, bar):
+    """``sampler.run_mcmc(state, n, thin_by)`` advancing ``bar`` (steps) instead of emcee's
+    own per-call bar."""
+    if bar is None:
+        return sampler.run_mcmc(state, n, thin_by=thin_by, progress=False)
+    last = state
+    for last in sampler.sample(state, iterations=n, thin_by=thin_by):  # noqa: B007
+        bar.update(thin_by)
+    return last
+
+
 def sample_posterior(
     post: LogPosterior,
     init,
@@ -501,14 +522,18 @@ def sample_posterior(
     else:
         chunk = max(1, check_every // thin_by)
         old_tau = np.inf
+        bar = _adaptive_bar(progress, max_steps)  # ONE bar over all chunks (total: max_steps)
         while sampler.iteration * thin_by < max_steps:
-            state = sampler.run_mcmc(state, chunk, thin_by=thin_by, progress=progress)
+            state = _run_chunk(sampler, state, chunk, thin_by, bar)
             it = sampler.iteration
             tau = np.nanmax(_autocorr(sampler, int(discard * it))) * thin_by
             kept = (it - int(discard * it)) * thin_by
             if np.isfinite(tau) and kept >= tau_multiple * tau and abs(old_tau - tau) < 0.05 * tau:
                 break
             old_tau = tau
+        if bar is not None:
+            bar.total = bar.n  # stopped at 50 τ: the bar ends full
+            bar.close()
     wall = time.perf_counter() - t0
     disc = int(discard * sampler.iteration)
     diag = _diagnostics(sampler, disc, thin_by, W, wall, moves, tau_multiple)
