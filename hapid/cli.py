@@ -85,13 +85,26 @@ def cmd_frf(a):
     import numpy as np
 
     from . import io
-    from .experiment import estimate_frf
+    from .experiment import estimate_frf, estimate_frf_h1
 
+    kind = "timeseries" if a.add or a.force_key != "force" else io.file_kind(a.run, "a run file or a time-series file")
+    if kind == "timeseries" or (kind == "unknown" and a.h1):
+        from ._cli_fit import run_frf_lab
+
+        return run_frf_lab(a)  # lab records → single impedance Z = F/x
+    if kind != "run":
+        raise CLIError(f"{a.run}: holds a {kind} file; hapid frf takes a run file (R_A, R_I, L) "
+                       "or a time series (fs_hz, force, response)")  # fmt: skip
     run = io.load_run(a.run)
-    frf = estimate_frf(run, cond_warn=a.cond_warn)
+    if a.h1:
+        frf = estimate_frf_h1(run.fs_hz, run.R_A, run.R_I, run.L, nperseg=a.nperseg,
+                              f_band_hz=(a.f_min_hz or 0.0, a.f_max_hz or run.fs_hz / 2))  # fmt: skip
+    else:
+        frf = estimate_frf(run, cond_warn=a.cond_warn)
     out = io.save_frf(a.out, frf)
     rel = np.asarray(frf.Z_H_std) / np.abs(np.asarray(frf.Z_H)) if frf.Z_H_std is not None else None
-    print(f"FRF: {frf.Z_H.shape[0]} frequencies, n={frf.n}; cond(𝓛) "
+    print(f"FRF (haptic pair Z_H, Z_T in N/m{', H1' if a.h1 else ''}): {frf.Z_H.shape[0]} "
+          f"frequencies, n={frf.n}; cond(𝓛) "
           f"{float(np.min(frf.cond_L)):.3g}–{float(np.max(frf.cond_L)):.3g}" +
           (f"; median relative std of Z_H {np.median(rel):.2e}" if rel is not None else "") +
           f" → {out}")  # fmt: skip
@@ -127,6 +140,12 @@ def cmd_demo(a):
     print(f"wrote {out / 'run.npz'}, {out / 'frf.npz'}, {out / 'frf_singular_values.png'}")
 
 
+def _register_lab_frf_args(f):
+    from ._cli_fit import register_lab_frf_args
+
+    register_lab_frf_args(f)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="hapid",
@@ -155,10 +174,11 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Empirical impedances Z_H = −𝓡_I 𝓛⁻¹, Z_T = −𝓡_A 𝓛⁻¹ per "
                        "excited frequency (paper section 4.1), with element std.",
                        epilog="example: hapid frf run.npz --out frf.npz --plot frf.png")  # fmt: skip
-    f.add_argument("run", help="run file (.npz, .csv or .mat)")
-    f.add_argument("--out", required=True, help="output FRF file")
+    f.add_argument("run", help="run file, or lab time series (fs_hz, force, response); .npz, .csv or .mat")
+    f.add_argument("--out", required=True, help="output FRF file (an impedance FRF for a time series)")
     f.add_argument("--plot", help="also write a figure of σ(Z_H), σ(Z_T), σ(P)")
     f.add_argument("--cond-warn", type=float, default=1e3, help="warn where cond(𝓛) exceeds this")
+    _register_lab_frf_args(f)
     f.set_defaults(func=cmd_frf)
 
     d = sub.add_parser("demo", help="simulate the default device, estimate its FRF, plot σ",
@@ -169,7 +189,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     for register in _EXTRA:
         register(sub)
-    return p
+    from ._cli_help import annotate
+
+    return annotate(p)  # missing help texts; every option's default in its help
 
 
 def cmd_paper(a):
@@ -244,41 +266,9 @@ def _register_scene(sub):
 
 
 def cmd_fit(a):
-    import numpy as np
+    from ._cli_fit import run_fit
 
-    from . import io
-    from .fit import crhp_report, fit_nls, positize, pphat_band_db, wls
-
-    frf = io.load_frf(a.frf)
-    raw = wls(frf, omega_c=TWO_PI * a.omega_c_hz)
-    before = crhp_report(raw)
-    meta = {}
-    if a.method == "wls":
-        model = positize(raw) if a.positize else raw
-        status, cost = "closed form", float("nan")
-        meta["method"] = "wls+positize" if a.positize else "wls"
-    else:
-        res = fit_nls(frf, weight=a.weight, solver=a.solver, f_max_hz=a.f_max_hz,
-                      omega_c=TWO_PI * a.omega_c_hz, max_steps=a.max_steps)  # fmt: skip
-        if not bool(res.ok) and not a.allow_unconverged:
-            raise CLIError(f"NLS fit did not converge (status {res.status} after {int(res.n_steps)} "
-                           "steps); no model written (use --allow-unconverged to write it anyway)")  # fmt: skip
-        model, status, cost = res.model, res.status, float(res.cost)
-        meta.update(method="nls", status=status, cost=cost, steps=int(res.n_steps),
-                    weight=a.weight, solver=a.solver, covariance=np.asarray(res.covariance),
-                    theta=np.asarray(res.theta))  # fmt: skip
-        if res.boundary:
-            print(f"note: at the PSD boundary: {', '.join(res.boundary)}")
-    after = crhp_report(model)
-    lo, hi = pphat_band_db(frf.P, model, frf.omega, a.band_hz)
-    out = io.save_model(a.out, model, **meta)
-    print(f"{meta['method']}: status {status}" + (f", cost {cost:.4g}" if np.isfinite(cost) else ""))
-    print(f"CRHP roots of det Ẑ_H, det Ẑ_T: before {int(before.hand)}, {int(before.total)} → "
-          f"after {int(after.hand)}, {int(after.total)}")  # fmt: skip
-    print(f"P·P̂⁻¹ band to {a.band_hz:g} Hz (measured P): {float(lo):+.1f} / {float(hi):+.1f} dB → {out}")
-
-
-TWO_PI = 6.283185307179586
+    run_fit(a)
 
 
 def cmd_analyze(a):
@@ -408,24 +398,9 @@ def cmd_robust(a):
 
 
 def _register_stages(sub):
-    f = sub.add_parser("fit", help="fit M, B, K models to an FRF (paper WLS or hapid NLS + PD)",
-                       description="Fit Ẑ_H, Ẑ_T = M s² + B s + K to an FRF file: the paper's "
-                       "weighted least squares (optionally positized) or hapid's nonlinear fit "
-                       "with positive-semidefinite M, B, K (Cholesky factors).",
-                       epilog="example: hapid fit frf.npz --method nls --weight relative --out model.npz")  # fmt: skip
-    f.add_argument("frf", help="FRF file (.npz, .csv, .mat)")
-    f.add_argument("--method", choices=["wls", "nls"], default="nls")
-    f.add_argument("--positize", action="store_true", help="positize the WLS model (paper 5.1)")
-    f.add_argument("--weight", choices=["relative", "paper", "noise", "blend"], default="relative")
-    f.add_argument("--solver", default="lm", help="lm (default), dogleg, gauss_newton, bfgs, "
-                   "nonlinear_cg, jaxopt_lm")  # fmt: skip
-    f.add_argument("--f-max-hz", type=float, default=40.0, help="NLS fit band (Hz), default 40")
-    f.add_argument("--omega-c-hz", type=float, default=7.0, help="paper weight corner (Hz)")
-    f.add_argument("--max-steps", type=int, default=500)
-    f.add_argument("--band-hz", type=float, default=30.0, help="report the P·P̂⁻¹ band to here")
-    f.add_argument("--allow-unconverged", action="store_true")
-    f.add_argument("--out", required=True, help="model file (.npz)")
-    f.set_defaults(func=cmd_fit)
+    from ._cli_fit import register_fit
+
+    register_fit(sub, cmd_fit)
 
     an = sub.add_parser("analyze", help="closed-loop analysis: stability first, then bandwidth, margins",
                         description="Analyze the force loop of a model's controller on a simulated "
@@ -590,8 +565,25 @@ def _register_tune(sub):
 _EXTRA: list = [_register_scene, _register_stages, _register_sweep, _register_tune]  # later stages register their subcommands here
 
 
+def _one_line_errors(parser) -> None:
+    """argparse's own errors (bad type, missing option) as one ``hapid: error:`` line too."""
+
+    def error(p, message):
+        p.print_usage(sys.stderr)
+        cmd = p.prog.removeprefix("hapid").strip()
+        print(f"hapid: error: {cmd + ': ' if cmd else ''}{message}", file=sys.stderr)
+        sys.exit(2)
+
+    parser.error = error.__get__(parser)
+    for act in parser._actions:
+        for sub in (getattr(act, "choices", None) or {}).values():
+            if isinstance(sub, argparse.ArgumentParser):
+                sub.error = error.__get__(sub)
+
+
 def main(argv=None) -> int:
     parser = build_parser()
+    _one_line_errors(parser)
     a = parser.parse_args(argv)
     if not getattr(a, "command", None):
         parser.print_help()
@@ -599,12 +591,21 @@ def main(argv=None) -> int:
     warnings.simplefilter("default")
     warnings.formatwarning = lambda m, c, *_: f"hapid: warning: {m}\n"
     try:
+        from ._cli_checks import check_args
+
+        check_args(parser, a)  # every option and scene key, before any work
         a.func(a)
     except (ValueError, FileNotFoundError, CLIError, OSError) as e:
         if os.environ.get("HAPID_DEBUG"):
             raise
         print(f"hapid: error: {e}", file=sys.stderr)
         return 2
+    except Exception as e:  # a bug: still one line (HAPID_DEBUG=1 for the traceback)
+        if os.environ.get("HAPID_DEBUG"):
+            raise
+        print(f"hapid: internal error ({type(e).__name__}, please report; HAPID_DEBUG=1 shows "
+              f"the traceback): {e}", file=sys.stderr)  # fmt: skip
+        return 1
     return 0
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-TWO_PI = 2 * np.pi
+from ._constants import TWO_PI
 
 PAPER = {
     "plant_span_db": "25–50",

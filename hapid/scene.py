@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._grids import nyquist_grid
 from ._stages import Graph, Stage
 
 DEFAULTS: dict = {
@@ -157,11 +158,9 @@ def compensator(o):
 
 
 def analysis_grid(o, fs_hz: float) -> np.ndarray:
-    """Analysis frequencies (rad/s) of a scene's ``[analysis]`` options for a sampled loop:
-    log-spaced from ``f_min_hz`` to just below Nyquist, plus the Nyquist frequency itself."""
-    from . import pipeline
-
-    return np.asarray(pipeline.analysis_grid(float(o["f_min_hz"]), int(o["n_freq"]), fs_hz))
+    """Analysis frequencies (rad/s): log-spaced from ``f_min_hz`` to just below Nyquist, plus
+    the Nyquist frequency itself (the discrete loop's contour ends there)."""
+    return nyquist_grid(fs_hz, int(o["n_freq"]), float(o["f_min_hz"]))
 
 
 def _plant(o, device):

@@ -33,9 +33,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _config  # noqa: F401
+from ._constants import TWO_PI
 from ._linalg import svdvals
 
-TWO_PI = 2 * np.pi
 _MOVE = ("dx", "dy", "dz", "dyaw", "dpitch", "droll")
 _NLS_NUMERIC = ("omega_c_hz", "f_max_hz", "rtol", "atol", "ftol", "patience", "blend_floor",
                 "p_weight", "pd_eps", "init_floor")  # fmt: skip

@@ -21,17 +21,11 @@ from .. import (
     _config,  # noqa: F401  (float64)
     pipeline,
 )
+from .._grids import nyquist_grid as device_grid
 from ..control import Compensator
 
-TWO_PI = 2.0 * np.pi
 _LOOP_KEYS = ("stable", "iso_bandwidth_hz", "gm_db", "pm_deg", "disk_margin", "disk_gm_db",
               "disk_pm_deg", "t_peak_db", "t_peak_hz", "nyquist_resolved")  # fmt: skip
-
-
-def device_grid(fs_hz: float, n_freq: int = 1500, f_min_hz: float = 1e-3) -> np.ndarray:
-    """The paper analysis grid (rad/s): log-spaced to just below Nyquist, plus Nyquist
-    (:func:`hapid.pipeline.analysis_grid`)."""
-    return np.asarray(pipeline.analysis_grid(f_min_hz, n_freq, fs_hz))
 
 
 def _clean(d):
