@@ -1,4 +1,4 @@
-"""The only file I/O: run, FRF and model files (npz contract of DESIGN.md), CSV and MATLAB .mat.
+"""The only file I/O: run, FRF and model files (npz contracts in docs/contracts.md), CSV and MATLAB .mat.
 
 Every writer validates before it writes and writes atomically (temporary file + rename), so a
 bad input never leaves a half-written file. Every reader validates what it read and names the

@@ -30,7 +30,7 @@ p_stable_required`` and the 5 % quantiles of GM and PM meet ``gm_db`` / ``pm_deg
 
 CPU hang (jax 0.10.2). A ``vmap`` of ``analyze_loop`` over a chunk of plants hung
 intermittently on this project's 2-core CPU machine (about 1 process in 4, CPU idle inside
-the XLA execution, also with ``XLA_FLAGS=--xla_cpu_multi_thread_eigen=false``; DESIGN.md
+the XLA execution, also with ``XLA_FLAGS=--xla_cpu_multi_thread_eigen=false``; docs/conventions.md
 "CPU pitfalls"). The default therefore analyses one plant per call of a jitted
 ``analyze_loop`` (one compile), which has not hung in our runs (10 of 10 processes). Cost:
 ≈ 4 ms per plant at n = 2, N = 400 (2× the vmapped chunk); at n = 5, N = 1000 both paths

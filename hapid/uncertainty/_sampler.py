@@ -5,14 +5,14 @@
   :class:`~hapid.fit.NLSResult` (θ only, no model-error parameters).
 - :func:`laplace_posterior` — MAP of a :class:`LogPosterior` (BFGS from the NLS optimum)
   and the inverse Hessian there: the Gaussian that :func:`sample_posterior` draws its
-  walkers from (full draws need no burn-in, DESIGN.md "emcee in ~90 dimensions").
+  walkers from (full draws need no burn-in, docs/conventions.md "emcee in ~90 dimensions").
 - :func:`sample_posterior` — ``emcee.EnsembleSampler`` with ``vectorize=True`` on the
   jitted, vmapped log-posterior; optional HDF5 backend, tqdm progress bar, autocorrelation
   time, effective sample size, and a :class:`ShortChainWarning` below 50 τ.
 
 Move default: ``DEMove()``. Measured with ``benchmarks/bench_uncertainty.py`` (see its
 header): DE beats the stretch move by a wide margin in ESS per second at d ≈ 20–92 (and
-DESIGN.md measured ≈ 8× at d = 90). ``DESnookerMove`` (wrong target in emcee 3.1.6) and
+docs/conventions.md measured ≈ 8× at d = 90). ``DESnookerMove`` (wrong target in emcee 3.1.6) and
 ``KDEMove`` (fails at this dimension) are not offered.
 """
 
