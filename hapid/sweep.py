@@ -20,7 +20,6 @@ conservative disk margin from σ̄(S − T). GM/PM per configuration: run the sc
 
 from __future__ import annotations
 
-import csv
 import itertools
 from pathlib import Path
 
@@ -169,14 +168,12 @@ def run_single(cfg: dict, keys, params) -> dict:
 
 
 def write_csv(path, keys, rows, metrics) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(list(keys) + list(METRICS))
-        for i in range(rows.shape[0]):
-            w.writerow([f"{v:g}" for v in rows[i]] + [f"{float(metrics[m][i]):.6g}" for m in METRICS])
-    return path
+    """The sweep table (one row per point: varied options, then :data:`METRICS`) as CSV."""
+    from .io import save_csv
+
+    table = ([f"{v:g}" for v in rows[i]] + [f"{float(metrics[m][i]):.6g}" for m in METRICS]
+             for i in range(rows.shape[0]))  # fmt: skip
+    return save_csv(path, list(keys) + list(METRICS), table)
 
 
 def plot_sweep(keys, rows, metrics, path) -> Path:

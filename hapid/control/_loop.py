@@ -105,8 +105,8 @@ class LoopReport(eqx.Module):
     def summary(self) -> dict:
         """The scalar fields as python ``bool``/``int``/``float`` (lists for a batched report).
 
-        ``stable`` comes first. Non-finite values stay ``nan``/``inf`` (``json.dumps`` writes
-        them as ``NaN``/``Infinity``).
+        ``stable`` comes first. Non-finite values stay ``nan``/``inf`` here; the JSON writer
+        (:func:`hapid.io.save_json`) writes them as ``null``.
         """
         out = {}
         for name in _SCALARS:

@@ -566,26 +566,11 @@ def sample_posterior(
 
 
 def save_samples(path, ps: PosteriorSamples) -> Path:
-    """Write samples to ``.npz``: ``samples (S, d)``, ``log_prob (S,)``, ``n``, ``names``,
-    ``omega_ref``, ``z_ref``, ``method`` and the scalar diagnostics."""
-    path = Path(path)
-    scal = {
-        f"diag_{k}": np.asarray(v)
-        for k, v in ps.diagnostics.items()
-        if isinstance(v, int | float | bool | np.ndarray) and not isinstance(v, dict)
-    }
-    np.savez(
-        path,
-        samples=np.asarray(ps.samples, dtype=np.float64),
-        log_prob=np.asarray(ps.log_prob, dtype=np.float64),
-        n=np.int64(ps.n),
-        names=np.asarray(ps.names),
-        omega_ref=np.float64(ps.scale.omega_ref),
-        z_ref=np.float64(ps.scale.z_ref),
-        method=np.asarray(str(ps.diagnostics.get("method", ""))),
-        **scal,
-    )
-    return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
+    """Write samples to ``.npz`` (:func:`hapid.io.save_samples`: ``samples (S, d)``,
+    ``log_prob (S,)``, ``n``, ``names``, ``omega_ref``, ``z_ref``, ``method``, diagnostics)."""
+    from ..io import save_samples as _save
+
+    return _save(path, ps)
 
 
 def load_samples(path, n: int | None = None) -> PosteriorSamples:
