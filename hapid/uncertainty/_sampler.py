@@ -168,6 +168,20 @@ class PosteriorSamples:
         vals = (h.M, h.B, h.K, mech.M, mech.B, mech.K)
         return {k: np.asarray(v) for k, v in zip(("M_H", "B_H", "K_H", "M_M", "B_M", "K_M"), vals, strict=True)}
 
+    @property
+    def ok(self) -> bool:
+        """Every draw finite, and the sampler's own convergence check passed where it made one
+        (emcee: chain ≥ 50 τ; Laplace: the mode search converged)."""
+        d = self.diagnostics
+        lap = d.get("laplace") if isinstance(d.get("laplace"), dict) else {}
+        conv = d.get("converged_50tau", lap.get("converged", d.get("converged", True)))
+        return bool(np.all(np.isfinite(np.asarray(self.samples)))) and bool(conv)
+
+    @property
+    def status(self) -> str:
+        """``"converged"`` or ``"not converged"`` (see :attr:`ok`)."""
+        return "converged" if self.ok else "not converged"
+
     def summary(self) -> str:
         d = self.diagnostics
         parts = [f"{d.get('method', '?')}: {self.n_samples} samples, d = {self.samples.shape[1]}"]
