@@ -168,6 +168,20 @@ class PosteriorSamples:
         vals = (h.M, h.B, h.K, mech.M, mech.B, mech.K)
         return {k: np.asarray(v) for k, v in zip(("M_H", "B_H", "K_H", "M_M", "B_M", "K_M"), vals, strict=True)}
 
+    @property
+    def ok(self) -> bool:
+        """Every draw finite, and the sampler's own convergence check passed where it made one
+        (emcee: chain ≥ 50 τ; Laplace: the mode search converged)."""
+        d = self.diagnostics
+        lap = d.get("laplace") if isinstance(d.get("laplace"), dict) else {}
+        conv = d.get("converged_50tau", lap.get("converged", d.get("converged", True)))
+        return bool(np.all(np.isfinite(np.asarray(self.samples)))) and bool(conv)
+
+    @property
+    def status(self) -> str:
+        """``"converged"`` or ``"not converged"`` (see :attr:`ok`)."""
+        return "converged" if self.ok else "not converged"
+
     def summary(self) -> str:
         d = self.diagnostics
         parts = [f"{d.get('method', '?')}: {self.n_samples} samples, d = {self.samples.shape[1]}"]
@@ -566,26 +580,11 @@ def sample_posterior(
 
 
 def save_samples(path, ps: PosteriorSamples) -> Path:
-    """Write samples to ``.npz``: ``samples (S, d)``, ``log_prob (S,)``, ``n``, ``names``,
-    ``omega_ref``, ``z_ref``, ``method`` and the scalar diagnostics."""
-    path = Path(path)
-    scal = {
-        f"diag_{k}": np.asarray(v)
-        for k, v in ps.diagnostics.items()
-        if isinstance(v, int | float | bool | np.ndarray) and not isinstance(v, dict)
-    }
-    np.savez(
-        path,
-        samples=np.asarray(ps.samples, dtype=np.float64),
-        log_prob=np.asarray(ps.log_prob, dtype=np.float64),
-        n=np.int64(ps.n),
-        names=np.asarray(ps.names),
-        omega_ref=np.float64(ps.scale.omega_ref),
-        z_ref=np.float64(ps.scale.z_ref),
-        method=np.asarray(str(ps.diagnostics.get("method", ""))),
-        **scal,
-    )
-    return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
+    """Write samples to ``.npz`` (:func:`hapid.io.save_samples`: ``samples (S, d)``,
+    ``log_prob (S,)``, ``n``, ``names``, ``omega_ref``, ``z_ref``, ``method``, diagnostics)."""
+    from ..io import save_samples as _save
+
+    return _save(path, ps)
 
 
 def load_samples(path, n: int | None = None) -> PosteriorSamples:
