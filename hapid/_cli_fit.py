@@ -133,7 +133,7 @@ def run_fit(a) -> None:
     from .fit import crhp_report, pair_quality, pphat_band_db
     from .impedance_frf import model_units
 
-    kind = io.file_kind(a.frf)
+    kind = io.file_kind(a.frf, "an FRF file (freq_hz with Z_H, Z_T or Z)")
     if kind not in ("frf", "impedance_frf"):
         raise FitCommandError(
             f"{a.frf}: holds a {kind} file, not an FRF; hapid fit takes an FRF with Z_H, Z_T "

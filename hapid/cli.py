@@ -87,7 +87,7 @@ def cmd_frf(a):
     from . import io
     from .experiment import estimate_frf, estimate_frf_h1
 
-    kind = "timeseries" if a.add or a.force_key != "force" else io.file_kind(a.run)
+    kind = "timeseries" if a.add or a.force_key != "force" else io.file_kind(a.run, "a run file or a time-series file")
     if kind in ("timeseries", "unknown"):  # unknown: the reader names the arrays it found
         from ._cli_fit import run_frf_lab
 
@@ -189,7 +189,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     for register in _EXTRA:
         register(sub)
-    return p
+    from ._cli_help import annotate
+
+    return annotate(p)  # missing help texts; every option's default in its help
 
 
 def cmd_paper(a):
@@ -206,6 +208,8 @@ def cmd_paper(a):
     print((out / "summary.md").read_text())
     print(f"computed {len(log['computed'])} stages ({len(log['cached'])} from cache) in "
           f"{time.perf_counter() - t0:.1f} s")  # fmt: skip
+    print("per stage: " + ", ".join(f"{k} {v:.1f} s" + (" (cache)" if k in log["cached"] else "")
+                                     for k, v in log["seconds"].items()))  # fmt: skip
     print(f"figures: {', '.join(str(out / f'fig{i}.png') for i in range(5, 11))}")
     print(f"summary: {out / 'summary.md'}, {out / 'summary.json'}")
 
@@ -267,50 +271,81 @@ def cmd_fit(a):
     run_fit(a)
 
 
-TWO_PI = 6.283185307179586
-
-
 def cmd_analyze(a):
     import json
 
     import numpy as np
 
-    from . import io, scene
-    from .control import analyze_loop, discretize_compensator, discretize_controller, max_siso_gain
+    from . import io, pipeline, scene
+    from .control import max_siso_gain
 
     model = io.load_model(a.model)
     cfg = scene.merge({})
-    g = scene.compensator(cfg["controller"] | ({"k": a.k} if a.k is not None else {}))
+    if a.design:
+        from .tune import load_design
+
+        g, _ = load_design(a.design)
+        if a.k is not None:
+            raise CLIError("--k and --design are exclusive (the design file holds its own gain)")
+    else:
+        g = scene.compensator(cfg["controller"] | ({"k": a.k} if a.k is not None else {}))
     if a.frf:
         frf = io.load_frf(a.frf)
-        omega, P, ts = np.asarray(frf.omega), np.asarray(frf.P), 1.0 / a.fs
+        if not a.fs > 0:
+            raise CLIError(f"--fs must be a positive sampling rate in Hz, got {a.fs:g}")
+        ts = None if a.continuous else 1.0 / a.fs
+        plant = pipeline.frf_plant(frf, ts)
+        if ts is not None and float(np.max(frf.freq_hz)) > 0.5 * a.fs:
+            raise CLIError(f"{a.frf} extends to {float(np.max(frf.freq_hz)):g} Hz, beyond the sampled "
+                           f"controller's Nyquist frequency fs/2 = {0.5 * a.fs:g} Hz (--fs {a.fs:g}); "
+                           "give the FRF's real sampling rate with --fs, or use --continuous")  # fmt: skip
         print("note: a measured FRF has few frequencies: the Nyquist verdict needs a dense grid "
               "and may be unresolved; margins and bandwidth are read on the FRF grid")  # fmt: skip
     else:
-        from .device import preset
-
-        dev = preset(a.device)
+        dev = pipeline.device({**cfg["device"], "preset": a.device})
         if dev.n != model.n:
             raise CLIError(f"model has n = {model.n} rods but device {a.device} has {dev.n}")
-        omega = scene.analysis_grid(cfg["analysis"], dev.fs_hz)
-        P, ts = np.asarray(dev.sampled_P(omega)), dev.ts
-    if P.shape[-1] != model.n:
-        raise CLIError(f"model has n = {model.n} rods but the plant has {P.shape[-1]}")
+        if a.continuous:
+            omega = pipeline.analysis_grid(5e-3, int(cfg["analysis"]["n_freq"]), f_max_hz=5e3)
+        else:
+            omega = scene.analysis_grid(cfg["analysis"], dev.fs_hz)
+        plant = pipeline.device_plant(dev, omega, continuous=a.continuous)
+        ts = None if a.continuous else dev.ts
+    if plant.n != model.n:
+        raise CLIError(f"model has n = {model.n} rods but the plant has {plant.n}")
+    c = None
     if a.controller == "mimo":
-        G = np.asarray(discretize_controller(model, g, ts).at_omega(omega))
-        c = None
+        ctrl = pipeline.controller(model, g, ts=ts)
     else:
-        gd = np.asarray(discretize_compensator(g, ts).at_omega(omega)).reshape(-1)
-        c = float(max_siso_gain(P, omega, gd)) if a.siso_gain is None else a.siso_gain
-        G = (c * gd)[:, None, None] * np.eye(model.n)
-    rep = analyze_loop(P, G, omega)
+        if a.siso_gain is None:
+            gs = pipeline.controller(None, g, kind="siso", n=model.n, ts=ts)
+            gd = np.asarray(gs.response(plant.omega))[:, 0, 0]
+            c = float(max_siso_gain(np.asarray(plant.P), np.asarray(plant.omega), gd))
+        else:
+            c = a.siso_gain
+        ctrl = pipeline.controller(None, g, kind="siso", c=c, n=model.n, ts=ts)
+    rep = pipeline.loop(ctrl, plant)
     s = rep.summary()
-    out = {"controller": a.controller, "siso_gain": c, **s}
+    out = {"controller": a.controller, "siso_gain": c, "continuous": bool(a.continuous),
+           "design": a.design, "controller_rhp_poles": int(ctrl.p_rhp), **s}  # fmt: skip
     if a.out:
-        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.out).write_text(json.dumps(out, indent=2, default=float))
+        from .uncertainty._files import _jsonable
+
+        def strict(x):
+            if isinstance(x, float) and not np.isfinite(x):
+                return None
+            if isinstance(x, dict):
+                return {k: strict(v) for k, v in x.items()}
+            if isinstance(x, list):
+                return [strict(v) for v in x]
+            return x
+
+        text = json.dumps(strict(out), indent=2, default=_jsonable, allow_nan=False).encode()
+        io._atomic_write(a.out, lambda fh: fh.write(text))
     verdict = "STABLE" if s["stable"] else ("UNSTABLE" if s.get("nyquist_resolved", True) else "UNDECIDED (grid too coarse)")
-    print(f"closed loop: {verdict} (generalized Nyquist, {s['n_encirclements']} encirclements)")
+    kind = f"sampled at {1 / ts:g} Hz" if ts else "continuous-time"
+    print(f"closed loop ({kind} controller): {verdict} (generalized Nyquist, {s['n_encirclements']} "
+          f"encirclements, {int(ctrl.p_rhp)} open-loop RHP pole(s) of the controller)")  # fmt: skip
     if s["stable"]:
         print(f"isotropic bandwidth {s['iso_bandwidth_hz']:.2f} Hz (paper-literal "
               f"{s['iso_bandwidth_literal_hz']:.2f} Hz); GM {s['gm_db']:.1f} dB, PM {s['pm_deg']:.1f}°, "
@@ -378,6 +413,10 @@ def _register_stages(sub):
     src.add_argument("--frf", help="measured FRF file whose P closes the loop")
     an.add_argument("--controller", choices=["mimo", "siso"], default="mimo")
     an.add_argument("--k", type=float, help="override the gain k of g(s) (paper: 0.85)")
+    an.add_argument("--design", help="design file (.npz) from `hapid tune`: its tuned g closes the loop")  # fmt: skip
+    an.add_argument("--continuous", action="store_true",
+                    help="analyse the continuous-time controller with the continuous plant (as the "
+                    "paper does; 0.005 Hz–5 kHz grid) instead of the sampled loop")  # fmt: skip
     an.add_argument("--siso-gain", type=float, help="SISO c (default: the 6 dB / 30° design rule)")
     an.add_argument("--fs", type=float, default=1000.0, help="sampling rate for --frf (Hz)")
     an.add_argument("--out", help="JSON report")
@@ -519,8 +558,25 @@ def _register_tune(sub):
 _EXTRA: list = [_register_scene, _register_stages, _register_sweep, _register_tune]  # later stages register their subcommands here
 
 
+def _one_line_errors(parser) -> None:
+    """argparse's own errors (bad type, missing option) as one ``hapid: error:`` line too."""
+
+    def error(p, message):
+        p.print_usage(sys.stderr)
+        cmd = p.prog.removeprefix("hapid").strip()
+        print(f"hapid: error: {cmd + ': ' if cmd else ''}{message}", file=sys.stderr)
+        sys.exit(2)
+
+    parser.error = error.__get__(parser)
+    for act in parser._actions:
+        for sub in (getattr(act, "choices", None) or {}).values():
+            if isinstance(sub, argparse.ArgumentParser):
+                sub.error = error.__get__(sub)
+
+
 def main(argv=None) -> int:
     parser = build_parser()
+    _one_line_errors(parser)
     a = parser.parse_args(argv)
     if not getattr(a, "command", None):
         parser.print_help()
@@ -528,12 +584,21 @@ def main(argv=None) -> int:
     warnings.simplefilter("default")
     warnings.formatwarning = lambda m, c, *_: f"hapid: warning: {m}\n"
     try:
+        from ._cli_checks import check_args
+
+        check_args(parser, a)  # every option and scene key, before any work
         a.func(a)
     except (ValueError, FileNotFoundError, CLIError, OSError) as e:
         if os.environ.get("HAPID_DEBUG"):
             raise
         print(f"hapid: error: {e}", file=sys.stderr)
         return 2
+    except Exception as e:  # a bug: still one line (HAPID_DEBUG=1 for the traceback)
+        if os.environ.get("HAPID_DEBUG"):
+            raise
+        print(f"hapid: internal error ({type(e).__name__}, please report; HAPID_DEBUG=1 shows "
+              f"the traceback): {e}", file=sys.stderr)  # fmt: skip
+        return 1
     return 0
 
 

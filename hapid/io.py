@@ -59,20 +59,126 @@ def _write_arrays(path, arrays: dict) -> Path:
     raise FileFormatError(f"{path}: this writer supports .npz and .mat")
 
 
-def _read_arrays(path) -> dict:
+_ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
+
+
+def _read_arrays(path, what: str = "a hapid .npz or .mat file") -> dict:
+    """Every array of a ``.npz``/``.mat`` file as numpy arrays. Anything unreadable (a folder,
+    an empty, truncated or non-zip file, text under a ``.npz`` name, pickled object arrays,
+    MATLAB cells/structs, v7.3 HDF5 MAT-files) is a :class:`FileFormatError` naming the file
+    and what was expected (``what``); the file handle is always closed."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
+    if path.is_dir():
+        raise FileFormatError(f"{path}: is a folder; expected {what}")
     kind = _fmt(path)
-    if kind == "npz":
-        with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
-    if kind == "mat":
-        from scipy.io import loadmat
+    if kind == "csv":
+        raise FileFormatError(f"{path}: use the CSV reader for .csv")
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(128)
+            if not head:
+                raise FileFormatError(f"{path}: empty file (0 bytes); expected {what}")
+            fh.seek(0)
+            read = _read_npz if kind == "npz" else _read_mat
+            return read(fh, head, path, what)
+    except FileFormatError:
+        raise
+    except PermissionError:
+        raise FileFormatError(f"{path}: permission denied; cannot read {what}") from None
+    except Exception as e:  # a damaged file can raise nearly anything inside zipfile/zlib/scipy
+        raise FileFormatError(
+            f"{path}: unreadable ({type(e).__name__}: {e}); expected {what}"
+        ) from None
 
-        raw = loadmat(path, squeeze_me=False)
-        return {k: v for k, v in raw.items() if not k.startswith("__")}
-    raise FileFormatError(f"{path}: use the CSV reader for .csv")
+
+def _describe_head(head: bytes) -> str:
+    if head.startswith(b"\x93NUMPY"):
+        return "a single-array .npy file"
+    if head.startswith(b"\x89HDF") or b"MATLAB 7.3" in head:
+        return "an HDF5 file"
+    if head.startswith(b"MATLAB"):
+        return "a MATLAB .mat file"
+    try:
+        text = head.decode("utf-8")
+    except UnicodeDecodeError:
+        return "binary data of an unknown kind"
+    first = text.strip().splitlines()[0][:40] if text.strip() else ""
+    return f"text ({first!r}…)"
+
+
+def _read_npz(fh, head: bytes, path, what: str) -> dict:
+    if not head.startswith(_ZIP_MAGIC):
+        raise FileFormatError(
+            f"{path}: not a .npz (zip) archive: it holds {_describe_head(head)}; expected {what}"
+        )
+    with np.load(fh, allow_pickle=False) as z:
+        out = {}
+        for k in z.files:
+            try:
+                out[k] = z[k]
+            except ValueError as e:
+                if "allow_pickle" in str(e) or "pickle" in str(e):
+                    raise FileFormatError(
+                        f"{path}: array {k!r} holds pickled Python objects, which hapid never "
+                        f"loads; expected {what} of numeric arrays"
+                    ) from None
+                raise
+        return out
+
+
+def _read_mat(fh, head: bytes, path, what: str) -> dict:
+    if b"MATLAB 7.3" in head or head.startswith(b"\x89HDF"):
+        raise FileFormatError(
+            f"{path}: a MATLAB v7.3 (HDF5) MAT-file, which this reader does not open; save it "
+            f"with save(..., '-v7') (expected {what})"
+        )
+    if not head.startswith(b"MATLAB") and b"\x00" not in head[:4]:
+        raise FileFormatError(
+            f"{path}: not a MAT-file: it holds {_describe_head(head)}; expected {what}"
+        )
+    from scipy.io import loadmat
+
+    raw = loadmat(fh, squeeze_me=False)
+    out = {}
+    for k, v in raw.items():
+        if k.startswith("__"):
+            continue
+        v = np.asarray(v)
+        if v.dtype.kind in "OV":
+            raise FileFormatError(
+                f"{path}: variable {k!r} is a MATLAB cell array or struct; expected {what} "
+                "of numeric matrices"
+            )
+        out[k] = v
+    return out
+
+
+def _numeric(d: dict, key: str, path, *, complex_ok: bool = False) -> np.ndarray:
+    """``d[key]`` as float64 (complex128 with ``complex_ok``), or a FileFormatError naming the
+    file, the array and its dtype (strings, objects, or complex where real is expected)."""
+    a = np.asarray(d[key])
+    kinds = "iufc" if complex_ok else "iuf"
+    if a.dtype.kind not in kinds:
+        want = "real or complex numbers" if complex_ok else "real numbers"
+        raise FileFormatError(f"{path}: array {key!r} has dtype {a.dtype}; expected {want}")
+    return a.astype(np.complex128 if complex_ok else np.float64)
+
+
+def _scalar(d: dict, key: str, path, *, integer: bool = False):
+    """``d[key]`` as one Python float (or int with ``integer``), or a FileFormatError."""
+    a = _numeric(d, key, path)
+    if a.size != 1:
+        raise FileFormatError(
+            f"{path}: {key!r} must be one number, got an array of shape {a.shape}"
+        )
+    v = float(a.reshape(()))
+    if integer:
+        if not np.isfinite(v) or v != int(v):
+            raise FileFormatError(f"{path}: {key!r} must be an integer, got {v:g}")
+        return int(v)
+    return v
 
 
 def _need(d: dict, keys, path) -> None:
@@ -103,16 +209,16 @@ def load_run(path) -> Run:
     if _fmt(path) == "csv":
         d = _read_run_csv(path)
     else:
-        d = _read_lab_arrays(path)
+        d = _read_lab_arrays(path, "a run file (fs_hz, period_samples, freq_hz, R_A, R_I, L)")
     _need(d, ("fs_hz", "period_samples", "freq_hz", "R_A", "R_I", "L"), path)
     try:
-        sig = {k: np.asarray(d[k], dtype=np.float64) for k in ("R_A", "R_I", "L")}
+        sig = {k: _numeric(d, k, path) for k in ("R_A", "R_I", "L")}
         if _fmt(path) == "mat":  # MATLAB drops trailing singleton axes
-            sig = {k: v.reshape(v.shape + (1,) * (3 - v.ndim)) for k, v in sig.items()}
+            sig = {k: v.reshape(v.shape + (1,) * max(0, 3 - v.ndim)) for k, v in sig.items()}
         return Run(
-            fs_hz=float(np.asarray(d["fs_hz"]).squeeze()),
-            period_samples=int(np.asarray(d["period_samples"]).squeeze()),
-            freq_hz=np.asarray(d["freq_hz"], dtype=np.float64).ravel(),
+            fs_hz=_scalar(d, "fs_hz", path),
+            period_samples=_scalar(d, "period_samples", path, integer=True),
+            freq_hz=_numeric(d, "freq_hz", path).ravel(),
             **sig,
         )
     except ValueError as e:
@@ -183,7 +289,8 @@ def save_frf(path, frf: FRF) -> Path:
 
 def load_frf(path) -> FRF:
     """Read and validate an FRF file."""
-    d = _read_frf_csv(path) if _fmt(path) == "csv" else _read_lab_arrays(path)
+    what = "an FRF file (freq_hz, Z_H, Z_T)"
+    d = _read_frf_csv(path) if _fmt(path) == "csv" else _read_lab_arrays(path, what)
     if "Z" in d and "Z_H" not in d:
         raise FileFormatError(f"{path}: holds a single impedance Z; use load_impedance_frf")
     _need(d, ("freq_hz", "Z_H", "Z_T"), path)
@@ -191,20 +298,20 @@ def load_frf(path) -> FRF:
         if k in d:
             _frequency_first(d[k], np.size(d["freq_hz"]), k, path)
     try:
-        f = np.asarray(d["freq_hz"], dtype=np.float64).ravel()
+        f = _numeric(d, "freq_hz", path).ravel()
         N = f.size
 
         def mat(k, dt):
             if k not in d:
                 return None
-            a = np.asarray(d[k], dtype=dt)
+            a = _numeric(d, k, path, complex_ok=dt is np.complex128)
             if a.ndim == 2 and N == 1:
                 a = a[None]
             return a
 
         ZH = mat("Z_H", np.complex128)
-        if ZH.ndim != 3:
-            raise ValueError(f"Z_H must be (N, n, n), got shape {ZH.shape}")
+        if ZH.ndim != 3 or ZH.shape[1] != ZH.shape[2] or ZH.shape[1] == 0 or N == 0:
+            raise ValueError(f"Z_H must be (N, n, n) with N, n ≥ 1, got shape {ZH.shape}")
         return as_frf(f, ZH, mat("Z_T", np.complex128), mat("Z_H_std", np.float64),
                       mat("Z_T_std", np.float64), mat("cond_L", np.float64))  # fmt: skip
     except ValueError as e:
@@ -278,12 +385,14 @@ def save_model(path, model: ImpedanceModel, **metadata) -> Path:
 
 def load_model(path) -> ImpedanceModel:
     """Read a model file into an ``ImpedanceModel`` (metadata: ``load_model_metadata``)."""
-    d = _read_arrays(path)
+    d = _read_arrays(path, "a model file (M_H, B_H, K_H, M_T, B_T, K_T)")
     _need(d, MODEL_KEYS, path)
-    mats = {k: np.asarray(d[k], dtype=np.float64) for k in MODEL_KEYS}
+    mats = {k: _numeric(d, k, path) for k in MODEL_KEYS}
     shapes = {v.shape for v in mats.values()}
-    if len(shapes) != 1 or len(next(iter(shapes))) != 2:
-        raise FileFormatError(f"{path}: model matrices must all be (n, n), got {sorted(shapes)}")
+    if len(shapes) != 1 or len(s := next(iter(shapes))) != 2 or s[0] != s[1] or s[0] == 0:
+        raise FileFormatError(
+            f"{path}: model matrices must all be (n, n) with n ≥ 1, got {sorted(shapes)}"
+        )
     for k, v in mats.items():
         if not np.all(np.isfinite(v)):
             raise FileFormatError(f"{path}: {k} contains NaN or inf")
@@ -294,7 +403,7 @@ def load_model(path) -> ImpedanceModel:
 
 
 def load_model_metadata(path) -> dict:
-    d = _read_arrays(path)
+    d = _read_arrays(path, "a model file (M_H, B_H, K_H, M_T, B_T, K_T)")
     return {k: v for k, v in d.items() if k not in MODEL_KEYS}
 
 
@@ -332,7 +441,13 @@ def _read_mat73(path) -> dict:
             "(or save it in MATLAB with save(..., '-v7'))"
         ) from None
     out = {}
-    with h5py.File(path, "r") as h:
+    try:
+        h = h5py.File(path, "r")
+    except OSError as e:
+        raise FileFormatError(
+            f"{path}: damaged MATLAB v7.3 (HDF5) file ({e}); expected a readable MAT-file"
+        ) from None
+    with h:
         for k, ds in h.items():
             if k.startswith("#") or not isinstance(ds, h5py.Dataset):
                 continue
@@ -353,12 +468,12 @@ def _is_hdf5(path) -> bool:
     return head.startswith(b"\x89HDF") or b"MATLAB 7.3" in head
 
 
-def _read_lab_arrays(path) -> dict:
+def _read_lab_arrays(path, what: str = "a hapid .npz or .mat file") -> dict:
     """``_read_arrays`` that also opens MATLAB v7.3 files (h5py)."""
     path = Path(path)
     if path.suffix.lower() == ".mat" and path.is_file() and _is_hdf5(path):
         return _read_mat73(path)
-    return _read_arrays(path)
+    return _read_arrays(path, what)
 
 
 def _text(d: dict, key: str, default: str) -> str:
@@ -368,7 +483,7 @@ def _text(d: dict, key: str, default: str) -> str:
     return str(a.reshape(-1)[0]) if a.dtype.kind in "US" and a.size else default
 
 
-def file_kind(path) -> str:
+def file_kind(path, what: str = "a hapid .npz or .mat file") -> str:
     """What a file holds, from its arrays: ``"run"``, ``"timeseries"``, ``"frf"`` (the haptic
     Z_H/Z_T pair), ``"impedance_frf"``, ``"model"`` (hand/total), ``"impedance_model"``, or
     ``"unknown"``. CSV files are told apart by their header."""
@@ -387,7 +502,7 @@ def file_kind(path) -> str:
         if "force_" in head:
             return "timeseries"
         return "unknown"
-    keys = set(_read_lab_arrays(path))
+    keys = set(_read_lab_arrays(path, what))
     for kind, need in (("run", {"R_A", "R_I", "L"}), ("frf", {"Z_H", "Z_T"}),
                        ("impedance_frf", {"Z", "freq_hz"}), ("model", set(MODEL_KEYS)),
                        ("impedance_model", {"M", "B", "K"}), ("timeseries", {"force", "response"})):  # fmt: skip
@@ -674,3 +789,16 @@ def load_impedance_model(path) -> SecondOrder:
     if len(shapes) != 1 or len(next(iter(shapes))) != 2:
         raise FileFormatError(f"{path}: M, B, K must all be (n, n), got {sorted(shapes)}")
     return SecondOrder(mats["M"], mats["B"], mats["K"])
+
+
+# ---- stage cache entries (hapid._stages): arrays + one JSON string, never pickle ----------------
+def save_cache_entry(path, arrays: dict, meta: str) -> Path:
+    """Write a stage-cache entry atomically: ``arrays`` by name plus the JSON string ``meta``."""
+    return _atomic_write(path, lambda fh: np.savez(fh, __meta__=np.asarray(meta), **arrays))
+
+
+def load_cache_entry(path) -> tuple[dict, str]:
+    """``(arrays, meta)`` of a stage-cache entry (``allow_pickle=False``)."""
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files if k != "__meta__"}
+        return arrays, str(z["__meta__"])

@@ -33,12 +33,17 @@ def load_design(path) -> tuple[Compensator, dict]:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such design file")
-    with np.load(path, allow_pickle=False) as z:
-        missing = [f for f in _FIELDS if f not in z]
-        if missing:
-            raise ValueError(f"{path}: not a design file (missing {', '.join(missing)})")
-        g = Compensator(**{f: z[f] for f in _FIELDS})
+    from ..io import _numeric, _read_arrays
+
+    z = _read_arrays(path, "a design file (hapid tune)")
+    missing = [f for f in _FIELDS if f not in z]
+    if missing:
+        raise ValueError(f"{path}: not a design file (missing {', '.join(missing)})")
+    g = Compensator(**{f: _numeric(z, f, path) for f in _FIELDS})
+    try:
         info = json.loads(str(z["json"])) if "json" in z else {}
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: its 'json' entry is not valid JSON ({e})") from None
     return g, info
 
 
