@@ -88,7 +88,7 @@ def cmd_frf(a):
     from .experiment import estimate_frf, estimate_frf_h1
 
     kind = "timeseries" if a.add or a.force_key != "force" else io.file_kind(a.run, "a run file or a time-series file")
-    if kind == "timeseries" or (kind == "unknown" and a.h1):
+    if kind in ("timeseries", "unknown"):  # unknown: the reader names the arrays it found
         from ._cli_fit import run_frf_lab
 
         return run_frf_lab(a)  # lab records → single impedance Z = F/x
