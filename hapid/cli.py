@@ -180,7 +180,7 @@ def cmd_paper(a):
     from . import scene
 
     cfg = scene.load_scene(a.scene) if a.scene else scene.merge({})
-    want = ["fig5", "fig6", "fig7", "fig8", "fig9", "fig10", "summary", "frf_file", "model_files"]
+    want = ["fig5", "fig6", "fig7", "fig8", "fig9", "summary", "fig10", "frf_file", "model_files"]  # fig10 after the summary's tuned g
     t0 = time.perf_counter()
     _, log = scene.run_scene(cfg, want, out_dir=a.out, cache_dir=None if a.no_cache else a.cache,
                              progress=lambda name: print(f"  … {name}", flush=True))  # fmt: skip

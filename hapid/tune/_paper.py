@@ -37,6 +37,13 @@ def _key(model, device) -> str:
     return h.hexdigest()[:16]
 
 
+def design_path(model, device, cache_dir: str | None = None) -> Path:
+    """Where :func:`paper_column` keeps the tuned design of ``model`` on ``device``."""
+    cache = Path(cache_dir or os.environ.get("HAPID_TUNE_CACHE", CACHE_DIR))
+    fast = os.environ.get("HAPID_FAST", "0") == "1"
+    return cache / f"design-{_key(model, device)}{'-fast' if fast else ''}.npz"
+
+
 def paper_column(device, model, omega, *, cache_dir: str | None = None) -> dict:
     """``{"report": LoopReport, "parameters": {name: value (Hz for frequencies)}, "cached":
     bool}`` for the tuned g on ``device.sampled_P(omega)``. ``cache_dir`` (default
@@ -45,9 +52,8 @@ def paper_column(device, model, omega, *, cache_dir: str | None = None) -> dict:
     from ._params import ParamMap
     from ._recipe import robust_design
 
-    cache = Path(cache_dir or os.environ.get("HAPID_TUNE_CACHE", CACHE_DIR))
     fast = os.environ.get("HAPID_FAST", "0") == "1"
-    path = cache / f"design-{_key(model, device)}{'-fast' if fast else ''}.npz"
+    path = design_path(model, device, cache_dir)
     cached = path.exists()
     if cached:
         g, _ = load_design(path)
