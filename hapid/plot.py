@@ -71,7 +71,9 @@ def _sv_colors(n: int):
     return [plt.get_cmap("viridis")(x) for x in np.linspace(0.0, 0.85, n)]
 
 
-def sigma_T_minus_I(reports: dict, *, title: str = "", f_max_hz: float = 100.0, y_min: float = 1e-4):
+def sigma_T_minus_I(
+    reports: dict, *, title: str = "", f_max_hz: float = 100.0, y_min: float = 1e-4
+):
     """σ(T(jω) − I) per loop (the paper's Figs. 5 and 10), one panel per loop, on a log
     magnitude axis so the isotropic-bandwidth threshold 1 − 1/√2 (dashed) is not squashed
     against a large resonance; each σ_k labelled, the bandwidth marked (dotted)."""
@@ -164,7 +166,9 @@ def pphat(f, curves: dict, *, title: str = "", band_db: float = 7.0, f_band_hz: 
                         label=f"paper: ±{band_db:g} dB to {f_band_hz:g} Hz")  # fmt: skip
         ax.axhline(0, color="k", lw=0.8)
         m = f <= f_band_hz
-        ax.set_title(f"{label}: {sv[m].min():+.1f} / {sv[m].max():+.1f} dB to {f_band_hz:g} Hz", fontsize=9)
+        ax.set_title(
+            f"{label}: {sv[m].min():+.1f} / {sv[m].max():+.1f} dB to {f_band_hz:g} Hz", fontsize=9
+        )
         ax.set_xlabel("frequency (Hz)")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
@@ -241,9 +245,18 @@ def sweep(keys, rows, metrics):
         m = np.all(others == c, axis=1) if others.shape[1] else np.ones(len(x), bool)
         o = np.argsort(x[m])
         lab = ", ".join(f"{k}={v:g}" for k, v in zip(keys[1:], c, strict=True)) or None
-        axes[0].plot(x[m][o], metrics["iso_bandwidth_hz"][m][o], marker="o", ms=3, color=f"C{j % 10}", label=lab)
+        axes[0].plot(
+            x[m][o],
+            metrics["iso_bandwidth_hz"][m][o],
+            marker="o",
+            ms=3,
+            color=f"C{j % 10}",
+            label=lab,
+        )
         axes[1].plot(x[m][o], metrics["pphat_max_db"][m][o], marker="o", ms=3, color=f"C{j % 10}")
-        axes[1].plot(x[m][o], metrics["pphat_min_db"][m][o], marker="o", ms=3, ls="--", color=f"C{j % 10}")
+        axes[1].plot(
+            x[m][o], metrics["pphat_min_db"][m][o], marker="o", ms=3, ls="--", color=f"C{j % 10}"
+        )
         axes[2].plot(x[m][o], metrics["disk_margin"][m][o], marker="o", ms=3, color=f"C{j % 10}")
     axes[0].set_ylabel("isotropic bandwidth (Hz; missing = unstable)")
     axes[1].set_ylabel("P·P̂⁻¹ band to 30 Hz (dB): max solid, min dashed")
