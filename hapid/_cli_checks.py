@@ -175,6 +175,17 @@ COMMON: dict[str, tuple] = {
         "one of lm, dogleg, gauss_newton, bfgs, nonlinear_cg, jaxopt_lm",
     ),
     "f_max_hz": gt(0, " Hz"),
+    "f_min_hz": ge(0, " Hz"),
+    "h1": FLAG,
+    "nperseg": int_ge(8),
+    "response": one_of(["displacement", "velocity", "acceleration"]),
+    "sign": one_of(["+", "-"]),
+    "fs_hz": gt(0, " Hz"),
+    "force_key": ANY,
+    "response_key": ANY,
+    "force_unit": ANY,
+    "length_unit": ANY,
+    "continuous": FLAG,
     "omega_c_hz": gt(0, " Hz"),
     "max_steps": int_ge(1),
     "band_hz": gt(0, " Hz"),
@@ -206,11 +217,12 @@ COMMON: dict[str, tuple] = {
 PER_COMMAND: dict[str, dict] = {
     "simulate": {"out": _Out("a run file", RUN_EXT)},
     "frf": {"run": _In("a run file", RUN_EXT), "out": _Out("an FRF file", RUN_EXT),
-            "plot": _Out("a figure file", FIG_EXT)},
+            "plot": _Out("a figure file", FIG_EXT), "add": _In("a record file", RUN_EXT)},
     "demo": {"out": _Out("an output folder")},
     "fit": {"frf": _In("an FRF file", RUN_EXT), "out": _Out("a model file", ARRAY_EXT)},
     "analyze": {"model": _In("a model file", ARRAY_EXT), "frf": _In("an FRF file", RUN_EXT),
-                "out": _Out("a JSON report", (".json",))},
+                "out": _Out("a JSON report", (".json",)),
+                "design": _In("a design file from hapid tune", (".npz",))},
     "posterior": {"frf": _In("an FRF file", RUN_EXT), "out": _Out("a samples file", (".npz",)),
                   "model": _In("a model file", ARRAY_EXT), "samples": int_ge(1),
                   "hdf5": _Out("an emcee HDF5 backend file", (".h5", ".hdf5"))},
@@ -476,6 +488,16 @@ def _scene_rules() -> dict:
     }  # fmt: skip
 
 
+def _by_type(v):
+    """Rule for a scene key without its own entry (options a stage grew since): numbers must
+    be finite, flags booleans; anything else is left to the stage."""
+    if isinstance(v, bool):
+        return FLAG
+    if isinstance(v, int | float):
+        return (_num, "a finite number")
+    return ANY
+
+
 def check_scene(cfg: dict, source: str) -> None:
     """Raise ``ValueError`` naming the first scene key (``section.key``) whose value is out of
     range, its value and what is allowed (``source``: the file or option it came from)."""
@@ -483,7 +505,7 @@ def check_scene(cfg: dict, source: str) -> None:
     for sec, vals in cfg.items():
         for k, v in vals.items():
             key = f"{sec}.{k}"
-            test, allowed = rules[key]
+            test, allowed = rules.get(key) or _by_type(v)
             if not test(v):
                 raise ValueError(f"{source}: {key} must be {allowed}, got {v!r}")
     from .experiment._excitation import check_on_grid, paper_frequencies

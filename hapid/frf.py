@@ -22,9 +22,8 @@ import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from . import _config  # noqa: F401
+from ._constants import TWO_PI
 from .impedance import plant
-
-TWO_PI = 2.0 * np.pi
 
 
 class FRF(eqx.Module):

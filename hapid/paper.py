@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-TWO_PI = 2 * np.pi
+from ._constants import TWO_PI
 
 PAPER = {
     "plant_span_db": "25–50",
@@ -57,7 +57,9 @@ def figure(num: int, out_dir, *deps) -> str:
         curves = {}
         for label, m in (("paper WLS + positize", wls["model"]), ("hapid NLS + PD", nls["model"])):
             curves[label] = P @ np.asarray(m.P_inv(1j * frf.omega))
-        fig, _ = plot.pphat(f, curves, title="Fig. 8 — singular values of P·P̂⁻¹ (true sampled plant)")
+        fig, _ = plot.pphat(
+            f, curves, title="Fig. 8 — singular values of P·P̂⁻¹ (true sampled plant)"
+        )
     elif num == 9:
         mimo, plant = deps
         fig, _ = plot.loci({"paper WLS + positize": mimo["wls"]["report"], "hapid NLS + PD": mimo["nls"]["report"]},
@@ -65,14 +67,8 @@ def figure(num: int, out_dir, *deps) -> str:
     elif num == 10:
         mimo, *rest = deps
         reps = {"MIMO, paper WLS + positize": mimo["wls"]["report"], "MIMO, hapid NLS + PD": mimo["nls"]["report"]}
-        # the summary's tuned-g column, when its design is on disk (`hapid paper` computes the
-        # summary first; a figure alone never starts a tuning)
-        from .tune._paper import design_path, paper_column
-
-        device, nls = rest
-        if design_path(nls["model"], device).exists():
-            omega = TWO_PI * np.asarray(mimo["nls"]["report"].freq_hz)
-            reps["MIMO, hapid NLS + PD + tuned g"] = paper_column(device, nls["model"], omega)["report"]
+        if rest:  # the scene's tuned-g loop (the summary's third column)
+            reps["MIMO, hapid NLS + PD + tuned g"] = rest[0]["report"]
         fig, _ = plot.sigma_T_minus_I(reps, title="Fig. 10 — σ(T(jω) − I), MIMO controller G = g(s) Ẑ_T Ẑ_H⁻¹")  # fmt: skip
     else:
         raise ValueError(f"no figure {num}")
@@ -95,7 +91,9 @@ def loop_numbers(rep) -> dict:
     return {k: (s[k] if isinstance(s[k], bool) else _f(s[k])) for k in keys}
 
 
-def summary(out_dir, device, frf, wls, nls, mimo, siso) -> dict:
+def summary(out_dir, device, frf, wls, nls, mimo, siso, tuned=None, tuned_mimo=None) -> dict:
+    """The summary table (``summary.json``, ``summary.md``) from the scene's stage results;
+    ``tuned``/``tuned_mimo`` (the scene's tuned-g stages) fill the third column."""
     from .fit import anisotropy_reduction, pphat_band_db
     from .impedance import span_db
 
@@ -119,21 +117,32 @@ def summary(out_dir, device, frf, wls, nls, mimo, siso) -> dict:
             "mimo": loop_numbers(mimo[key]["report"]),
         }
         if key == "wls":
-            entry["crhp_roots_before_positize"] = {"hand": wls["crhp_before"][0], "total": wls["crhp_before"][1]}
-            entry["crhp_roots_after_positize"] = {"hand": wls["crhp_after"][0], "total": wls["crhp_after"][1]}
+            entry["crhp_roots_before_positize"] = {
+                "hand": wls["crhp_before"][0],
+                "total": wls["crhp_before"][1],
+            }
+            entry["crhp_roots_after_positize"] = {
+                "hand": wls["crhp_after"][0],
+                "total": wls["crhp_after"][1],
+            }
         else:
             entry["status"], entry["steps"] = nls["status"], nls["steps"]
         res["fits"][key] = entry
     res["siso"] = {k: {"c": _f(v["c"]), **loop_numbers(v["report"])} for k, v in siso.items()}
-    # third column: the same NLS + PD model with g(s) tuned by gradients (hapid.tune; cached)
-    from .tune import paper_column
+    # third column: the same NLS + PD model with g(s) tuned by gradients (the scene's tuned stages)
+    if tuned is not None and tuned_mimo is not None:
+        from . import io
 
-    tuned = paper_column(device, nls["model"], TWO_PI * np.asarray(mimo["nls"]["report"].freq_hz))
-    res["tuned"] = {"label": "hapid NLS + PD + tuned g", "mimo": loop_numbers(tuned["report"]),
-                    "g": tuned["parameters"], "design_file": tuned["design_file"]}  # fmt: skip
+        dfile = Path(out_dir) / "design_tuned.npz"
+        io_save = getattr(io, "save_design", None)
+        if io_save is None:
+            from .tune import save_design as io_save
+        io_save(dfile, tuned["g"], constraints=tuned["constraints"], history=tuned["history"])
+        res["tuned"] = {"label": "hapid NLS + PD + tuned g", "mimo": loop_numbers(tuned_mimo["report"]),
+                        "g": tuned["parameters"], "design_file": str(dfile)}  # fmt: skip
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "summary.json").write_text(json.dumps(res, indent=2))
+    (out / "summary.json").write_text(json.dumps(res, indent=2, allow_nan=False))
     (out / "summary.md").write_text(summary_markdown(res))
     return res
 
@@ -153,7 +162,11 @@ def summary_markdown(res: dict) -> str:
 
     def tpk(e):
         m = e["mimo"]
-        return "—" if m.get("t_peak_db") is None else f"{m['t_peak_db']:.1f} dB at {m['t_peak_hz']:.1f} Hz"
+        return (
+            "—"
+            if m.get("t_peak_db") is None
+            else f"{m['t_peak_db']:.1f} dB at {m['t_peak_hz']:.1f} Hz"
+        )
 
     X = res.get("tuned")
     rows = [
@@ -202,6 +215,11 @@ def summary_markdown(res: dict) -> str:
     lines += [f"| {a} | {b} | {c} | {d} | {e} |" for a, b, c, d, e in rows]
     lines += ["", f"NLS status: {N.get('status')} after {N.get('steps')} steps.", ""]
     if X is not None:
-        lines += ["Tuned g (hapid.tune, robust over the device's pose/subject variants, nominal plant "
-                  "held out): " + ", ".join(f"{k} {v:.3g}" for k, v in X["g"].items()) + " (Hz for frequencies).", ""]
+        lines += [
+            "Tuned g (hapid.tune, robust over the device's pose/subject variants, nominal plant "
+            "held out): "
+            + ", ".join(f"{k} {v:.3g}" for k, v in X["g"].items())
+            + " (Hz for frequencies).",
+            "",
+        ]
     return "\n".join(lines)

@@ -8,8 +8,6 @@ matplotlib.use("Agg", force=False)
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-TWO_PI = 2 * np.pi
-
 
 def _sv(A):
     return np.linalg.svd(np.asarray(A), compute_uv=False)

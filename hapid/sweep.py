@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _config  # noqa: F401
+from ._constants import TWO_PI
 from ._linalg import svdvals
 
 SWEEPABLE = ("fit.omega_c_hz", "protocol.noise", "protocol.position_noise", "protocol.periods",
@@ -36,7 +37,6 @@ SWEEPABLE = ("fit.omega_c_hz", "protocol.noise", "protocol.position_noise", "pro
              "device.dz")  # fmt: skip
 METRICS = ("pphat_min_db", "pphat_max_db", "stable", "iso_bandwidth_hz", "t_peak_db",
            "disk_margin")  # fmt: skip
-TWO_PI = 2 * np.pi
 
 
 def loop_metrics(P, G, omega, band_mask=None):

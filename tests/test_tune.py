@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import hapid
+from hapid._constants import TWO_PI
 from hapid.control import Compensator, analyze_loop, discretize_compensator, inverse_model_response
 from hapid.tune import (
     Family,
@@ -24,7 +25,6 @@ from hapid.tune import (
 from hapid.tune._objective import Box
 from tests.helpers import random_spd
 
-TWO_PI = 2 * np.pi
 TS = 1e-3
 
 

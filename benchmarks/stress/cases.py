@@ -27,6 +27,7 @@ import numpy as np
 
 import hapid
 from hapid import ImpedanceModel, SecondOrder
+from hapid._constants import TWO_PI
 from hapid.control import StateSpace, analyze_loop, closed_loop_poles
 from hapid.experiment import Protocol, estimate_frf, patterns, periodic_run
 from hapid.fit import (
@@ -44,7 +45,6 @@ from hapid.fit import (
     wls_coefficients,
 )
 
-TWO_PI = 2.0 * np.pi
 PAPER_HZ = np.concatenate([np.arange(1.0, 11.0), np.arange(15.0, 101.0, 5.0)])
 OUTCOMES = ("right answer", "clear warning", "clear error", "measured", "SILENT FAILURE")
 

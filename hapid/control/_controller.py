@@ -24,11 +24,11 @@ from jaxtyping import Array, Bool, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
 from ..impedance import ImpedanceModel
+from ..lti import StateSpace, series
 from ._compensator import Compensator
 from ._lapack import after
 from ._margins import _gain_crossings, _phase_crossings
 from ._nyquist import characteristic_loci, nyquist_encirclements
-from ._statespace import StateSpace, series
 
 
 class ControllerWarning(UserWarning):

@@ -24,11 +24,11 @@ import numpy as np
 from jaxtyping import Array, Bool, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
+from .._constants import TWO_PI
 from ._lapack import after, lu_det_solve
 from ._margins import disk_margin_from_peak, loci_margins
 from ._nyquist import characteristic_loci, nyquist_encirclements
 
-TWO_PI = 2.0 * np.pi
 ISO_THRESHOLD = 1.0 - 1.0 / np.sqrt(2.0)
 """``1 − 1/√2 ≈ 0.293``: the paper's isotropic-bandwidth threshold on σ̄(T − I)."""
 

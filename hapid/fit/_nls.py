@@ -64,6 +64,8 @@ LEAST_SQUARES_SOLVERS = ("lm", "dogleg", "gauss_newton")
 MINIMISERS = ("bfgs", "nonlinear_cg")
 SOLVERS = LEAST_SQUARES_SOLVERS + MINIMISERS + ("jaxopt_lm",)
 LINEAR_SOLVERS = ("cholesky", "qr")
+#: relative weights: a block's norm is floored at this fraction of the other block's
+RELATIVE_FLOOR = 1e-6
 
 
 def data_scale(frf: FRF, f_max_hz: float | None = None) -> Scale:
@@ -164,7 +166,11 @@ def make_problem(
     Z_H, Z_T = frf.Z_H / zr, frf.Z_T / zr
     fro = lambda Z: jnp.linalg.norm(Z, axis=(-2, -1))[:, None, None]  # noqa: E731
     if weight == "relative":
-        W_H, W_T = mask / fro(Z_H), mask / fro(Z_T)
+        # a block whose data is zero (a single impedance loaded with Z_H = 0) has no size of
+        # its own: it is weighted relative to the other block (1e6/‖Z_other‖), not 1/0
+        nH, nT = fro(Z_H), fro(Z_T)
+        W_H = mask / jnp.maximum(nH, RELATIVE_FLOOR * nT)
+        W_T = mask / jnp.maximum(nT, RELATIVE_FLOOR * nH)
     elif weight == "paper":
         h = (omega_c**2 / (1j * frf.omega + omega_c) ** 2)[:, None, None]
         W_H = W_T = mask * h

@@ -23,12 +23,11 @@ import numpy as np
 import optimistix as optx
 
 from .. import _config  # noqa: F401  (float64)
+from .._constants import TWO_PI
 from ..control import Compensator
 from ._objective import Box, Requirements, aggregate, penalized
 from ._params import ParamMap
 from ._response import g_response
-
-TWO_PI = 2.0 * np.pi
 
 
 @dataclasses.dataclass(frozen=True)

@@ -48,32 +48,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from .._grids import continuous_grid as posterior_omega
+from .._grids import sampled_grid as robust_omega
 from ..control import Compensator, analyze_loop, controller_unstable_poles, inverse_model_response
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
 from ._sampler import PosteriorSamples
 
-TWO_PI = 2.0 * np.pi
 FIELDS = ("gm_db", "pm_deg", "disk_margin", "disk_gm_db", "disk_pm_deg", "iso_bandwidth_hz", "t_peak_db")
 _WORST = {"gm_db": -np.inf, "pm_deg": -np.inf, "disk_margin": 0.0, "disk_gm_db": 0.0,
           "disk_pm_deg": 0.0, "iso_bandwidth_hz": 0.0, "t_peak_db": np.inf}  # fmt: skip
-
-
-def robust_omega(n_freq: int = 1000, f_min_hz: float = 0.05, f_max_hz: float = 450.0) -> np.ndarray:
-    """Grid for *sampled* plants (rad/s): ``n_freq`` log-spaced points, 0.05–450 Hz (below
-    the 1 kHz device's Nyquist frequency, above the paper's low-pass poles). Device variants
-    (:func:`device_plants`) use it."""
-    return TWO_PI * np.geomspace(f_min_hz, f_max_hz, n_freq)
-
-
-def posterior_omega(n_freq: int = 1500, f_min_hz: float = 0.005, f_max_hz: float = 5000.0) -> np.ndarray:
-    """Grid for *continuous* model plants (posterior samples), rad/s: 0.005 Hz – 5 kHz.
-
-    The generalized Nyquist count of a continuous loop ``P̂_s · g Ẑ_T Ẑ_H⁻¹`` is only
-    resolved once the loop has rolled off at the top of the grid. On cu5 with the paper's g,
-    the 0.05–450 Hz grid stopped before that: 70 % of emcee draws came out "not stable"
-    (unresolved count) where this grid finds 85 % stable."""
-    return TWO_PI * np.geomspace(f_min_hz, f_max_hz, n_freq)
 
 
 @dataclasses.dataclass(frozen=True)
