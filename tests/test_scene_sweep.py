@@ -25,7 +25,7 @@ def test_zh_only_scene_runs_no_controller_stages(tmp_path):
 
 def test_changing_the_gain_reruns_only_controller_and_analysis(tmp_path):
     cfg = scene.merge({"analysis": {"n_freq": 300}})
-    want = ["fig5", "fig6", "fig10"]  # summary (with the tuned-g column): the paper notebook test
+    want = ["fig5", "fig6", "fig9"]  # fig10/summary (with the tuned g): the paper notebook test
     _, first = scene.run_scene(cfg, want, out_dir=tmp_path, cache_dir=tmp_path / "c")
     assert "mimo" in first["computed"] and "run" in first["computed"]
     cfg2 = scene.set_option(cfg, "controller.k", 0.6)
@@ -36,7 +36,7 @@ def test_changing_the_gain_reruns_only_controller_and_analysis(tmp_path):
     assert not cached_stages & set(second["computed"])
     # the same config again: every cacheable stage comes from disk
     _, third = scene.run_scene(cfg2, want, out_dir=tmp_path, cache_dir=tmp_path / "c")
-    assert set(third["computed"]) <= {"fig5", "fig6", "fig10"}
+    assert set(third["computed"]) <= {"fig5", "fig6", "fig9"}
 
 
 def test_scene_errors_are_clear(tmp_path):
