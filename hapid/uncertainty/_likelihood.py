@@ -54,7 +54,7 @@ circular complex Gaussian, ``log p(r) = −2 log π − log det C − rᴴ C⁻�
 
 **Prior** (proper, on the sampled coordinates, so no Jacobian): ``θ'_i ~ N(0, prior_scale²)``
 (Cholesky entries, or matrix entries truncated to the PSD cone) independently (scaled units are O(1); the default ``prior_scale = 10`` is weak but keeps a
-Cholesky diagonal of an unidentified direction from drifting off, DESIGN.md "Priors and
+Cholesky diagonal of an unidentified direction from drifting off, docs/conventions.md "Priors and
 misspecification"), and ``log τ ~ N(log_tau_mean, log_tau_sd²)`` (default ``log 0.03``,
 sd 2: τ from ~5·10⁻⁴ to ~1.6 within ±2 sd).
 
