@@ -61,6 +61,31 @@ def cmd_plant(a):
           f"{f[0]:.4g}–{f[-1]:.4g} Hz → {out}  (check a design: hapid analyze --frf {out} --fs {a.fs:g})")  # fmt: skip
 
 
+_UNITS = (("_hz", "Hz"), ("_db", "dB"), ("_deg", "°"), ("_s", "s"))
+
+
+def _unit(key: str) -> str:
+    k = key.removesuffix("_q05").removesuffix("_q50")
+    return next((u for suf, u in _UNITS if k.endswith(suf)), "")
+
+
+def _fmt(v) -> str:
+    if isinstance(v, bool | np.bool_) or v is None:
+        return str(v)
+    if isinstance(v, int | np.integer):
+        return str(int(v))
+    return f"{float(v):.4g}"
+
+
+def recheck_table(start: dict, tuned: dict) -> str:
+    """The ``hapid tune`` re-check as a text table: quantity, unit, start, tuned (4
+    significant figures)."""
+    rows = [(k, _unit(k), _fmt(start.get(k)), _fmt(tuned.get(k))) for k in tuned if k != "validate_s"]
+    w = max(len(r[0]) for r in rows) if rows else 10
+    head = f"  {'quantity':{w}s}  {'unit':4s}  {'start g':>10s}  {'tuned g':>10s}"
+    return "\n".join([head] + [f"  {a:{w}s}  {u:4s}  {b:>10s}  {c:>10s}" for a, u, b, c in rows])
+
+
 def register(sub):
     pr = sub.add_parser("predict", help="posterior-predictive draws of the plant P (model error included)",
                         description="Draws of the true P = Z_H Z_T⁻¹ (and Z_H, Z_T) on any grid from a "

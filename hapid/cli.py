@@ -510,17 +510,17 @@ def cmd_tune(a):
                           n_holdout=a.n_holdout, quantile=a.quantile, n_subjects=a.subjects,
                           seed=a.seed, max_steps=a.max_steps, keep_dc_gain=not a.free_dc)  # fmt: skip
     r = res["result"]
+    print(res.get("decision", ""))
     print(f"tuned in {r.wall_s:.1f} s: claimed robust bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, "
           f"smooth constraints {'met' if r.feasible else 'NOT met'} on the training scenarios")  # fmt: skip
     for p in r.parameters():
         print(f"  {p['name']:16s} {p['start']:10.4g} → {p['tuned']:10.4g}")
     tab = res.get("table", {})
     if tab:
+        from ._cli_predict import recheck_table
+
         print("non-smooth re-check (held-out samples / true plant / time domain):")
-        for k in tab["tuned"]:
-            if k == "validate_s":
-                continue
-            print(f"  {k:40s} {tab['start'][k]!s:>24.24s}  →  {tab['tuned'][k]!s:>24.24s}")
+        print(recheck_table(tab["start"], tab["tuned"]))
     if a.report:
         from .io import save_json
 

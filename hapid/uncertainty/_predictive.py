@@ -124,7 +124,8 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
       exact GP conditional on the residuals ``[Ẑ_H − Z_H(θ); Ẑ_T − Z_T(θ)]`` at the fit
       frequencies (pathwise: a joint prior draw on fit ∪ new frequencies corrected by
       ``K_{*x} C⁻¹ (r − ỹ)``, Matheron's rule). Far from the fit band it reverts to the prior
-      (amplitude ``τ a(ω)``, :func:`~hapid.uncertainty._likelihood.gp_amplitudes`).
+      (amplitude ``τ a(ω)``, :func:`~hapid.uncertainty._likelihood.gp_amplitudes`, with the
+      slope factor ``(ω/ω_ref)^β`` held at its band-edge value beyond the fit band).
     - ``"white"`` samples: independent circular errors of variance ``τ² a(ω)²`` at each new
       frequency (``a`` log-log interpolated from the fit band): the white model has no
       correlation to condition on.
@@ -208,7 +209,8 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
 
         def one(h, y, key):  # y (E, 2Nf, 2): residuals; returns gH, gM (E, 2, N)
             tau, ell = jnp.exp(h[:2]), jnp.exp(h[2:4])
-            b = [a_j[i] * jnp.exp(h[4 + i] * u_j) for i in range(2)]
+            # the amplitude slope is learned on the fit band: held constant beyond it
+            b = [a_j[i] * jnp.exp(h[4 + i] * jnp.clip(u_j, u_j[0], u_j[Nf - 1])) for i in range(2)]
             Ks = [
                 0.5 * tau[i] ** 2 * jnp.outer(b[i], b[i]) * kernel(u_j, u_j, ell[i])
                 for i in range(2)
