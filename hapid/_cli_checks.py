@@ -234,6 +234,10 @@ PER_COMMAND: dict[str, dict] = {
              "samples": _In("a posterior-samples file", (".npz",)),
              "out": _Out("a design file", (".npz",)), "report": _Out("a JSON report", (".json",))},
     "paper": {"out": _Out("an output folder"), "scene": _In("a scene TOML", (".toml",))},
+    "predict": {"samples": _In("a posterior-samples file", (".npz",)), "out": _Out("a draws file", (".npz",)),
+                "f_min_hz": gt(0, " Hz"), "n_freq": int_ge(2), "no_model_error": FLAG},
+    "plant": {"out": _Out("an FRF file", (".npz",)), "n_freq": int_ge(2), "delay": int_between(0, 1000),
+              "f_min_hz": gt(0, " Hz")},
     "run": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder")},
 }  # fmt: skip
 
