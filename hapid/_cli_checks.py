@@ -225,6 +225,7 @@ PER_COMMAND: dict[str, dict] = {
                 "design": _In("a design file from hapid tune", (".npz",))},
     "posterior": {"frf": _In("an FRF file", RUN_EXT), "out": _Out("a samples file", (".npz",)),
                   "model": _In("a model file", ARRAY_EXT), "samples": int_ge(1),
+                  "model_error": one_of(["white", "gp", "none"]),
                   "hdf5": _Out("an emcee HDF5 backend file", (".h5", ".hdf5"))},
     "robust": {"samples": _In("a posterior-samples file", (".npz",)),
                "model": _In("a model file", ARRAY_EXT), "out": _Out("a JSON report", (".json",))},
