@@ -9,11 +9,14 @@ from scipy.stats import multivariate_normal
 from hapid.cli import main
 from hapid.fit import fit_nls
 from hapid.uncertainty import (
+    PosteriorSamples,
     RobustReport,
     band_calibration,
+    fold_theta,
     initial_point,
     load_samples,
     make_log_posterior,
+    param_names,
     posterior_laplace_samples,
     predictive_plants,
     save_samples,
@@ -150,7 +153,15 @@ def test_tuner_never_worse_rule():
 def test_cli_predict_and_plant(case, tmp_path, capsys):
     _, frf, nls = case
     post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp", reference=nls)
-    s = save_samples(tmp_path / "s.npz", posterior_laplace_samples(post, 40, nls, key=0))
+    # draws near the NLS optimum with fixed GP hyperparameters (no Laplace: keeps this fast)
+    rng = np.random.default_rng(0)
+    th = np.asarray(fold_theta(np.asarray(nls.theta)))
+    th = fold_theta(th + 1e-3 * rng.standard_normal((12, th.shape[0])))
+    hyp = np.tile([np.log(0.02), np.log(0.02), np.log(0.5), np.log(0.5), 0.0, 0.0], (12, 1))
+    ps = PosteriorSamples(samples=np.concatenate([th, hyp], 1), log_prob=np.zeros(12), scale=nls.scale,
+                          n=2, names=tuple(param_names(2, "gp")),
+                          predictive=post.predictive_data())  # fmt: skip
+    s = save_samples(tmp_path / "s.npz", ps)
     out = tmp_path / "draws.npz"
     assert main(["predict", "--samples", str(s), "--f-min-hz", "2", "--f-max-hz", "80", "--n-freq", "7",
                  "--max-samples", "10", "--out", str(out)]) == 0  # fmt: skip
