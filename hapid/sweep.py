@@ -23,7 +23,6 @@ when there are several (``XLA_FLAGS=--xla_force_host_platform_device_count=2`` e
 from __future__ import annotations
 
 import copy
-import csv
 import itertools
 import re
 from pathlib import Path
@@ -287,18 +286,12 @@ def run_single(cfg: dict, keys, params, estimator: str = ESTIMATOR_DEFAULT) -> d
 
 
 def write_csv(path, keys, rows, metrics) -> Path:
-    """One row per configuration: the varied options, then :data:`METRICS` (atomic write)."""
-    import io as _io
+    """The sweep table (one row per point: varied options, then :data:`METRICS`) as CSV."""
+    from .io import save_csv
 
-    from . import io
-
-    buf = _io.StringIO()
-    w = csv.writer(buf)
-    w.writerow(list(keys) + list(METRICS))
-    for i in range(rows.shape[0]):
-        w.writerow([f"{v:g}" for v in rows[i]] + [f"{float(metrics[m][i]):.6g}" for m in METRICS])
-    text = buf.getvalue().encode()
-    return io._atomic_write(path, lambda fh: fh.write(text))
+    table = ([f"{v:g}" for v in rows[i]] + [f"{float(metrics[m][i]):.6g}" for m in METRICS]
+             for i in range(rows.shape[0]))  # fmt: skip
+    return save_csv(path, list(keys) + list(METRICS), table)
 
 
 def plot_sweep(keys, rows, metrics, path) -> Path:

@@ -118,6 +118,16 @@ class RobustReport:
             and self.quantile("pm_deg", 0.05) >= self.pm_req_deg
         )
 
+    @property
+    def ok(self) -> bool:
+        """The requirements are met (:attr:`passed`)."""
+        return self.passed
+
+    @property
+    def status(self) -> str:
+        """``"passed"`` or ``"failed"``."""
+        return "passed" if self.passed else "failed"
+
     def summary(self) -> dict:
         """Plain-python summary: P(stable), 5 %/50 % quantiles, worst plant, pass/fail."""
         w = self.worst
