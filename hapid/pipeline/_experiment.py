@@ -13,8 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from .._grids import log_grid_hz, nyquist_grid
 
-TWO_PI = 2.0 * np.pi
 MOVE_KEYS = ("dx", "dy", "dz", "dyaw", "dpitch", "droll")
 
 
@@ -107,11 +107,8 @@ def analysis_grid(f_min_hz, n_freq: int, fs_hz: float | None = None, f_max_hz: f
     Sampled loop (``fs_hz`` given): to just below the Nyquist frequency, plus fs/2 itself
     (the discrete contour ends there). Continuous loop: to ``f_max_hz``. ``f_min_hz`` may be
     traced."""
-    n_freq = int(n_freq)
-    lo = jnp.log10(jnp.asarray(f_min_hz, dtype=jnp.float64))
     if fs_hz is not None:
-        f = 10.0 ** jnp.linspace(lo, np.log10(0.49999 * fs_hz), n_freq - 1)
-        return TWO_PI * jnp.append(f, 0.5 * fs_hz)
+        return nyquist_grid(fs_hz, n_freq, f_min_hz)
     if f_max_hz is None:
         raise ValueError("analysis_grid: give fs_hz (sampled loop) or f_max_hz (continuous)")
-    return TWO_PI * 10.0 ** jnp.linspace(lo, np.log10(f_max_hz), n_freq)
+    return log_grid_hz(f_min_hz, f_max_hz, n_freq)
