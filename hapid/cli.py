@@ -88,7 +88,7 @@ def cmd_frf(a):
     from .experiment import estimate_frf, estimate_frf_h1
 
     kind = "timeseries" if a.add or a.force_key != "force" else io.file_kind(a.run, "a run file or a time-series file")
-    if kind == "timeseries" or (kind == "unknown" and a.h1):
+    if kind in ("timeseries", "unknown"):  # unknown: the reader names the arrays it found
         from ._cli_fit import run_frf_lab
 
         return run_frf_lab(a)  # lab records → single impedance Z = F/x
@@ -453,9 +453,12 @@ def cmd_sweep(a):
         key, _, vals = item.partition("=")
         if not vals:
             raise CLIError(f"--vary needs key=v1,v2,…; got {item!r}")
-        vary[key] = [float(v) for v in vals.split(",")]
+        try:
+            vary[key] = [float(v) for v in vals.split(",")]
+        except ValueError:
+            raise CLIError(f"--vary {key}: values must be numbers, got {vals!r}") from None
     t0 = time.perf_counter()
-    keys, rows, metrics = sweep.run_sweep(cfg, vary, chunk=a.chunk)
+    keys, rows, metrics = sweep.run_sweep(cfg, vary, chunk=a.chunk, estimator=a.estimator)
     out = Path(a.out)
     csv_path = sweep.write_csv(out / "sweep.csv", keys, rows, metrics)
     fig_path = sweep.plot_sweep(keys, rows, metrics, out / "sweep.png")
@@ -469,15 +472,19 @@ def cmd_sweep(a):
 def _register_sweep(sub):
     sw = sub.add_parser("sweep", help="batched sweep over numeric scene options (one compiled vmap)",
                         description="Evaluate a scene's pipeline over the Cartesian product of "
-                        "option values as one batched JAX computation: P·P̂⁻¹ band, stability, "
-                        "isotropic bandwidth, T peak and disk margin per configuration.",
+                        "option values as one batched JAX computation: P·P̂⁻¹ band, stability "
+                        "(the same verdict as hapid analyze), isotropic bandwidth, GM/PM, T peak "
+                        "and disk margin per configuration.",
                         epilog="example: hapid sweep scenes/paper.toml --vary controller.k=0.4,0.6,0.85 "
                         "--vary protocol.noise=0.005,0.05 --out out/sweep")  # fmt: skip
     sw.add_argument("scene")
     sw.add_argument("--vary", action="append", required=True, metavar="KEY=V1,V2,…",
-                    help="sweepable: fit.omega_c_hz, protocol.noise, protocol.position_noise, "
-                    "protocol.periods, protocol.seed, controller.k, device.subject_seed, "
-                    "device.dx, device.dy, device.dz")  # fmt: skip
+                    help="any numeric scene option: device.dx…droll, device.subject_seed, "
+                    "protocol.noise/position_noise/periods/seed/amplitude, fit.* (NLS options "
+                    "with --estimator nls), controller.k/lag_zero_hz/lag_pole_hz/zeta_num/"
+                    "zeta_den/notch_hz[i]/lowpass_hz[i], analysis.f_min_hz/n_freq/band_hz")  # fmt: skip
+    sw.add_argument("--estimator", default="wls+positize",
+                    help="frf → model estimator: wls, wls+positize (default), nls")  # fmt: skip
     sw.add_argument("--chunk", type=int, default=64, help="configurations per compiled call")
     sw.add_argument("--out", default="out/sweep")
     sw.set_defaults(func=cmd_sweep)

@@ -1,4 +1,4 @@
-"""The only file I/O: run, FRF and model files (npz contract of DESIGN.md), CSV and MATLAB .mat.
+"""The only file I/O: run, FRF and model files (npz contracts in docs/contracts.md), CSV and MATLAB .mat.
 
 Every writer validates before it writes and writes atomically (temporary file + rename), so a
 bad input never leaves a half-written file. Every reader validates what it read and names the
@@ -244,7 +244,9 @@ def _run_csv(run: Run) -> str:
     buf.write(f"# fs_hz={run.fs_hz!r}; period_samples={run.period_samples}; ")
     buf.write("freq_hz=" + " ".join(repr(float(f)) for f in run.freq_hz) + "\n")
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["experiment", "sample"] + [f"{k}_{i}" for k in ("R_A", "R_I", "L") for i in range(n)])
+    w.writerow(
+        ["experiment", "sample"] + [f"{k}_{i}" for k in ("R_A", "R_I", "L") for i in range(n)]
+    )
     for e in range(E):
         block = np.concatenate([run.R_A[e], run.R_I[e], run.L[e]], axis=1)
         for t in range(T):
@@ -259,7 +261,9 @@ def _read_run_csv(path) -> dict:
     with open(path) as fh:
         head = fh.readline()
         if not head.startswith("#"):
-            raise FileFormatError(f"{path}: first line must be '# fs_hz=…; period_samples=…; freq_hz=…'")
+            raise FileFormatError(
+                f"{path}: first line must be '# fs_hz=…; period_samples=…; freq_hz=…'"
+            )
         meta = dict(part.strip().split("=", 1) for part in head[1:].split(";") if "=" in part)
         rows = list(csv.reader(fh))
     try:
@@ -872,7 +876,8 @@ def save_csv(path, header, rows) -> Path:
 def save_samples(path, ps) -> Path:
     """Write posterior samples (:class:`hapid.uncertainty.PosteriorSamples`) to ``.npz``:
     ``samples (S, d)``, ``log_prob (S,)``, ``n``, ``names``, ``omega_ref`` (rad/s), ``z_ref``,
-    ``method`` and the scalar diagnostics as ``diag_*``. A path without the ``.npz`` suffix
+    ``method``, the scalar diagnostics as ``diag_*`` and the model-error predictive data
+    (``pred_*``: what the GP model error needs to predict at new frequencies). A path without the ``.npz`` suffix
     gets it appended (as ``numpy.savez`` does); the path written is returned."""
     path = Path(path)
     if path.suffix != ".npz":
@@ -890,6 +895,9 @@ def save_samples(path, ps) -> Path:
         "omega_ref": np.float64(ps.scale.omega_ref),
         "z_ref": np.float64(ps.scale.z_ref),
         "method": np.asarray(str(ps.diagnostics.get("method", ""))),
+    }
+    arrays |= {
+        f"pred_{k}": np.asarray(v) for k, v in (getattr(ps, "predictive", None) or {}).items()
     }
     return _atomic_write(path, lambda fh: np.savez(fh, **arrays))
 
