@@ -22,7 +22,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-TWO_PI = 2.0 * np.pi
+from ._constants import TWO_PI
 
 
 class FitCommandError(ValueError):
