@@ -157,7 +157,7 @@ def run_fit(a) -> None:
             else "haptic hand/total pair Z_H, Z_T (N/m)")  # fmt: skip
     f = np.asarray(sel.freq_hz)
     print(f"data: {what}, n = {data.n}, from {a.frf}")
-    how = ("every frequency in the file (--f-min-hz/--f-max-hz to narrow)"
+    how = ("every frequency in the file; narrow it with --f-min-hz/--f-max-hz"
            if a.f_min_hz is None and a.f_max_hz is None
            else f"--f-min-hz {lo:g} --f-max-hz {hi:g}")  # fmt: skip
     print(f"band: {f.min():g}–{f.max():g} Hz, {f.size} of {np.size(data.freq_hz)} frequencies "
