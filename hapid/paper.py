@@ -6,7 +6,6 @@ Figures are drawn by ``hapid.plot``; this module picks the data and writes the f
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +31,8 @@ def figure(num: int, out_dir, *deps) -> str:
     if num == 5:
         (siso,) = deps
         fig, _ = plot.sigma_T_minus_I(
-            {f"SISO, {k} (c = {v['c']:.3g})": v["report"] for k, v in siso.items() if v["report"] is not None},
+            {f"SISO, c = {v['c']:.3g}" + (f" ({k})" if not k.startswith("c=") else ""): v["report"]
+             for k, v in siso.items() if v["report"] is not None},
             title="Fig. 5 — σ(T(jω) − I) under SISO control G = c·g(s)·I",
         )  # fmt: skip
     elif num in (6, 7):
@@ -47,6 +47,7 @@ def figure(num: int, out_dir, *deps) -> str:
             {"paper WLS + positize": np.asarray(pick(wls["model"])), "hapid NLS + PD": np.asarray(pick(nls["model"]))},
             title=f"Fig. {num} — singular values of {which} (measured, solid) and its models",
             name=which,
+            Z_std=None if getattr(frf, which + "_std") is None else np.asarray(getattr(frf, which + "_std")),
         )  # fmt: skip
     elif num == 8:
         device, frf, wls, nls = deps
@@ -63,11 +64,11 @@ def figure(num: int, out_dir, *deps) -> str:
         fig, _ = plot.loci({"paper WLS + positize": mimo["wls"]["report"], "hapid NLS + PD": mimo["nls"]["report"]},
                            title="Fig. 9 — characteristic loci of P(z)G(z) (eigenvalues)")  # fmt: skip
     elif num == 10:
-        (mimo,) = deps
-        fig, _ = plot.sigma_T_minus_I(
-            {"MIMO, paper WLS + positize": mimo["wls"]["report"], "MIMO, hapid NLS + PD": mimo["nls"]["report"]},
-            title="Fig. 10 — σ(T(jω) − I), MIMO controller G = g(s) Ẑ_T Ẑ_H⁻¹",
-        )  # fmt: skip
+        mimo, *rest = deps
+        reps = {"MIMO, paper WLS + positize": mimo["wls"]["report"], "MIMO, hapid NLS + PD": mimo["nls"]["report"]}
+        if rest:  # the scene's tuned-g loop (the summary's third column)
+            reps["MIMO, hapid NLS + PD + tuned g"] = rest[0]["report"]
+        fig, _ = plot.sigma_T_minus_I(reps, title="Fig. 10 — σ(T(jω) − I), MIMO controller G = g(s) Ẑ_T Ẑ_H⁻¹")  # fmt: skip
     else:
         raise ValueError(f"no figure {num}")
     plot.save(fig, out)
@@ -140,8 +141,10 @@ def summary(out_dir, device, frf, wls, nls, mimo, siso, tuned=None, tuned_mimo=N
                         "g": tuned["parameters"], "design_file": str(dfile)}  # fmt: skip
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "summary.json").write_text(json.dumps(res, indent=2, allow_nan=False))
-    (out / "summary.md").write_text(summary_markdown(res))
+    from . import io
+
+    io.save_json(out / "summary.json", res)
+    io.save_text(out / "summary.md", summary_markdown(res))
     return res
 
 

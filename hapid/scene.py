@@ -255,7 +255,7 @@ OUT_STAGES = [
     _out_stage("fig7", ("frf", "wls", "nls"), _fig(7)),
     _out_stage("fig8", ("device", "frf", "wls", "nls"), _fig(8)),
     _out_stage("fig9", ("mimo", "plant"), _fig(9)),
-    _out_stage("fig10", ("mimo",), _fig(10)),
+    _out_stage("fig10", ("mimo", "tuned_mimo"), _fig(10)),  # + the tuned-g loop
     _out_stage("summary", ("device", "frf", "wls", "nls", "mimo", "siso", "tuned", "tuned_mimo"),
                lambda o, *d: _summary(o["dir"], *d)),
     _out_stage("frf_file", ("frf",), lambda o, frf: _save_frf(o["dir"], frf)),
