@@ -7,7 +7,8 @@ parse results in, library calls, one report out).
 - an impedance FRF with ``Z`` — a single measured impedance → one ``M, B, K``.
 
 and on ``--method`` through :data:`PAIR_METHODS` / :data:`SINGLE_METHODS` (name → function
-``(data, args) -> Fitted``): adding a method is one function and one table entry. Every
+``(data, args, band_hz) -> Fitted``; ``data`` already restricted to the band): adding a method
+is one function and one table entry. Every
 method sees the same band (``--f-min-hz``/``--f-max-hz``; default every frequency in the
 file), selected before the fit and echoed in the report; every fit gets a
 :class:`hapid.fit.FitQuality` over that band, printed and stored in the model file. Extra
@@ -52,7 +53,7 @@ def _nls_refuse(res, a):
 
 
 # ---- the haptic hand/total pair ---------------------------------------------------------------
-def _pair_wls(frf, a) -> Fitted:
+def _pair_wls(frf, a, band) -> Fitted:
     from .fit import positize, wls
 
     raw = wls(frf, omega_c=TWO_PI * a.omega_c_hz)
@@ -61,7 +62,7 @@ def _pair_wls(frf, a) -> Fitted:
     return Fitted(raw, {"method": "wls"}, "closed form")
 
 
-def _pair_nls(frf, a) -> Fitted:
+def _pair_nls(frf, a, band) -> Fitted:
     from .fit import fit_nls
 
     res = fit_nls(frf, weight=a.weight, solver=a.solver, f_max_hz=None,
@@ -77,7 +78,7 @@ def _pair_nls(frf, a) -> Fitted:
 
 # ---- a single impedance ----------------------------------------------------------------------
 def _single(method: str):
-    def run(zfrf, a) -> Fitted:
+    def run(zfrf, a, band) -> Fitted:
         from .fit import fit_impedance
 
         if a.weight not in ("relative", "noise"):
@@ -86,7 +87,8 @@ def _single(method: str):
                 "relative or noise"
             )
         res = fit_impedance(zfrf, method=method, positize=a.positize and method == "wls",
-                            weight=a.weight, max_steps=a.max_steps)  # fmt: skip
+                            weight=a.weight, max_steps=a.max_steps, f_min_hz=band[0],
+                            f_max_hz=band[1])  # fmt: skip
         if method == "nls" and not res.ok and not a.allow_unconverged:
             raise FitCommandError(
                 f"NLS fit did not converge (status {res.status} after {res.n_steps} steps); "
@@ -155,7 +157,7 @@ def run_fit(a) -> None:
             else "haptic hand/total pair Z_H, Z_T (N/m)")  # fmt: skip
     f = np.asarray(sel.freq_hz)
     print(f"data: {what}, n = {data.n}, from {a.frf}")
-    how = ("every frequency in the file (--f-min-hz/--f-max-hz to narrow)"
+    how = ("every frequency in the file; narrow it with --f-min-hz/--f-max-hz"
            if a.f_min_hz is None and a.f_max_hz is None
            else f"--f-min-hz {lo:g} --f-max-hz {hi:g}")  # fmt: skip
     print(f"band: {f.min():g}–{f.max():g} Hz, {f.size} of {np.size(data.freq_hz)} frequencies "
@@ -163,7 +165,7 @@ def run_fit(a) -> None:
     if not single and a.method == "nls" and a.f_max_hz is None and f.max() > 40:
         print("note: every frequency is fitted; for a haptic device the NLS fit is usually "
               "best with --f-max-hz 40 (the paper scene's band)")  # fmt: skip
-    fitted = table[a.method](sel, a)
+    fitted = table[a.method](sel, a, (lo, hi))
     q = fitted.quality
     if q is None:
         band = (lo, hi)
