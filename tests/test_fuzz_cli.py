@@ -22,9 +22,9 @@ from helpers_cli import assert_clean_error, write_valid_files
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-FAST = settings(max_examples=25, deadline=None, derandomize=True, database=None,
+FAST = settings(max_examples=80, deadline=None, derandomize=True, database=None,
                 suppress_health_check=list(HealthCheck))  # fmt: skip
-LONG = settings(max_examples=600, deadline=None, database=None,
+LONG = settings(max_examples=3000, deadline=None, database=None,
                 suppress_health_check=list(HealthCheck))  # fmt: skip
 
 COUNT: dict[str, int] = {}
@@ -36,8 +36,8 @@ def base(tmp_path_factory):
     write_valid_files(d)
     yield d
     total = sum(COUNT.values())
-    print(f"\nfuzz cases tried: {total} ({', '.join(f'{k} {v}' for k, v in sorted(COUNT.items()))}); "
-          "each ended in exit 2, one error line, no traceback, no warning, no file")  # fmt: skip
+    parts = ", ".join(f"{k} {v}" for k, v in sorted(COUNT.items()))
+    print(f"\nfuzz cases tried: {total} ({parts})")
 
 
 def _workdir(base: Path) -> Path:
@@ -65,6 +65,8 @@ READERS = {
               ["tune", "--model", "{f}", "--device", "tripod3", "--out", "o.npz"]],
     "samples": [["robust", "--samples", "{f}", "--model", "model.npz", "--out", "o.json"],
                 ["tune", "--model", "model.npz", "--samples", "{f}", "--out", "o.npz"]],
+    "design": [["analyze", "--model", "model.npz", "--device", "tripod3", "--design", "{f}",
+                "--out", "o.json"]],
     "scene": [["run", "{f}", "--out", "o"],
               ["sweep", "{f}", "--vary", "controller.k=0.5", "--out", "o"],
               ["paper", "--scene", "{f}", "--out", "o"]],
@@ -258,6 +260,7 @@ OPTION_BAD = {
     "--n-train": int_below(1), "--n-holdout": int_below(1), "--steps": int_below(1),
     "--samples": int_below(1), "--subjects": int_below(0),
     "--walkers": st.sampled_from(["1", "-1", "-100", "x"]),
+    "--nperseg": int_below(8), "--fs-hz": NOT_POS, "--f-min-hz": NEG,
     "--seed": st.integers(max_value=-1).map(str) | st.integers(min_value=2**32).map(str),
     "--quantile": st.sampled_from(["0", "1.5", "-0.1", "nan", "1.0000001"]) | st.floats(min_value=1, exclude_min=True, allow_infinity=False).map(repr),
     "--gm-db": st.sampled_from(["-1", "nan", "61", "inf"]),
@@ -315,6 +318,8 @@ def _file_property(base, data):
     try:
         if kind == "scene":
             name, content = "bad.toml", data.draw(bad_scene())
+        elif kind == "design":
+            name, content = "bad_design.npz", _design_content(data.draw)
         else:
             name, content = _file_case(data.draw, base, kind)
         p = _materialize(d, name, content)
@@ -335,28 +340,36 @@ def _option_property(base, data):
         shutil.rmtree(d, ignore_errors=True)
 
 
+def _design_content(draw):
+    """A broken design file: bytes that are no .npz, or a valid one with a field dropped or
+    replaced by strings, objects, complex, NaN or an empty array."""
+    from hapid.tune._params import _FIELDS
+
+    if draw(st.booleans()):
+        return draw(raw_bytes(b"PK\x03\x04" + b"\x00" * 40))
+    from hapid.control import Compensator
+
+    g = Compensator.paper()
+    d = {f: np.asarray(getattr(g, f), dtype=float) for f in _FIELDS}
+    k = draw(st.sampled_from(sorted(_FIELDS)))
+    if draw(st.booleans()):
+        del d[k]
+    else:
+        a = np.atleast_1d(d[k]) if d[k].size else np.array([1.0])
+        d[k] = draw(st.sampled_from([np.full(a.shape, "a"), np.array([None], dtype=object),
+                                     a + 1j, np.full(a.shape, np.nan), -np.abs(a) - 1,
+                                     np.full(a.shape, np.inf)]))  # fmt: skip
+    return d
+
+
 def _design_property(base, data):
-    """Design files have no CLI reader: ``load_design`` must raise ValueError naming the file."""
+    """``load_design`` (library level) raises ValueError naming the file for a broken design."""
     from hapid.tune import load_design
 
     d = _workdir(base)
     try:
-        from hapid.tune._params import _FIELDS
-
-        valid = {f: np.array([1.0]) for f in _FIELDS}
-        if data.draw(st.booleans()):
-            content = data.draw(raw_bytes(b"PK\x03\x04" + b"\x00" * 40))
-        else:
-            dd = dict(valid)
-            k = data.draw(st.sampled_from(sorted(_FIELDS)))
-            if data.draw(st.booleans()):
-                del dd[k]
-            else:
-                dd[k] = data.draw(st.sampled_from([np.array(["a"]), np.array([None], dtype=object),
-                                                   np.array([1j])]))  # fmt: skip
-            content = dd
-        p = _materialize(d, "bad_design.npz", content)
-        COUNT["design files"] = COUNT.get("design files", 0) + 1
+        p = _materialize(d, "bad_design.npz", _design_content(data.draw))
+        COUNT["design files (load_design)"] = COUNT.get("design files (load_design)", 0) + 1
         with pytest.raises(ValueError) as e:
             load_design(p)
         assert str(p) in str(e.value) and "\n" not in str(e.value)
