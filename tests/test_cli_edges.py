@@ -232,3 +232,19 @@ def test_design_with_nan_or_negative_frequency_names_the_file(tmp_path):
         np.savez(tmp_path / "bad.npz", **dd)
         with pytest.raises(ValueError, match=f"bad.npz: {field}"):
             load_design(tmp_path / "bad.npz")
+
+
+def test_console_script_error_is_one_stderr_line(tmp_path):
+    """The real process (interpreter warning filters, exit code, stderr) for the first item
+    of the issue: a 0-byte .npz."""
+    import subprocess
+    import sys
+
+    (tmp_path / "empty.npz").write_bytes(b"")
+    res = subprocess.run([sys.executable, "-W", "default", "-m", "hapid.cli", "frf", "empty.npz",
+                          "--out", "o.npz"], cwd=tmp_path, capture_output=True, text=True)  # fmt: skip
+    assert res.returncode == 2
+    lines = res.stderr.splitlines()
+    assert len(lines) == 1, res.stderr
+    assert lines[0].startswith("hapid: error: empty.npz: empty file (0 bytes); expected a run file")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.npz"]

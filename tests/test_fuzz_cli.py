@@ -139,9 +139,51 @@ def _write_npz_dict(path: Path, d: dict) -> None:
     np.savez(path, **d)
 
 
+JUNK = ["abc", "", "nan", "inf", "-inf", "1e999", "0x1", "1,2"]
+
+
+@st.composite
+def csv_defect(draw, text: str, kind: str):
+    """A hapid CSV (run or FRF) with one defect that breaks its contract: a junk cell in a
+    data row, a renamed required column, a row missing a cell, or (run) a broken header line."""
+    lines = text.splitlines()
+    head = 1 if kind == "run" else 0  # the run CSV's '# fs_hz=…' line
+    how = draw(st.sampled_from(["cell", "cell", "column", "short", "meta"] if kind == "run"
+                               else ["cell", "cell", "column", "short"]))  # fmt: skip
+    if how == "meta":
+        key = draw(st.sampled_from(["fs_hz", "period_samples", "freq_hz"]))
+        meta = lines[0]
+        start = meta.index(key + "=") + len(key) + 1
+        end = meta.find(";", start)
+        end = len(meta) if end < 0 else end
+        lines[0] = meta[:start] + draw(st.sampled_from(["abc", "", "-1", "nan", "0"])) + meta[end:]
+        return "\n".join(lines) + "\n"
+    if how == "column":
+        cols = lines[head].split(",")
+        required = [i for i, c in enumerate(cols) if not c.startswith(("Z_H_std", "Z_T_std"))]
+        i = draw(st.sampled_from(required))
+        cols[i] = draw(st.sampled_from(["abc", "", cols[i] + "x"]))
+        lines[head] = ",".join(cols)
+        return "\n".join(lines) + "\n"
+    r = draw(st.integers(head + 1, len(lines) - 1))
+    cells = lines[r].split(",")
+    i = draw(st.integers(0, len(cells) - 1))
+    if how == "short":
+        del cells[i]
+    else:
+        cells[i] = draw(st.sampled_from(JUNK))
+    lines[r] = ",".join(cells)
+    return "\n".join(lines) + "\n"
+
+
 def _file_case(draw, base: Path, kind: str) -> tuple[str, bytes | dict]:
     """``(file name, content)``: bytes to write, or a dict to save as .npz/.mat."""
     valid_path = base / f"{kind}.npz"
+    if kind in ("run", "frf") and draw(st.integers(0, 2)) == 0:
+        text = (base / f"{kind}.csv").read_text()
+        if draw(st.integers(0, 4)) == 0:
+            return f"bad_{kind}.csv", draw(raw_bytes(text.encode()))
+        return f"bad_{kind}.csv", draw(csv_defect(text, kind)).encode()
     if draw(st.booleans()):
         return f"bad_{kind}.npz", draw(raw_bytes(valid_path.read_bytes()))
     d = dict(np.load(valid_path))
