@@ -230,7 +230,8 @@ PER_COMMAND: dict[str, dict] = {
                   "hdf5": _Out("an emcee HDF5 backend file", (".h5", ".hdf5"))},
     "robust": {"samples": _In("a posterior-samples file", (".npz",)),
                "model": _In("a model file", ARRAY_EXT), "out": _Out("a JSON report", (".json",))},
-    "sweep": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder")},
+    "sweep": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder"),
+              "estimator": one_of(("wls", "wls+positize", "nls"))},
     "tune": {"model": _In("a model file", ARRAY_EXT),
              "samples": _In("a posterior-samples file", (".npz",)),
              "out": _Out("a design file", (".npz",)), "report": _Out("a JSON report", (".json",))},
@@ -382,11 +383,22 @@ def _sweep_cross(a):
         key, eq, vals = item.partition("=")
         if not eq or not vals:
             raise ValueError(f"--vary needs KEY=V1,V2,…; got {item!r}")
-        if key not in SWEEP_KEYS:
-            raise ValueError(f"--vary: cannot sweep {key!r}; sweepable: {', '.join(SWEEP_KEYS)}")
         if key in seen:
             raise ValueError(f"--vary {key} given twice")
         seen.add(key)
+        if key not in SWEEP_KEYS:  # any other numeric option: the sweep's own rules (hapid.sweep)
+            from . import sweep as _sweep
+
+            try:
+                _sweep.classify(key, load_scene_checked(a.scene), getattr(a, "estimator", "wls+positize"))
+            except ValueError as e:
+                raise ValueError(f"--vary: {e}") from None
+            for s in vals.split(","):
+                try:
+                    float(s)
+                except ValueError:
+                    raise ValueError(f"--vary {key}: {s!r} is not a number") from None
+            continue
         test, allowed = SWEEP_KEYS[key]
         for s in vals.split(","):
             try:

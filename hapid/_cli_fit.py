@@ -155,8 +155,11 @@ def run_fit(a) -> None:
             else "haptic hand/total pair Z_H, Z_T (N/m)")  # fmt: skip
     f = np.asarray(sel.freq_hz)
     print(f"data: {what}, n = {data.n}, from {a.frf}")
+    how = ("every frequency in the file (--f-min-hz/--f-max-hz to narrow)"
+           if a.f_min_hz is None and a.f_max_hz is None
+           else f"--f-min-hz {lo:g} --f-max-hz {hi:g}")  # fmt: skip
     print(f"band: {f.min():g}–{f.max():g} Hz, {f.size} of {np.size(data.freq_hz)} frequencies "
-          f"(--f-min-hz {lo:g} --f-max-hz {hi:g}; the same band for every method)")  # fmt: skip
+          f"({how}; the same band for every method)")  # fmt: skip
     if not single and a.method == "nls" and a.f_max_hz is None and f.max() > 40:
         print("note: every frequency is fitted; for a haptic device the NLS fit is usually "
               "best with --f-max-hz 40 (the paper scene's band)")  # fmt: skip

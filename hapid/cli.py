@@ -88,7 +88,7 @@ def cmd_frf(a):
     from .experiment import estimate_frf, estimate_frf_h1
 
     kind = "timeseries" if a.add or a.force_key != "force" else io.file_kind(a.run, "a run file or a time-series file")
-    if kind == "timeseries" or (kind == "unknown" and a.h1):
+    if kind in ("timeseries", "unknown"):  # unknown: the reader names the arrays it found
         from ._cli_fit import run_frf_lab
 
         return run_frf_lab(a)  # lab records → single impedance Z = F/x
@@ -272,7 +272,6 @@ def cmd_fit(a):
 
 
 def cmd_analyze(a):
-    import json
 
     import numpy as np
 
@@ -329,19 +328,7 @@ def cmd_analyze(a):
     out = {"controller": a.controller, "siso_gain": c, "continuous": bool(a.continuous),
            "design": a.design, "controller_rhp_poles": int(ctrl.p_rhp), **s}  # fmt: skip
     if a.out:
-        from .uncertainty._files import _jsonable
-
-        def strict(x):
-            if isinstance(x, float) and not np.isfinite(x):
-                return None
-            if isinstance(x, dict):
-                return {k: strict(v) for k, v in x.items()}
-            if isinstance(x, list):
-                return [strict(v) for v in x]
-            return x
-
-        text = json.dumps(strict(out), indent=2, default=_jsonable, allow_nan=False).encode()
-        io._atomic_write(a.out, lambda fh: fh.write(text))
+        io.save_json(a.out, out)
     verdict = "STABLE" if s["stable"] else ("UNSTABLE" if s.get("nyquist_resolved", True) else "UNDECIDED (grid too coarse)")
     kind = f"sampled at {1 / ts:g} Hz" if ts else "continuous-time"
     print(f"closed loop ({kind} controller): {verdict} (generalized Nyquist, {s['n_encirclements']} "
@@ -372,15 +359,15 @@ def cmd_posterior(a):
 
 
 def cmd_robust(a):
-    import json
 
+    from .io import to_json
     from .uncertainty import robust_from_files
     from .uncertainty._files import side_by_side
 
     if len(a.model) == 1:
         res = robust_from_files(a.samples, a.model[0], a.out, gm_db=a.gm_db, pm_deg=a.pm_deg,
                                 max_samples=a.max_samples, device=a.device, n_subjects=a.subjects)  # fmt: skip
-        print(json.dumps(res, indent=2, default=float)[:4000])
+        print(to_json(res)[:4000])
     else:
         res = {Path(m).stem: robust_from_files(a.samples, m, None, gm_db=a.gm_db, pm_deg=a.pm_deg,
                                                max_samples=a.max_samples, device=a.device,
@@ -388,11 +375,9 @@ def cmd_robust(a):
                for m in a.model}  # fmt: skip
         print(side_by_side(res))
         if a.out:
-            from .io import _atomic_write
-            from .uncertainty._files import _jsonable
+            from .io import save_json
 
-            text = json.dumps(res, indent=2, default=_jsonable).encode()
-            _atomic_write(a.out, lambda fh: fh.write(text))
+            save_json(a.out, res)
     if a.out:
         print(f"report → {a.out}")
 
@@ -468,9 +453,12 @@ def cmd_sweep(a):
         key, _, vals = item.partition("=")
         if not vals:
             raise CLIError(f"--vary needs key=v1,v2,…; got {item!r}")
-        vary[key] = [float(v) for v in vals.split(",")]
+        try:
+            vary[key] = [float(v) for v in vals.split(",")]
+        except ValueError:
+            raise CLIError(f"--vary {key}: values must be numbers, got {vals!r}") from None
     t0 = time.perf_counter()
-    keys, rows, metrics = sweep.run_sweep(cfg, vary, chunk=a.chunk)
+    keys, rows, metrics = sweep.run_sweep(cfg, vary, chunk=a.chunk, estimator=a.estimator)
     out = Path(a.out)
     csv_path = sweep.write_csv(out / "sweep.csv", keys, rows, metrics)
     fig_path = sweep.plot_sweep(keys, rows, metrics, out / "sweep.png")
@@ -484,22 +472,25 @@ def cmd_sweep(a):
 def _register_sweep(sub):
     sw = sub.add_parser("sweep", help="batched sweep over numeric scene options (one compiled vmap)",
                         description="Evaluate a scene's pipeline over the Cartesian product of "
-                        "option values as one batched JAX computation: P·P̂⁻¹ band, stability, "
-                        "isotropic bandwidth, T peak and disk margin per configuration.",
+                        "option values as one batched JAX computation: P·P̂⁻¹ band, stability "
+                        "(the same verdict as hapid analyze), isotropic bandwidth, GM/PM, T peak "
+                        "and disk margin per configuration.",
                         epilog="example: hapid sweep scenes/paper.toml --vary controller.k=0.4,0.6,0.85 "
                         "--vary protocol.noise=0.005,0.05 --out out/sweep")  # fmt: skip
     sw.add_argument("scene")
     sw.add_argument("--vary", action="append", required=True, metavar="KEY=V1,V2,…",
-                    help="sweepable: fit.omega_c_hz, protocol.noise, protocol.position_noise, "
-                    "protocol.periods, protocol.seed, controller.k, device.subject_seed, "
-                    "device.dx, device.dy, device.dz")  # fmt: skip
+                    help="any numeric scene option: device.dx…droll, device.subject_seed, "
+                    "protocol.noise/position_noise/periods/seed/amplitude, fit.* (NLS options "
+                    "with --estimator nls), controller.k/lag_zero_hz/lag_pole_hz/zeta_num/"
+                    "zeta_den/notch_hz[i]/lowpass_hz[i], analysis.f_min_hz/n_freq/band_hz")  # fmt: skip
+    sw.add_argument("--estimator", default="wls+positize",
+                    help="frf → model estimator: wls, wls+positize (default), nls")  # fmt: skip
     sw.add_argument("--chunk", type=int, default=64, help="configurations per compiled call")
     sw.add_argument("--out", default="out/sweep")
     sw.set_defaults(func=cmd_sweep)
 
 
 def cmd_tune(a):
-    import json
 
     from .tune import tune_from_files
 
@@ -524,9 +515,10 @@ def cmd_tune(a):
                 continue
             print(f"  {k:40s} {tab['start'][k]!s:>24.24s}  →  {tab['tuned'][k]!s:>24.24s}")
     if a.report:
-        Path(a.report).write_text(json.dumps({"start": tab.get("start"), "tuned": tab.get("tuned"),
-                                              "constraints": r.constraints, "history": r.history,
-                                              "parameters": r.parameters()}, indent=2, default=float))  # fmt: skip
+        from .io import save_json
+
+        save_json(a.report, {"start": tab.get("start"), "tuned": tab.get("tuned"), "constraints": r.constraints,
+                             "history": r.history, "parameters": r.parameters()})  # fmt: skip
     print(f"design → {a.out} ({time.perf_counter() - t:.1f} s)")
 
 

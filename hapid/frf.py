@@ -35,7 +35,7 @@ class FRF(eqx.Module):
     cond_L: Float[Array, " N"] | None = None
 
     def __post_init__(self):
-        # hapid computes in float64 (DESIGN.md): lower-precision input is upcast, with a
+        # hapid computes in float64 (docs/conventions.md): lower-precision input is upcast, with a
         # warning, so that no stage silently runs in float32
         require_x64("FRF")
         for name, dt in _DTYPES.items():

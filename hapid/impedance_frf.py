@@ -51,11 +51,9 @@ class ImpedanceFRF(eqx.Module):
     def select(self, mask) -> ImpedanceFRF:
         """A new ImpedanceFRF at the frequencies where ``mask`` (``(N,)`` bool) is true."""
         mask = np.asarray(mask, dtype=bool)
+        pick = lambda a: None if a is None else np.asarray(a)[mask]  # noqa: E731
         return ImpedanceFRF(
-            omega=self.omega[mask],
-            Z=self.Z[mask],
-            Z_std=None if self.Z_std is None else self.Z_std[mask],
-            unit=self.unit,
+            omega=pick(self.omega), Z=pick(self.Z), Z_std=pick(self.Z_std), unit=self.unit
         )
 
     def band(self, f_min_hz: float = 0.0, f_max_hz: float = np.inf) -> ImpedanceFRF:

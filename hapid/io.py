@@ -1,4 +1,4 @@
-"""The only file I/O: run, FRF and model files (npz contract of DESIGN.md), CSV and MATLAB .mat.
+"""The only file I/O: run, FRF and model files (npz contracts in docs/contracts.md), CSV and MATLAB .mat.
 
 Every writer validates before it writes and writes atomically (temporary file + rename), so a
 bad input never leaves a half-written file. Every reader validates what it read and names the
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import io as _io
+import json
 import os
 import tempfile
 from pathlib import Path
@@ -33,13 +34,25 @@ def _fmt(path) -> str:
     raise FileFormatError(f"{path}: unknown file type {ext!r}; use .npz, .csv or .mat")
 
 
+def _umask() -> int:
+    """The process umask (read without changing it for longer than the two calls)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def _atomic_write(path, write) -> Path:
+    """Write ``path`` through ``write(fh)`` on a temporary file in the same directory, then
+    rename it over ``path``: readers see the old file or the new one, never half of one. The
+    file gets the mode an ordinary ``open(path, "w")`` would give (``0o666 & ~umask``), not
+    ``mkstemp``'s 0600."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as fh:
             write(fh)
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -256,7 +269,9 @@ def _run_csv(run: Run) -> str:
     buf.write(f"# fs_hz={run.fs_hz!r}; period_samples={run.period_samples}; ")
     buf.write("freq_hz=" + " ".join(repr(float(f)) for f in run.freq_hz) + "\n")
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["experiment", "sample"] + [f"{k}_{i}" for k in ("R_A", "R_I", "L") for i in range(n)])
+    w.writerow(
+        ["experiment", "sample"] + [f"{k}_{i}" for k in ("R_A", "R_I", "L") for i in range(n)]
+    )
     for e in range(E):
         block = np.concatenate([run.R_A[e], run.R_I[e], run.L[e]], axis=1)
         for t in range(T):
@@ -271,7 +286,9 @@ def _read_run_csv(path) -> dict:
     with _open_text(path) as fh:
         head = fh.readline()
         if not head.startswith("#"):
-            raise FileFormatError(f"{path}: first line must be '# fs_hz=…; period_samples=…; freq_hz=…'")
+            raise FileFormatError(
+                f"{path}: first line must be '# fs_hz=…; period_samples=…; freq_hz=…'"
+            )
         meta = dict(part.strip().split("=", 1) for part in head[1:].split(";") if "=" in part)
         rows = list(csv.reader(fh))
     try:
@@ -835,3 +852,99 @@ def load_cache_entry(path) -> tuple[dict, str]:
     with np.load(path, allow_pickle=False) as z:
         arrays = {k: z[k] for k in z.files if k != "__meta__"}
         return arrays, str(z["__meta__"])
+
+
+# ---- reports, tables, samples and designs --------------------------------------------------
+def jsonable(obj):
+    """``obj`` as strict-JSON-ready Python values: numpy/JAX scalars and arrays → numbers and
+    lists, NaN and ±inf → ``None`` (JSON ``null``), tuples → lists, dict keys → ``str``;
+    anything else (e.g. a complex number) → its ``str``."""
+    if obj is None or isinstance(obj, bool | str):
+        return obj
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, int | np.integer):
+        return int(obj)
+    if isinstance(obj, float | np.floating):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray) or hasattr(obj, "__array__"):
+        a = np.asarray(obj)
+        if a.dtype.kind in "biuf":
+            return jsonable(a.tolist())
+    return str(obj)
+
+
+def to_json(obj, indent: int | None = 2) -> str:
+    """Strict JSON text of ``obj`` (:func:`jsonable`): never ``NaN`` or ``Infinity``."""
+    return json.dumps(jsonable(obj), indent=indent, allow_nan=False)
+
+
+def save_json(path, obj) -> Path:
+    """Write ``obj`` as strict JSON (:func:`to_json`), atomically."""
+    text = to_json(obj).encode()
+    return _atomic_write(path, lambda fh: fh.write(text))
+
+
+def save_text(path, text: str) -> Path:
+    """Write a text file (UTF-8), atomically."""
+    data = str(text).encode()
+    return _atomic_write(path, lambda fh: fh.write(data))
+
+
+def save_csv(path, header, rows) -> Path:
+    """Write a CSV table (``header``: column names; ``rows``: sequences of cells), atomically."""
+    buf = _io.StringIO(newline="")
+    w = csv.writer(buf)
+    w.writerow(list(header))
+    for r in rows:
+        w.writerow(list(r))
+    data = buf.getvalue().encode()
+    return _atomic_write(path, lambda fh: fh.write(data))
+
+
+def save_samples(path, ps) -> Path:
+    """Write posterior samples (:class:`hapid.uncertainty.PosteriorSamples`) to ``.npz``:
+    ``samples (S, d)``, ``log_prob (S,)``, ``n``, ``names``, ``omega_ref`` (rad/s), ``z_ref``,
+    ``method``, the scalar diagnostics as ``diag_*`` and the model-error predictive data
+    (``pred_*``: what the GP model error needs to predict at new frequencies). A path without the ``.npz`` suffix
+    gets it appended (as ``numpy.savez`` does); the path written is returned."""
+    path = Path(path)
+    if path.suffix != ".npz":
+        path = path.with_suffix(path.suffix + ".npz")
+    arrays = {
+        f"diag_{k}": np.asarray(v)
+        for k, v in ps.diagnostics.items()
+        if isinstance(v, int | float | bool | np.ndarray) and not isinstance(v, dict)
+    }
+    arrays |= {
+        "samples": np.asarray(ps.samples, dtype=np.float64),
+        "log_prob": np.asarray(ps.log_prob, dtype=np.float64),
+        "n": np.int64(ps.n),
+        "names": np.asarray(ps.names),
+        "omega_ref": np.float64(ps.scale.omega_ref),
+        "z_ref": np.float64(ps.scale.z_ref),
+        "method": np.asarray(str(ps.diagnostics.get("method", ""))),
+    }
+    arrays |= {
+        f"pred_{k}": np.asarray(v) for k, v in (getattr(ps, "predictive", None) or {}).items()
+    }
+    return _atomic_write(path, lambda fh: np.savez(fh, **arrays))
+
+
+def save_design(path, g, **info) -> Path:
+    """Write a design file (``.npz``): the fields of the compensator ``g``
+    (:class:`hapid.control.Compensator`: ``k``, ``lag_zeros``, ``lag_poles``, ``notch_omega``,
+    ``notch_zeta_num``, ``notch_zeta_den``, ``lowpass``; rad/s and dimensionless) plus ``json``,
+    the strict-JSON text of ``info``."""
+    from .tune._params import _FIELDS
+
+    arrays = {f: np.asarray(getattr(g, f), dtype=np.float64) for f in _FIELDS}
+    for f, v in arrays.items():
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"compensator field {f} contains NaN or inf; not writing {path}")
+    arrays["json"] = np.asarray(to_json(info, indent=None))
+    return _atomic_write(path, lambda fh: np.savez(fh, **arrays))

@@ -6,7 +6,6 @@ Figures are drawn by ``hapid.plot``; this module picks the data and writes the f
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -142,8 +141,10 @@ def summary(out_dir, device, frf, wls, nls, mimo, siso, tuned=None, tuned_mimo=N
                         "g": tuned["parameters"], "design_file": str(dfile)}  # fmt: skip
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "summary.json").write_text(json.dumps(res, indent=2, allow_nan=False))
-    (out / "summary.md").write_text(summary_markdown(res))
+    from . import io
+
+    io.save_json(out / "summary.json", res)
+    io.save_text(out / "summary.md", summary_markdown(res))
     return res
 
 

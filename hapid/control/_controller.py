@@ -126,6 +126,23 @@ class ControllerCheck(eqx.Module):
     hand_roots: Complex[Array, " 2n"]
     total_roots: Complex[Array, " 2n"]
 
+    @property
+    def ok(self) -> bool:
+        """The controller is realizable as the paper requires: stable and minimum phase."""
+        return bool(self.stable) and bool(self.minimum_phase)
+
+    @property
+    def status(self) -> str:
+        """``"ok"``, ``"unstable"``, ``"non-minimum-phase"`` or ``"unstable, non-minimum-phase"``."""
+        bad = [w for w, good in (("unstable", self.stable), ("non-minimum-phase", self.minimum_phase)) if not good]
+        return ", ".join(bad) or "ok"
+
+    def summary(self) -> dict:
+        """Plain-python verdict: ``ok``, ``status`` and the closed-RHP root counts."""
+        return {"ok": self.ok, "status": self.status, "stable": bool(self.stable),
+                "minimum_phase": bool(self.minimum_phase), "n_crhp_hand_roots": int(self.n_crhp_hand_roots),
+                "n_crhp_total_roots": int(self.n_crhp_total_roots)}  # fmt: skip
+
 
 def check_controller(
     model: ImpedanceModel, g: Compensator | None = None, tol: float = 0.0, warn: bool = True

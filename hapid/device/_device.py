@@ -115,7 +115,7 @@ def _right_solve(A, B):
 
 class ParallelDevice(Device):
     """An ``n``-rod parallel interface: geometry + pose, hand + stylus, per-rod mechanism
-    chain and extra modes (DEVICE.md). The encoders sit on the motor/roller, so ``L`` is the
+    chain and extra modes (docs/device.md). The encoders sit on the motor/roller, so ``L`` is the
     motor-side rod displacement and the measured ``Z_H`` includes the chain's compliance.
 
     Generalized coordinates ``q = [u1, u2, ξ, h, r]``: motor and rod displacements along

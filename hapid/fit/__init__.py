@@ -4,6 +4,8 @@
 - :func:`positize`, :func:`crhp_report` — paper section 5.1 and its root check.
 - :func:`fit_nls` — hapid's fit: PSD hand and mechanism matrices (``L Lᵀ``, free-sign
   diagonal), joint Z_H/Z_T residuals, optimistix solvers, Laplace covariance.
+- :func:`fit_ml` — sample maximum likelihood (errors-in-variables) on a periodic run's
+  spectra with their noise covariances; Cramér–Rao bound and its P·P̂⁻¹ band.
 - diagnostics — singular values of Z vs Ẑ and of P P̂⁻¹, the paper's band and anisotropy
   reduction.
 """
@@ -16,6 +18,12 @@ from ._diagnostics import model_relative_errors as model_relative_errors
 from ._diagnostics import pphat as pphat
 from ._diagnostics import pphat_band_db as pphat_band_db
 from ._diagnostics import pphat_singular_values as pphat_singular_values
+from ._ml import MLResult as MLResult
+from ._ml import cramer_rao as cramer_rao
+from ._ml import crb_band_db as crb_band_db
+from ._ml import fit_ml as fit_ml
+from ._ml import ml_cost as ml_cost
+from ._ml import run_spectra as run_spectra
 from ._nls import SOLVERS as SOLVERS
 from ._nls import WEIGHTS as WEIGHTS
 from ._nls import Problem as Problem

@@ -5,7 +5,7 @@ Each of the six symmetric matrices ``M_H, B_H, K_H, M_M, B_M, K_M`` (hand, then 
 is written ``A = L Lᵀ (+ eps·I)`` with ``L`` lower triangular. The diagonal of ``L`` has a
 free sign: ``L Lᵀ`` is PSD whatever the sign, and the optimum may sit on the PSD boundary,
 where an exp/softplus diagonal would make Levenberg–Marquardt crawl for thousands of steps
-(DESIGN.md, "Cholesky details that matter"). The total impedance is ``Z_T = Z_M + Z_H``.
+(docs/conventions.md, "Cholesky details that matter"). The total impedance is ``Z_T = Z_M + Z_H``.
 
 The unconstrained vector ``theta`` has length ``6·n(n+1)/2`` (90 for n = 5): six blocks of
 ``n(n+1)/2`` lower-triangle entries in ``numpy.tril_indices`` (row-major) order, in the order

@@ -38,26 +38,28 @@ SINGLE_METHODS = ("wls", "nls")
 
 
 def _scale(zfrf: ImpedanceFRF) -> Scale:
-    omega_ref = jnp.exp(jnp.mean(jnp.log(zfrf.omega)))
-    return Scale(omega_ref, jnp.median(jnp.abs(zfrf.Z)))
+    """ω_ref = geometric-mean frequency (rad/s), z_ref = median |element| of Z."""
+    w, Z = np.asarray(zfrf.omega), np.asarray(zfrf.Z)
+    return Scale(jnp.asarray(np.exp(np.mean(np.log(w)))), jnp.asarray(np.median(np.abs(Z))))
 
 
 def wls_single(zfrf: ImpedanceFRF) -> SecondOrder:
-    """Relative-weight linear least squares, element by element (one real solve). Jittable.
+    """Relative-weight linear least squares, element by element (one real solve; numpy).
 
     Minimizes ``Σ_k |(m (jω_k)² + b jω_k + k − z_ij(jω_k))/‖Z(jω_k)‖_F|²`` for every element;
-    columns are scaled to unit norm before the solve.
+    columns are scaled to unit norm before the solve. Returns unconstrained M, B, K.
     """
-    s = 1j * zfrf.omega
-    w = 1.0 / jnp.linalg.norm(zfrf.Z, axis=(-2, -1))
-    A = w[:, None] * jnp.stack([s**2, s, jnp.ones_like(s)], axis=-1)  # (N, 3)
-    Ar = jnp.concatenate([jnp.real(A), jnp.imag(A)])  # (2N, 3)
-    c = jnp.linalg.norm(Ar, axis=0)
-    flat = (w[:, None, None] * zfrf.Z).reshape(zfrf.Z.shape[0], -1)
-    rhs = jnp.concatenate([jnp.real(flat), jnp.imag(flat)])  # (2N, n²)
-    coef, *_ = jnp.linalg.lstsq(Ar / c, rhs)
-    m, b, k = (coef / c[:, None]).reshape((3,) + zfrf.Z.shape[1:])
-    return SecondOrder(m, b, k)
+    w, Z = np.asarray(zfrf.omega), np.asarray(zfrf.Z)
+    s = 1j * w
+    wt = 1.0 / np.linalg.norm(Z, axis=(-2, -1))
+    A = wt[:, None] * np.stack([s**2, s, np.ones_like(s)], axis=-1)  # (N, 3)
+    Ar = np.concatenate([A.real, A.imag])  # (2N, 3)
+    c = np.linalg.norm(Ar, axis=0)
+    flat = (wt[:, None, None] * Z).reshape(Z.shape[0], -1)
+    rhs = np.concatenate([flat.real, flat.imag])  # (2N, n²)
+    coef = np.linalg.lstsq(Ar / c, rhs, rcond=None)[0]
+    m, b, k = (coef / c[:, None]).reshape((3,) + Z.shape[1:])
+    return SecondOrder(jnp.asarray(m), jnp.asarray(b), jnp.asarray(k))
 
 
 class SingleProblem(eqx.Module):
@@ -102,6 +104,7 @@ class SingleProblem(eqx.Module):
         return SecondOrder(M / fm, B / fb, K / fk)
 
 
+@jax.jit
 def _theta0(model: SecondOrder, scale: Scale, floor: float):
     fm, fb, fk = scale.factors()
     mats = jnp.stack([model.M * fm, model.B * fb, model.K * fk])
@@ -111,28 +114,59 @@ def _theta0(model: SecondOrder, scale: Scale, floor: float):
     return L[:, rows, cols].reshape(-1)
 
 
+#: the frequency axis of an NLS fit is padded (zero-weight rows) to a multiple of this
+#: power-of-two bucket, so fits on different bands share one compiled solver
+PAD_MIN = 64
+
+
+def _padded(n_freq: int) -> int:
+    return max(PAD_MIN, 1 << (int(n_freq) - 1).bit_length())
+
+
 @eqx.filter_jit
-def _nls_core(zfrf: ImpedanceFRF, weight: str, max_steps: int, rtol, atol, ftol):
-    scale = _scale(zfrf)
-    Zs = zfrf.Z / scale.z_ref
-    if weight == "relative":
-        W = 1.0 / jnp.linalg.norm(Zs, axis=(-2, -1))[:, None, None]
-    else:
-        W = np.sqrt(2.0) * scale.z_ref / zfrf.Z_std
-    W = jnp.broadcast_to(W, Zs.shape)
-    prob = SingleProblem(s=1j * zfrf.omega / scale.omega_ref, Z=Zs, W=W, scale=scale)
-    theta0 = _theta0(wls_single(zfrf), scale, 1e-6)
+def _nls_core(omega, Z, W, scale: Scale, theta0, max_steps, rtol, atol, ftol, noise: bool):
+    """The jitted LM fit on padded arrays (rows with ``W = 0`` are padding)."""
+    prob = SingleProblem(s=1j * omega / scale.omega_ref, Z=Z / scale.z_ref, W=W, scale=scale)
     theta, n_steps, code = _run_solver(
         prob, theta0, "lm", rtol, atol, max_steps, "cholesky", ftol, 20
     )
-    cov, sigma2, cost = laplace_covariance(prob, theta, weight == "noise")
+    cov, sigma2, cost = laplace_covariance(prob, theta, noise)
     code = jnp.where(jnp.all(jnp.isfinite(theta)) & jnp.isfinite(cost), code, 2)
     model = prob.model(theta)
     # delta-method std of every entry of M, B, K
     G = jax.jacfwd(lambda th: _flat(prob.model(th)))(theta)
     var = jnp.einsum("ip,pq,iq->i", G, cov, G)
-    sd = jnp.sqrt(jnp.maximum(var, 0.0)).reshape((3,) + zfrf.Z.shape[1:])
-    return model, SecondOrder(sd[0], sd[1], sd[2]), theta, scale, code, n_steps, cost, cov, sigma2
+    sd = jnp.sqrt(jnp.maximum(var, 0.0)).reshape((3,) + Z.shape[1:])
+    return model, SecondOrder(sd[0], sd[1], sd[2]), theta, code, n_steps, cost, cov, sigma2
+
+
+def _nls(zfrf: ImpedanceFRF, weight: str, max_steps: int, rtol, atol, ftol):
+    """Scale, weights, start and padding outside the compiled core; unpadded results."""
+    scale = _scale(zfrf)
+    N = int(zfrf.Z.shape[0])
+    Zs = np.asarray(zfrf.Z) / float(scale.z_ref)
+    if weight == "relative":
+        W = np.broadcast_to(1.0 / np.linalg.norm(Zs, axis=(-2, -1))[:, None, None], Zs.shape)
+    else:
+        W = np.sqrt(2.0) * float(scale.z_ref) / np.asarray(zfrf.Z_std)
+    theta0 = _theta0(wls_single(zfrf), scale, 1e-6)
+    P = _padded(N) - N
+    pad = lambda a, v: np.concatenate([a, np.full((P,) + a.shape[1:], v, a.dtype)])  # noqa: E731
+    out = _nls_core(
+        jnp.asarray(pad(np.asarray(zfrf.omega), float(zfrf.omega[-1]))),
+        jnp.asarray(pad(np.asarray(zfrf.Z), 1.0 + 0j)),
+        jnp.asarray(pad(np.asarray(W, dtype=np.float64), 0.0)),
+        scale, theta0, jnp.asarray(max_steps), jnp.asarray(rtol), jnp.asarray(atol),
+        jnp.asarray(ftol), weight == "noise",
+    )  # fmt: skip
+    model, sd, theta, code, steps, cost, cov, sigma2 = out
+    if weight != "noise":  # σ̂² = 2·cost/(m − p) with m the real (unpadded) residuals
+        p = theta.shape[0]
+        m_pad, m = 2 * (N + P) * zfrf.n**2, 2 * N * zfrf.n**2
+        fix = (m_pad - p) / (m - p)
+        cov, sigma2 = cov * fix, sigma2 * fix
+        sd = SecondOrder(sd.M * np.sqrt(fix), sd.B * np.sqrt(fix), sd.K * np.sqrt(fix))
+    return model, sd, theta, scale, code, steps, cost, cov, sigma2
 
 
 def _flat(m: SecondOrder):
@@ -230,7 +264,7 @@ def fit_impedance(
             raise ValueError("noise weights need Z_std, which the impedance FRF does not have")
         if np.any(np.asarray(sel.Z_std) <= 0):
             raise ValueError("noise weights need Z_std > 0 everywhere in the band")
-    if np.any(np.asarray(jnp.linalg.norm(sel.Z, axis=(-2, -1))) == 0):
+    if np.any(np.linalg.norm(np.asarray(sel.Z), axis=(-2, -1)) == 0):
         raise ValueError("Z is zero at some frequency in the band: relative error is undefined")
     band = (float(f_min_hz), float(f_max_hz))
     if method == "wls":
@@ -241,7 +275,7 @@ def fit_impedance(
         pos = SecondOrder(*(positize_matrix(a) for a in (raw.M, raw.B, raw.K)))
         q = impedance_quality(sel, pos, method="wls+positize", band_hz=band, before=q_raw)
         return ImpedanceFit(pos, "wls+positize", "closed form", sel.unit, q)
-    model, sd, theta, scale, code, steps, cost, cov, sigma2 = _nls_core(
+    model, sd, theta, scale, code, steps, cost, cov, sigma2 = _nls(
         sel, weight, int(max_steps), rtol, atol, ftol
     )
     q = impedance_quality(sel, model, method=f"nls ({weight} weights)", band_hz=band)

@@ -16,12 +16,11 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
+from .._constants import TWO_PI
 
-TWO_PI = 2.0 * np.pi
 KINDS = ("mimo", "siso")
 
 

@@ -20,12 +20,10 @@ from collections.abc import Callable
 
 import equinox as eqx
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Bool, Int
 
 from .. import _config  # noqa: F401  (float64)
-
-TWO_PI = 2.0 * np.pi
+from .._constants import TWO_PI
 
 
 class Fit(eqx.Module):

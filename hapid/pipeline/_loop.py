@@ -28,8 +28,7 @@ import numpy as np
 from jaxtyping import Array, Complex, Float, Int
 
 from .. import _config  # noqa: F401  (float64)
-
-TWO_PI = 2.0 * np.pi
+from .._constants import TWO_PI
 
 
 @dataclasses.dataclass(frozen=True)

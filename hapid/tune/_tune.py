@@ -58,6 +58,23 @@ class TuneResult:
         """Every smooth constraint met (to 1e-3 in log units) on the training scenarios."""
         return all(v <= 1e-3 for v in self.constraints.values())
 
+    @property
+    def ok(self) -> bool:
+        """The smooth constraints are met on the training scenarios (:attr:`feasible`)."""
+        return self.feasible
+
+    @property
+    def status(self) -> str:
+        """``"feasible"`` or ``"infeasible"``."""
+        return "feasible" if self.feasible else "infeasible"
+
+    def summary(self) -> dict:
+        """Plain-python summary: verdict, claimed bandwidths (Hz), constraints, parameters."""
+        return {"ok": self.ok, "status": self.status, "bandwidth_hz": float(self.bandwidth_hz),
+                "bandwidth0_hz": float(self.bandwidth0_hz),
+                "constraints": {k: float(v) for k, v in self.constraints.items()},
+                "parameters": self.parameters(), "wall_s": float(self.wall_s)}  # fmt: skip
+
     def parameters(self) -> list[dict]:
         """Rows ``{name, start, tuned}`` (frequencies in Hz)."""
         pm = ParamMap.from_template(self.g0)

@@ -30,7 +30,7 @@ p_stable_required`` and the 5 % quantiles of GM and PM meet ``gm_db`` / ``pm_deg
 
 CPU hang (jax 0.10.2). A ``vmap`` of ``analyze_loop`` over a chunk of plants hung
 intermittently on this project's 2-core CPU machine (about 1 process in 4, CPU idle inside
-the XLA execution, also with ``XLA_FLAGS=--xla_cpu_multi_thread_eigen=false``; DESIGN.md
+the XLA execution, also with ``XLA_FLAGS=--xla_cpu_multi_thread_eigen=false``; docs/conventions.md
 "CPU pitfalls"). The default therefore analyses one plant per call of a jitted
 ``analyze_loop`` (one compile), which has not hung in our runs (10 of 10 processes). Cost:
 ≈ 4 ms per plant at n = 2, N = 400 (2× the vmapped chunk); at n = 5, N = 1000 both paths
@@ -50,7 +50,7 @@ import numpy as np
 from .. import _config  # noqa: F401  (float64)
 from .._grids import continuous_grid as posterior_omega
 from .._grids import sampled_grid as robust_omega
-from ..control import Compensator, analyze_loop, controller_unstable_poles, inverse_model_response
+from ..control import Compensator, analyze_loop
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
 from ._sampler import PosteriorSamples
@@ -117,6 +117,16 @@ class RobustReport:
             and self.quantile("gm_db", 0.05) >= self.gm_req_db
             and self.quantile("pm_deg", 0.05) >= self.pm_req_deg
         )
+
+    @property
+    def ok(self) -> bool:
+        """The requirements are met (:attr:`passed`)."""
+        return self.passed
+
+    @property
+    def status(self) -> str:
+        """``"passed"`` or ``"failed"``."""
+        return "passed" if self.passed else "failed"
 
     def summary(self) -> dict:
         """Plain-python summary: P(stable), 5 %/50 % quantiles, worst plant, pass/fail."""
@@ -192,8 +202,10 @@ def controller_response(controller, omega):
         model, g = controller
         if not isinstance(model, ImpedanceModel) or not isinstance(g, Compensator):
             raise ValueError("controller must be (nominal ImpedanceModel, Compensator) or G (N, n, n)")
-        G = inverse_model_response(model, g, omega)
-        return G, int(controller_unstable_poles(model, g))
+        from ..pipeline import controller as make_controller
+
+        ctrl = make_controller(model, g)  # continuous inverse-model controller (hapid.pipeline)
+        return ctrl.response(omega), int(ctrl.p_rhp)
     G = jnp.asarray(controller, dtype=jnp.complex128)
     if G.ndim != 3 or G.shape[0] != omega.shape[0] or G.shape[1] != G.shape[2]:
         raise ValueError(f"G must be ({omega.shape[0]}, n, n), got shape {G.shape}")
