@@ -424,22 +424,28 @@ def cramer_rao(run: Run, model: ImpedanceModel, *, f_max_hz: float | None = 40.0
 
 
 def _band_draws(theta, cov, scale, omega, n_draws, seed):
-    lam, V = np.linalg.eigh(0.5 * (np.asarray(cov) + np.asarray(cov).T))
-    root = V * np.sqrt(np.maximum(lam, 0.0))
-    z = np.random.default_rng(seed).standard_normal((n_draws, root.shape[0]))
-    thetas = jnp.asarray(np.asarray(theta)[None] + z @ root.T)
+    """Draws of the (min, max) dB of σ(P(θ̂)·P̂⁻¹) with ``P̂⁻¹`` linearized at ``θ̂``."""
+    from ..impedance import singular_values
+
+    theta = jnp.asarray(theta)
     s = 1j * jnp.asarray(omega)
-    ref = theta_to_model(jnp.asarray(theta), scale).P(s)
+    model = theta_to_model(theta, scale)
+    P0 = model.P(s)
 
-    def one(t):
-        Pinv = theta_to_model(t, scale).P_inv(s)
-        from ..impedance import singular_values
+    def pinv_flat(t):
+        Pi = theta_to_model(t, scale).P_inv(s)
+        return jnp.concatenate([jnp.real(Pi).ravel(), jnp.imag(Pi).ravel()])
 
-        db = 20.0 * jnp.log10(singular_values(ref @ Pinv))
-        return jnp.min(db), jnp.max(db)
-
-    lo, hi = jax.lax.map(one, thetas)
-    return np.asarray(lo), np.asarray(hi)
+    G = jax.jacfwd(pinv_flat)(theta)  # (2·N·n², p)
+    cov = np.asarray(cov)
+    lam, V = np.linalg.eigh(0.5 * (cov + cov.T))
+    root = jnp.asarray(V * np.sqrt(np.maximum(lam, 0.0)))
+    z = jnp.asarray(np.random.default_rng(seed).standard_normal((n_draws, root.shape[0])))
+    d = (G @ root @ z.T).T  # (draws, 2·N·n²)
+    half = d.shape[1] // 2
+    dPi = (d[:, :half] + 1j * d[:, half:]).reshape((n_draws,) + P0.shape)
+    db = 20.0 * jnp.log10(singular_values(jnp.eye(P0.shape[-1]) + P0 @ dPi))
+    return np.asarray(jnp.min(db, axis=(1, 2))), np.asarray(jnp.max(db, axis=(1, 2)))
 
 
 def crb_band_db(
@@ -455,10 +461,13 @@ def crb_band_db(
 ) -> tuple[float, float]:
     """The P·P̂⁻¹ band an efficient estimator reaches at this noise level.
 
-    Draws ``θ ~ N(theta, crb)`` (the Cramér–Rao bound, scaled units), and for each the
-    singular values of ``P(θ̂) P(θ)⁻¹`` (dB) over ``omega`` ≤ ``f_max_hz`` (rad/s grid, Hz
-    limit). Returns the ``quantile`` (default median) of the draws' lower band edge taken
-    from below and of the upper edge from above: ``(lo dB ≤ 0, hi dB ≥ 0)``.
+    Draws ``δθ ~ N(0, crb)`` (the Cramér–Rao bound, scaled units) and, with ``P̂⁻¹``
+    linearized at ``theta`` (the Cholesky coordinates are quadratic near the PSD boundary,
+    where the bound is large along directions ``P̂`` does not see to first order: sampling
+    the nonlinear map there would blow up), the singular values of
+    ``P(θ̂)(P̂⁻¹(θ̂) + ∂P̂⁻¹ δθ)`` (dB) over ``omega`` ≤ ``f_max_hz`` (rad/s grid, Hz limit).
+    Returns the ``quantile`` (default median) over draws of the lower band edge taken from
+    below and of the upper edge from above: ``(lo dB ≤ 0, hi dB ≥ 0)``.
     """
     omega = np.asarray(omega)
     keep = omega <= TWO_PI * f_max_hz * (1 + 1e-12)
