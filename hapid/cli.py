@@ -247,6 +247,8 @@ def cmd_fit(a):
     from . import io
     from .fit import crhp_report, fit_nls, positize, pphat_band_db, wls
 
+    if a.method == "ml":
+        return _fit_ml(a)
     frf = io.load_frf(a.frf)
     raw = wls(frf, omega_c=TWO_PI * a.omega_c_hz)
     before = crhp_report(raw)
@@ -274,6 +276,48 @@ def cmd_fit(a):
     print(f"CRHP roots of det Ẑ_H, det Ẑ_T: before {int(before.hand)}, {int(before.total)} → "
           f"after {int(after.hand)}, {int(after.total)}")  # fmt: skip
     print(f"P·P̂⁻¹ band to {a.band_hz:g} Hz (measured P): {float(lo):+.1f} / {float(hi):+.1f} dB → {out}")
+
+
+def _fit_ml(a):
+    """``hapid fit run.npz --method ml``: sample ML on the run's spectra (hapid.fit._ml)."""
+    import numpy as np
+
+    from . import io
+    from .experiment import estimate_frf
+    from .fit import crb_band_db, crhp_report, fit_ml, pphat_band_db
+
+    try:
+        run = io.load_run(a.frf)
+    except io.FileFormatError as e:
+        try:
+            io.load_frf(a.frf)
+        except Exception:  # noqa: BLE001  (not an FRF either: report the run error)
+            raise e from None
+        raise CLIError(f"{a.frf} is an FRF file; --method ml needs the run file (per-experiment, "
+                       "per-period R_A, R_I, L: the FRF has lost the noise covariances), e.g. "
+                       "hapid simulate --out run.npz; hapid fit run.npz --method ml") from None  # fmt: skip
+    solver = a.solver if a.solver in ("lm", "dogleg", "gauss_newton", "bfgs", "nonlinear_cg") else "lm"  # fmt: skip
+    res = fit_ml(run, f_max_hz=a.f_max_hz, model_floor=a.model_floor, solver=solver,
+                 max_steps=a.max_steps)  # fmt: skip
+    if not bool(res.ok) and not a.allow_unconverged:
+        raise CLIError(f"ML fit did not converge (status {res.status} after {int(res.n_steps)} "
+                       "steps); no model written (use --allow-unconverged to write it anyway)")  # fmt: skip
+    frf = estimate_frf(run)
+    lo, hi = pphat_band_db(frf.P, res.model, frf.omega, a.band_hz)
+    clo, chi = crb_band_db(res.theta, res.crb, res.scale, frf.omega, f_max_hz=a.band_hz)
+    after = crhp_report(res.model)
+    out = io.save_model(a.out, res.model, method="ml", status=res.status, cost=float(res.cost),
+                        steps=int(res.n_steps), weight="ml", solver=solver,
+                        model_floor=float(a.model_floor), sigma2=float(res.sigma2),
+                        covariance=np.asarray(res.covariance), crb=np.asarray(res.crb),
+                        theta=np.asarray(res.theta))  # fmt: skip
+    if res.boundary:
+        print(f"note: at the PSD boundary: {', '.join(res.boundary)}")
+    print(f"ml: status {res.status}, cost {float(res.cost):.4g}, σ̂² {float(res.sigma2):.3g} "
+          f"(≈1: noise explains the misfit; ≫1: model error), {int(res.n_steps)} steps")  # fmt: skip
+    print(f"CRHP roots of det Ẑ_H, det Ẑ_T: {int(after.hand)}, {int(after.total)}")
+    print(f"P·P̂⁻¹ band to {a.band_hz:g} Hz (measured P): {float(lo):+.1f} / {float(hi):+.1f} dB; "
+          f"Cramér–Rao limit (median): {clo:+.1f} / {chi:+.1f} dB → {out}")  # fmt: skip
 
 
 TWO_PI = 6.283185307179586
@@ -378,7 +422,10 @@ def _register_stages(sub):
                        "with positive-semidefinite M, B, K (Cholesky factors).",
                        epilog="example: hapid fit frf.npz --method nls --weight relative --out model.npz")  # fmt: skip
     f.add_argument("frf", help="FRF file (.npz, .csv, .mat)")
-    f.add_argument("--method", choices=["wls", "nls"], default="nls")
+    f.add_argument("--method", choices=["wls", "nls", "ml"], default="nls",
+                   help="wls, nls (FRF file) or ml (sample maximum likelihood: needs the RUN file)")  # fmt: skip
+    f.add_argument("--model-floor", type=float, default=0.3,
+                   help="ml: relative equation-error floor φ for unmodeled dynamics (0 = pure ML)")  # fmt: skip
     f.add_argument("--positize", action="store_true", help="positize the WLS model (paper 5.1)")
     f.add_argument("--weight", choices=["relative", "paper", "noise", "blend"], default="relative")
     f.add_argument("--solver", default="lm", help="lm (default), dogleg, gauss_newton, bfgs, "

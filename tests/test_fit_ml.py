@@ -160,3 +160,32 @@ def test_ml_error_shrinks_like_one_over_sqrt_periods():
     # and ML beats the FRF fits at both lengths
     assert e4["ml"] < min(e4["nls"], e4["nls_noise"])
     assert e64["ml"] < min(e64["nls"], e64["nls_noise"])
+
+
+def test_cli_fit_ml_writes_model_and_rejects_frf(tmp_path, capsys):
+    from hapid import io
+    from hapid.cli import main
+
+    dev = _device(n=2, seed=5)
+    prot = Protocol(freq_hz=FREQ_HZ, n_periods=3, pattern="hadamard", force_noise=0.01)
+    run = periodic_run(dev, prot, hold="bandlimited")
+    io.save_run(tmp_path / "run.npz", run)
+    io.save_frf(tmp_path / "frf.npz", estimate_frf(run))
+    out = tmp_path / "ml.npz"
+    assert main(["fit", str(tmp_path / "frf.npz"), "--method", "ml", "--out", str(out)]) == 2
+    assert "needs the run file" in capsys.readouterr().err and not out.exists()
+    args = [
+        "fit",
+        str(tmp_path / "run.npz"),
+        "--method",
+        "ml",
+        "--model-floor",
+        "0",
+        "--out",
+        str(out),
+    ]
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "Cramér–Rao limit" in text and "ml: status converged" in text
+    assert io.load_model_metadata(out)["method"] == "ml"
+    assert float(np.max(model_relative_errors(io.load_model(out), dev.model))) < 0.05
