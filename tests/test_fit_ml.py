@@ -186,6 +186,6 @@ def test_cli_fit_ml_writes_model_and_rejects_frf(tmp_path, capsys):
     ]
     assert main(args) == 0
     text = capsys.readouterr().out
-    assert "Cramér–Rao limit" in text and "ml: status converged" in text
+    assert "Cramér–Rao limit" in text and "ml: converged" in text
     assert io.load_model_metadata(out)["method"] == "ml"
     assert float(np.max(model_relative_errors(io.load_model(out), dev.model))) < 0.05

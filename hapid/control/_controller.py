@@ -24,11 +24,11 @@ from jaxtyping import Array, Bool, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
 from ..impedance import ImpedanceModel
+from ..lti import StateSpace, series
 from ._compensator import Compensator
 from ._lapack import after
 from ._margins import _gain_crossings, _phase_crossings
 from ._nyquist import characteristic_loci, nyquist_encirclements
-from ._statespace import StateSpace, series
 
 
 class ControllerWarning(UserWarning):
@@ -125,6 +125,23 @@ class ControllerCheck(eqx.Module):
     n_crhp_total_roots: int
     hand_roots: Complex[Array, " 2n"]
     total_roots: Complex[Array, " 2n"]
+
+    @property
+    def ok(self) -> bool:
+        """The controller is realizable as the paper requires: stable and minimum phase."""
+        return bool(self.stable) and bool(self.minimum_phase)
+
+    @property
+    def status(self) -> str:
+        """``"ok"``, ``"unstable"``, ``"non-minimum-phase"`` or ``"unstable, non-minimum-phase"``."""
+        bad = [w for w, good in (("unstable", self.stable), ("non-minimum-phase", self.minimum_phase)) if not good]
+        return ", ".join(bad) or "ok"
+
+    def summary(self) -> dict:
+        """Plain-python verdict: ``ok``, ``status`` and the closed-RHP root counts."""
+        return {"ok": self.ok, "status": self.status, "stable": bool(self.stable),
+                "minimum_phase": bool(self.minimum_phase), "n_crhp_hand_roots": int(self.n_crhp_hand_roots),
+                "n_crhp_total_roots": int(self.n_crhp_total_roots)}  # fmt: skip
 
 
 def check_controller(

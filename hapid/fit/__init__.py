@@ -46,8 +46,15 @@ from ._positize import CRHPReport as CRHPReport
 from ._positize import crhp_report as crhp_report
 from ._positize import positize as positize
 from ._positize import positize_matrix as positize_matrix
+from ._quality import FitQuality as FitQuality
+from ._quality import fit_quality as fit_quality
+from ._quality import impedance_quality as impedance_quality
+from ._quality import pair_quality as pair_quality
 from ._result import FitFailedError as FitFailedError
 from ._result import NLSResult as NLSResult
+from ._single import ImpedanceFit as ImpedanceFit
+from ._single import fit_impedance as fit_impedance
+from ._single import wls_single as wls_single
 from ._wls import OMEGA_C_PAPER as OMEGA_C_PAPER
 from ._wls import paper_weight as paper_weight
 from ._wls import wls as wls

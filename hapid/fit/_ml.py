@@ -114,8 +114,8 @@ def _quantization_step(L: np.ndarray) -> float:
     return 0.0
 
 
-def run_spectra(run: Run, f_max_hz: float | None = 40.0) -> RunSpectra:
-    """:class:`RunSpectra` of ``run`` at its excited frequencies ≤ ``f_max_hz`` (numpy).
+def run_spectra(run: Run, f_max_hz: float | None = 40.0, f_min_hz: float = 0.0) -> RunSpectra:
+    """:class:`RunSpectra` of ``run`` at its excited frequencies in ``[f_min_hz, f_max_hz]``.
 
     Needs ``P ≥ 2`` periods (the covariance is estimated from their scatter).
     """
@@ -128,6 +128,7 @@ def run_spectra(run: Run, f_max_hz: float | None = 40.0) -> RunSpectra:
         )
     f = np.asarray(run.freq_hz, dtype=float)
     keep = np.ones(f.shape, bool) if f_max_hz is None else f <= f_max_hz * (1 + 1e-12)
+    keep &= f >= f_min_hz * (1 - 1e-12)
     if keep.sum() < 3:
         raise ValueError(
             f"fit_ml: only {int(keep.sum())} excited frequencies ≤ f_max_hz={f_max_hz} Hz; "
@@ -322,6 +323,7 @@ def fit_ml(
     init: ImpedanceModel | NLSResult | None = None,
     *,
     f_max_hz: float | None = 40.0,
+    f_min_hz: float = 0.0,
     model_floor: float = 0.0,
     solver: str = "lm",
     max_steps: int = 500,
@@ -341,7 +343,8 @@ def fit_ml(
       periods) — the spectra and their noise covariances come from it. An FRF is not
       enough (it has lost the input noise): ``ValueError``.
     - ``init``: starting model; default ``fit_nls(estimate_frf(run), f_max_hz=f_max_hz)``.
-    - ``f_max_hz``: only excited frequencies ≤ this enter (Hz; ``None`` = all).
+    - ``f_max_hz``, ``f_min_hz``: only excited frequencies in this band enter (Hz;
+      ``f_max_hz=None``: no upper edge). The start and the scale use the FRF up to ``f_max_hz``.
     - ``model_floor``: relative equation-error floor φ (module docstring; 0 = pure ML).
     - ``solver``: ``"lm"`` (default), ``"dogleg"``, ``"gauss_newton"``, ``"bfgs"``,
       ``"nonlinear_cg"``; ``max_steps``, ``rtol``, ``atol``, ``ftol``, ``patience``,
@@ -365,7 +368,7 @@ def fit_ml(
         raise ValueError(f"fit_ml: max_steps must be a positive int, got {max_steps!r}")
     if not (np.isfinite(model_floor) and model_floor >= 0):
         raise ValueError(f"fit_ml: model_floor must be finite and ≥ 0, got {model_floor}")
-    spectra = run_spectra(run, f_max_hz)
+    spectra = run_spectra(run, f_max_hz, f_min_hz)
     frf = estimate_frf(run)
     scale = data_scale(frf, f_max_hz)
     if init is None:

@@ -31,13 +31,14 @@ import jax
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from .._grids import below_nyquist_grid
+from .._grids import continuous_grid as posterior_grid
 from ..control import Compensator
 from ._objective import Family, Requirements
 from ._scenarios import make_scenarios
 from ._tune import tune
 from ._validate import device_grid, table_row, validate
 
-TWO_PI = 2.0 * np.pi
 TRAIN_OFFSETS = (
     (0.04, 0, 0),
     (-0.04, 0, 0),
@@ -65,16 +66,6 @@ def _n_models(samples) -> int:
         if isinstance(samples, PosteriorSamples)
         else int(np.shape(samples.hand.M)[0])
     )
-
-
-def posterior_grid(n_freq: int = 1500) -> np.ndarray:
-    """Grid for the continuous posterior loops (rad/s): 0.005 Hz – 5 kHz, log-spaced.
-
-    Wider than :func:`hapid.uncertainty.robust_omega` (0.05–450 Hz) on purpose: a tuned g may
-    move its low-pass poles up to 0.45·f_s, and the generalized Nyquist count of a
-    continuous loop is only resolved once the loop has rolled off at the grid's top.
-    """
-    return TWO_PI * np.geomspace(0.005, 5000.0, n_freq)
 
 
 def posterior_plants(models, omega) -> tuple[np.ndarray, np.ndarray]:
@@ -144,7 +135,7 @@ def robust_design(
         info["posterior"] = {"train": int(k), "held_out": int(len(ho))}
     variants = None
     if device is not None:
-        omd = TWO_PI * np.geomspace(0.1, 0.499 * device.fs_hz, n_freq)
+        omd = below_nyquist_grid(device.fs_hz, n_freq)
         poses = [device.pose.moved(*o) for o in TRAIN_OFFSETS]
         labels, P = device_plants(device, omd, poses=poses, n_subjects=n_subjects, key=seed + 1,
                                   include_nominal=False)  # fmt: skip

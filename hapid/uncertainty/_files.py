@@ -2,11 +2,6 @@
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
-import numpy as np
-
 from .. import _config  # noqa: F401  (float64)
 
 
@@ -79,7 +74,7 @@ def robust_from_files(
     ``"device"``. Returns ``{"posterior": summary, "device": summary | None}``.
     """
     from ..control import Compensator
-    from ..io import load_model
+    from ..io import load_model, save_json
     from ._robust import device_plants, posterior_omega, robust_check, robust_omega
     from ._sampler import load_samples
 
@@ -98,7 +93,7 @@ def robust_from_files(
         out["device"] = robust_check(P, (model, g), omega, gm_db=gm_db, pm_deg=pm_deg,
                                      labels=labels).summary()  # fmt: skip
     if out_json is not None:
-        Path(out_json).write_text(json.dumps(out, indent=2, default=_jsonable))
+        save_json(out_json, out)
     return out
 
 
@@ -121,11 +116,3 @@ def side_by_side(results: dict) -> str:
             vals = [fmt.format(sm[key]) for _, key, fmt in cols]
             lines.append(f"| {label} | {batch} | {sm['n']} | " + " | ".join(vals) + " |")
     return "\n".join(lines)
-
-
-def _jsonable(x):
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    return str(x)

@@ -30,7 +30,7 @@ p_stable_required`` and the 5 % quantiles of GM and PM meet ``gm_db`` / ``pm_deg
 
 CPU hang (jax 0.10.2). A ``vmap`` of ``analyze_loop`` over a chunk of plants hung
 intermittently on this project's 2-core CPU machine (about 1 process in 4, CPU idle inside
-the XLA execution, also with ``XLA_FLAGS=--xla_cpu_multi_thread_eigen=false``; DESIGN.md
+the XLA execution, also with ``XLA_FLAGS=--xla_cpu_multi_thread_eigen=false``; docs/conventions.md
 "CPU pitfalls"). The default therefore analyses one plant per call of a jitted
 ``analyze_loop`` (one compile), which has not hung in our runs (10 of 10 processes). Cost:
 ≈ 4 ms per plant at n = 2, N = 400 (2× the vmapped chunk); at n = 5, N = 1000 both paths
@@ -48,32 +48,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
-from ..control import Compensator, analyze_loop, controller_unstable_poles, inverse_model_response
+from .._grids import continuous_grid as posterior_omega
+from .._grids import sampled_grid as robust_omega
+from ..control import Compensator, analyze_loop
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
 from ._sampler import PosteriorSamples
 
-TWO_PI = 2.0 * np.pi
 FIELDS = ("gm_db", "pm_deg", "disk_margin", "disk_gm_db", "disk_pm_deg", "iso_bandwidth_hz", "t_peak_db")
 _WORST = {"gm_db": -np.inf, "pm_deg": -np.inf, "disk_margin": 0.0, "disk_gm_db": 0.0,
           "disk_pm_deg": 0.0, "iso_bandwidth_hz": 0.0, "t_peak_db": np.inf}  # fmt: skip
-
-
-def robust_omega(n_freq: int = 1000, f_min_hz: float = 0.05, f_max_hz: float = 450.0) -> np.ndarray:
-    """Grid for *sampled* plants (rad/s): ``n_freq`` log-spaced points, 0.05–450 Hz (below
-    the 1 kHz device's Nyquist frequency, above the paper's low-pass poles). Device variants
-    (:func:`device_plants`) use it."""
-    return TWO_PI * np.geomspace(f_min_hz, f_max_hz, n_freq)
-
-
-def posterior_omega(n_freq: int = 1500, f_min_hz: float = 0.005, f_max_hz: float = 5000.0) -> np.ndarray:
-    """Grid for *continuous* model plants (posterior samples), rad/s: 0.005 Hz – 5 kHz.
-
-    The generalized Nyquist count of a continuous loop ``P̂_s · g Ẑ_T Ẑ_H⁻¹`` is only
-    resolved once the loop has rolled off at the top of the grid. On cu5 with the paper's g,
-    the 0.05–450 Hz grid stopped before that: 70 % of emcee draws came out "not stable"
-    (unresolved count) where this grid finds 85 % stable."""
-    return TWO_PI * np.geomspace(f_min_hz, f_max_hz, n_freq)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -133,6 +117,16 @@ class RobustReport:
             and self.quantile("gm_db", 0.05) >= self.gm_req_db
             and self.quantile("pm_deg", 0.05) >= self.pm_req_deg
         )
+
+    @property
+    def ok(self) -> bool:
+        """The requirements are met (:attr:`passed`)."""
+        return self.passed
+
+    @property
+    def status(self) -> str:
+        """``"passed"`` or ``"failed"``."""
+        return "passed" if self.passed else "failed"
 
     def summary(self) -> dict:
         """Plain-python summary: P(stable), 5 %/50 % quantiles, worst plant, pass/fail."""
@@ -208,8 +202,10 @@ def controller_response(controller, omega):
         model, g = controller
         if not isinstance(model, ImpedanceModel) or not isinstance(g, Compensator):
             raise ValueError("controller must be (nominal ImpedanceModel, Compensator) or G (N, n, n)")
-        G = inverse_model_response(model, g, omega)
-        return G, int(controller_unstable_poles(model, g))
+        from ..pipeline import controller as make_controller
+
+        ctrl = make_controller(model, g)  # continuous inverse-model controller (hapid.pipeline)
+        return ctrl.response(omega), int(ctrl.p_rhp)
     G = jnp.asarray(controller, dtype=jnp.complex128)
     if G.ndim != 3 or G.shape[0] != omega.shape[0] or G.shape[1] != G.shape[2]:
         raise ValueError(f"G must be ({omega.shape[0]}, n, n), got shape {G.shape}")
