@@ -329,7 +329,7 @@ def fit_ml(
     max_steps: int = 500,
     rtol: float = 1e-8,
     atol: float = 1e-10,
-    ftol: float = 1e-10,
+    ftol: float = 1e-8,
     patience: int = 20,
     pd_eps: float = 0.0,
     init_floor: float = 1e-6,
