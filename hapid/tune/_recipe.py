@@ -93,7 +93,9 @@ def predictive_scenario_plants(samples, idx, omega, seed: int = 0) -> tuple[np.n
 
     sub = _subset(samples, idx)
     om_fit = np.asarray(samples.predictive["omega"])
-    P = predictive_plants(sub, omega, max_samples=None, seed=seed, error_band=(om_fit[0], om_fit[-1]))["P"]
+    P = predictive_plants(
+        sub, omega, max_samples=None, seed=seed, error_band=(om_fit[0], om_fit[-1])
+    )["P"]
     _, pol = posterior_plants(sub.models(), omega)
     return P, pol
 
