@@ -110,3 +110,25 @@ def test_unstable_and_singular_loops_have_the_reference_verdict():
 def test_bad_shapes_are_a_clear_error():
     with pytest.raises(ValueError, match="omega"):
         loop_metrics(np.zeros((5, 2, 2)), np.zeros((5, 2, 2)), np.ones(4))
+
+
+@pytest.mark.slow
+def test_nyquist_family_verdicts_equal_the_reference():
+    """Random loops of the Nyquist test family (tests/test_control_nyquist.py): loop_metrics'
+    verdict and closed-loop RHP count equal analyze_loop's and the state-space truth."""
+    import jax
+    from test_control_nyquist import _family
+
+    groups, _ = _family(30, seed=2, N=1500)
+    spec = MetricsSpec(bandwidth=False, t_peak=False)
+    va = jax.jit(jax.vmap(analyze_loop))
+    n_loops = 0
+    for _, items in sorted(groups.items()):
+        Pj, Gj, W, pol, Z = (np.stack(x) for x in zip(*items, strict=True))
+        ref = va(Pj, Gj, W, pol)
+        for i in range(len(Z)):
+            q = loop_metrics(Pj[i], Gj[i], W[i], p_ol=pol[i], spec=spec)
+            assert bool(q.stable) == bool(ref.stable[i]) == (Z[i] == 0)
+            assert int(q.n_closed_loop_rhp) == int(ref.n_closed_loop_rhp[i])
+            n_loops += 1
+    assert n_loops >= 25
