@@ -178,7 +178,7 @@ def _mimo_one(model, g, plant):
     from . import pipeline
 
     ctrl = pipeline.controller(model, g, ts=plant["ts"])
-    rep = pipeline.loop(ctrl, plant["plant"])
+    rep = pipeline.loop(ctrl, plant["plant"], pipeline.MetricsSpec(arrays=True))  # figures 9, 10
     return {"report": rep, "p_ol": int(ctrl.p_rhp)}
 
 
@@ -202,7 +202,10 @@ def _siso(o, plant, ctrl):
             out[label] = {"c": c, "report": None}
             continue
         C = pipeline.controller(None, ctrl["g"], kind="siso", c=c, n=n, ts=plant["ts"])
-        out[label] = {"c": c, "report": pipeline.loop(C, plant["plant"])}
+        out[label] = {
+            "c": c,
+            "report": pipeline.loop(C, plant["plant"], pipeline.MetricsSpec(arrays=True)),
+        }
     return out
 
 
