@@ -237,7 +237,8 @@ PER_COMMAND: dict[str, dict] = {
     "robust": {"samples": _In("a posterior-samples file", (".npz",)),
                "model": _In("a model file", ARRAY_EXT), "out": _Out("a JSON report", (".json",))},
     "sweep": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder"),
-              "estimator": one_of(("wls", "wls+positize", "nls"))},
+              "estimator": ((lambda v: v in _estimators()),
+                            "a registered estimator (hapid.pipeline.ESTIMATORS: wls, wls+positize, nls, …)")},
     "tune": {"model": _In("a model file", ARRAY_EXT),
              "samples": _In("a posterior-samples file", (".npz",)),
              "out": _Out("a design file", (".npz",)), "report": _Out("a JSON report", (".json",))},
@@ -247,6 +248,12 @@ PER_COMMAND: dict[str, dict] = {
     "paper": {"out": _Out("an output folder"), "scene": _In("a scene TOML", (".toml",))},
     "run": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder")},
 }  # fmt: skip
+
+
+def _estimators():
+    from .pipeline import ESTIMATORS
+
+    return ESTIMATORS
 
 
 def _solvers():

@@ -229,6 +229,7 @@ def cmd_run(a):
                                progress=lambda name: print(f"  … {name}", flush=True))  # fmt: skip
     print(f"computed: {', '.join(log['computed']) or '—'}; from cache: {', '.join(log['cached']) or '—'} "
           f"({time.perf_counter() - t0:.1f} s)")  # fmt: skip
+    print("per stage: " + ", ".join(f"{k} {v:.1f} s" for k, v in log["seconds"].items()))
     print(f"outputs in {a.out or cfg['outputs']['dir']}")
 
 
