@@ -233,6 +233,7 @@ PER_COMMAND: dict[str, dict] = {
                 "design": _In("a design file from hapid tune", (".npz",))},
     "posterior": {"frf": _In("an FRF file", RUN_EXT), "out": _Out("a samples file", (".npz",)),
                   "model": _In("a model file", ARRAY_EXT), "samples": int_ge(1),
+                  "model_error": one_of(["white", "gp", "none"]),
                   "hdf5": _Out("an emcee HDF5 backend file", (".h5", ".hdf5"))},
     "robust": {"samples": _In("a posterior-samples file", (".npz",)),
                "model": _In("a model file", ARRAY_EXT), "out": _Out("a JSON report", (".json",))},
@@ -246,6 +247,10 @@ PER_COMMAND: dict[str, dict] = {
                 "out": _Out("a plant-draws file", (".npz",))},
     "plant": {"out": _Out("a true-plant FRF file", (".npz",))},
     "paper": {"out": _Out("an output folder"), "scene": _In("a scene TOML", (".toml",))},
+    "predict": {"samples": _In("a posterior-samples file", (".npz",)), "out": _Out("a draws file", (".npz",)),
+                "f_min_hz": gt(0, " Hz"), "n_freq": int_ge(2), "no_model_error": FLAG},
+    "plant": {"out": _Out("an FRF file", (".npz",)), "n_freq": int_ge(2), "delay": int_between(0, 1000),
+              "f_min_hz": gt(0, " Hz")},
     "run": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder")},
 }  # fmt: skip
 
