@@ -137,9 +137,11 @@ def run_fit(a) -> None:
 
     kind = io.file_kind(a.frf, "an FRF file (freq_hz with Z_H, Z_T or Z)")
     if kind not in ("frf", "impedance_frf"):
+        what = "arrays hapid does not know" if kind == "unknown" else f"a {kind} file"
         raise FitCommandError(
-            f"{a.frf}: holds a {kind} file, not an FRF; hapid fit takes an FRF with Z_H, Z_T "
-            "(hapid frf on a run file) or an impedance FRF with Z (hapid frf on a time series)"
+            f"{a.frf}: holds {what}, not an FRF; hapid fit takes an FRF with freq_hz, Z_H, Z_T "
+            "(hapid frf on a run file; CSV header freq_hz,Z_H_re_0_0,…) or an impedance FRF "
+            "with freq_hz, Z (hapid frf on a time series; CSV header freq_hz,Z_re_0_0,…)"
         )
     single = kind == "impedance_frf"
     data = io.load_impedance_frf(a.frf) if single else io.load_frf(a.frf)

@@ -195,6 +195,7 @@ def _bad_cases(tmp_path):
         "(n, n, N) layout": (["fit", "nnN.npz"], "looks like (n, n, N)"),
         "(n, n, N) pair": (["fit", "nnN_pair.npz"], "looks like (n, n, N)"),
         "csv layout": (["frf", "wrong.csv", "--h1"], "expected a time-series CSV"),
+        "csv fit layout": (["fit", "wrong.csv"], "CSV header freq_hz,Z_re_0_0"),
         "(n, T) records": (["frf", "ts_T.npz"], "looks like (n, T)"),
         "missing keys": (["frf", "ts_keys.npz", "--force-key", "force"], "--force-key"),
         "no fs": (["frf", "ts_nofs.npz"], "--fs-hz"),
