@@ -220,7 +220,8 @@ def run_frf_lab(a) -> None:
         )
     z = estimate_impedance_h1(ts, nperseg=a.nperseg, response=a.response,
                               sign=-1.0 if a.sign == "-" else 1.0,
-                              f_min_hz=a.f_min_hz, f_max_hz=a.f_max_hz)  # fmt: skip
+                              f_min_hz=a.f_min_hz, f_max_hz=a.f_max_hz,
+                              window=a.window)  # fmt: skip
     out = io.save_impedance_frf(a.out, z)
     E, T, n = ts.force.shape
     seg = E * ((T - a.nperseg) // (a.nperseg // 2) + 1)
@@ -241,6 +242,9 @@ def register_lab_frf_args(f) -> None:
                      help="H1 estimate over Welch segments (implied for a time series)")  # fmt: skip
     lab.add_argument("--nperseg", type=int, default=2048,
                      help="samples per Welch segment (default 2048)")  # fmt: skip
+    lab.add_argument("--window", choices=["hann", "boxcar"], default="hann",
+                     help="segment window: hann (default) or boxcar (periodic excitation whose "
+                     "period divides --nperseg: leakage-free)")  # fmt: skip
     lab.add_argument("--response", choices=["displacement", "velocity", "acceleration"],
                      default="displacement", help="what the response channels measure; Z = F/x "
                      "is formed in the frequency domain (default displacement)")  # fmt: skip

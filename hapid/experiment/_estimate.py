@@ -120,6 +120,7 @@ def estimate_frf_h1(
     freq_hz: np.ndarray | None = None,
     f_band_hz: tuple[float, float] | None = None,
     reference: str = "L",
+    window: str = "hann",
 ) -> FRF:
     """Averaged cross-spectral estimate for non-periodic records (chirp, noise, lab data).
 
@@ -144,7 +145,10 @@ def estimate_frf_h1(
     starts = np.arange(0, T - nperseg + 1, step)
     if len(starts) * E < n:
         raise ValueError(f"only {len(starts) * E} segments for n = {n} rods: record too short")
-    win = np.hanning(nperseg)
+    if window not in ("hann", "boxcar"):
+        raise ValueError(f"window must be 'hann' or 'boxcar', got {window!r}")
+    # boxcar: leakage-free for periodic excitation whose period divides nperseg
+    win = np.hanning(nperseg) if window == "hann" else np.ones(nperseg)
     seg = lambda x: np.stack([x[:, s : s + nperseg] for s in starts], 1) * win[:, None]  # noqa: E731
     fft = lambda x: np.fft.rfft(seg(x), axis=2)  # noqa: E731  (E, S, F, n)
     XL, XI, XA = fft(L), fft(R_I), fft(R_A)
