@@ -224,7 +224,7 @@ def run_frf_lab(a) -> None:
                               window=a.window)  # fmt: skip
     out = io.save_impedance_frf(a.out, z)
     E, T, n = ts.force.shape
-    seg = E * ((T - a.nperseg) // (a.nperseg // 2) + 1)
+    seg = E * ((T - a.nperseg) // (a.nperseg if a.window == "boxcar" else a.nperseg // 2) + 1)
     rel = np.asarray(z.Z_std) / np.maximum(np.abs(np.asarray(z.Z)), 1e-300)
     conv = {"displacement": "Z = F/x", "velocity": "Z = jω·F/v", "acceleration": "Z = (jω)²·F/a"}
     f = np.asarray(z.freq_hz)
