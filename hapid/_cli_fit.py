@@ -23,7 +23,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-TWO_PI = 2.0 * np.pi
+from ._constants import TWO_PI
 
 
 class FitCommandError(ValueError):
@@ -76,6 +76,36 @@ def _pair_nls(frf, a, band) -> Fitted:
     return Fitted(res.model, meta, status, notes=notes)
 
 
+def _pair_ml(frf, a) -> Fitted:
+    """Sample maximum likelihood on the run's spectra (``hapid.fit.fit_ml``); the run is the
+    file read by :func:`run_fit` (``a.ml_run``), ``frf`` its banded FRF (for the report)."""
+    from .fit import crb_band_db, fit_ml
+
+    run = getattr(a, "ml_run", None)
+    if run is None:  # pragma: no cover - run_fit always sets it for --method ml
+        raise FitCommandError("--method ml needs the run file")
+    solver = a.solver if a.solver in ("lm", "dogleg", "gauss_newton", "bfgs", "nonlinear_cg") else "lm"  # fmt: skip
+    f = np.asarray(frf.freq_hz)
+    res = fit_ml(run, f_min_hz=float(f.min()), f_max_hz=float(f.max()),
+                 model_floor=a.model_floor, solver=solver, max_steps=a.max_steps)  # fmt: skip
+    if not bool(res.ok) and not a.allow_unconverged:
+        raise FitCommandError(
+            f"ML fit did not converge (status {res.status} after {int(res.n_steps)} steps); "
+            "no model written (use --allow-unconverged to write it anyway)"
+        )
+    meta = dict(method="ml", status=res.status, cost=float(res.cost), steps=int(res.n_steps),
+                weight="ml", solver=solver, model_floor=float(a.model_floor),
+                sigma2=float(res.sigma2), covariance=np.asarray(res.covariance),
+                crb=np.asarray(res.crb), theta=np.asarray(res.theta))  # fmt: skip
+    notes = (f"at the PSD boundary: {', '.join(res.boundary)}",) if res.boundary else ()
+    clo, chi = crb_band_db(res.theta, res.crb, res.scale, frf.omega, f_max_hz=a.band_hz)
+    notes += (f"Cramér–Rao limit of the P·P̂⁻¹ band to {a.band_hz:g} Hz (median over "
+              f"N(θ̂, CRB)): {clo:+.1f} / {chi:+.1f} dB",)  # fmt: skip
+    status = (f"{res.status} after {int(res.n_steps)} steps, cost {float(res.cost):.4g}, "
+              f"σ̂² {float(res.sigma2):.3g} (≈1: noise explains the misfit; ≫1: model error)")  # fmt: skip
+    return Fitted(res.model, meta, status, notes=notes)
+
+
 # ---- a single impedance ----------------------------------------------------------------------
 def _single(method: str):
     def run(zfrf, a, band) -> Fitted:
@@ -103,15 +133,31 @@ def _single(method: str):
     return run
 
 
-PAIR_METHODS: dict[str, Callable] = {"wls": _pair_wls, "nls": _pair_nls}
+PAIR_METHODS: dict[str, Callable] = {"wls": _pair_wls, "nls": _pair_nls, "ml": _pair_ml}
 SINGLE_METHODS: dict[str, Callable] = {"wls": _single("wls"), "nls": _single("nls")}
 #: every method name ``hapid fit --method`` accepts (the parser's choices)
 METHODS = tuple(dict.fromkeys([*PAIR_METHODS, *SINGLE_METHODS]))
 
 
 def extra_quality_lines(quality, fitted: Fitted, data, a):
-    """Hook for report lines that need more than the fit (e.g. a known true plant)."""
-    return quality
+    """Hook for report lines that need more than the fit: the band against a known true
+    plant (``--true-device``, haptic pair only)."""
+    name = getattr(a, "true_device", None)
+    if not name or not hasattr(data, "Z_T"):
+        return quality
+    from .device import preset
+    from .fit import pphat_band_db
+
+    dev = preset(name)
+    if dev.n != data.n:
+        raise FitCommandError(f"--true-device {name} has n = {dev.n} rods but the data n = {data.n}")
+    P = np.asarray(dev.sampled_P(np.asarray(data.omega)))
+    lo, hi = pphat_band_db(P, fitted.model, data.omega, a.band_hz)
+    return quality.with_line(
+        "vs_true",
+        f"P·P̂⁻¹ band to {a.band_hz:g} Hz against the TRUE sampled plant of {name}: "
+        f"{float(lo):+.1f} / {float(hi):+.1f} dB",
+    )
 
 
 def _band(a, f_all_hz: np.ndarray) -> tuple[float, float]:
@@ -136,7 +182,18 @@ def run_fit(a) -> None:
     from .impedance_frf import model_units
 
     kind = io.file_kind(a.frf, "an FRF file (freq_hz with Z_H, Z_T or Z)")
-    if kind not in ("frf", "impedance_frf"):
+    if a.method == "ml":
+        if kind != "run":
+            raise FitCommandError(
+                f"{a.frf}: holds a {kind} file; --method ml needs the run file (per-experiment, "
+                "per-period R_A, R_I, L: an FRF has lost the noise covariances), e.g. "
+                "hapid simulate --out run.npz; hapid fit run.npz --method ml"
+            )
+        from .experiment import estimate_frf
+
+        a.ml_run = io.load_run(a.frf)
+        kind = "frf"
+    elif kind not in ("frf", "impedance_frf"):
         what = "arrays hapid does not know" if kind == "unknown" else f"a {kind} file"
         raise FitCommandError(
             f"{a.frf}: holds {what}, not an FRF; hapid fit takes an FRF with freq_hz, Z_H, Z_T "
@@ -144,7 +201,10 @@ def run_fit(a) -> None:
             "with freq_hz, Z (hapid frf on a time series; CSV header freq_hz,Z_re_0_0,…)"
         )
     single = kind == "impedance_frf"
-    data = io.load_impedance_frf(a.frf) if single else io.load_frf(a.frf)
+    if a.method == "ml":
+        data = estimate_frf(a.ml_run)
+    else:
+        data = io.load_impedance_frf(a.frf) if single else io.load_frf(a.frf)
     table = SINGLE_METHODS if single else PAIR_METHODS
     if a.method not in table:
         raise FitCommandError(
@@ -275,7 +335,12 @@ def register_fit(sub, func) -> None:
                        epilog="example: hapid fit z.npz --method nls --f-min-hz 5 --f-max-hz 50 "
                        "--out model.npz")  # fmt: skip
     f.add_argument("frf", help="FRF file (.npz, .csv, .mat) holding Z_H, Z_T or Z")
-    f.add_argument("--method", choices=list(METHODS), default="nls")
+    f.add_argument("--method", choices=list(METHODS), default="nls",
+                   help="wls, nls (FRF file) or ml (sample maximum likelihood: the RUN file)")  # fmt: skip
+    f.add_argument("--model-floor", type=float, default=0.3,
+                   help="ml: relative equation-error floor φ for unmodeled dynamics (0 = pure ML)")  # fmt: skip
+    f.add_argument("--true-device", help="simulated data: also report the P·P̂⁻¹ band against "
+                   "this preset's true sampled plant (cu5, tripod3, hexapod6)")  # fmt: skip
     f.add_argument("--positize", action="store_true", help="positize the WLS model (paper 5.1)")
     f.add_argument("--weight", choices=["relative", "paper", "noise", "blend"], default="relative")
     f.add_argument("--solver", default="lm", help="lm (default), dogleg, gauss_newton, bfgs, "
