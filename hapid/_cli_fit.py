@@ -76,7 +76,7 @@ def _pair_nls(frf, a, band) -> Fitted:
     return Fitted(res.model, meta, status, notes=notes)
 
 
-def _pair_ml(frf, a) -> Fitted:
+def _pair_ml(frf, a, band=None) -> Fitted:
     """Sample maximum likelihood on the run's spectra (``hapid.fit.fit_ml``); the run is the
     file read by :func:`run_fit` (``a.ml_run``), ``frf`` its banded FRF (for the report)."""
     from .fit import crb_band_db, fit_ml
