@@ -182,6 +182,7 @@ COMMON: dict[str, tuple] = {
     "nperseg": int_ge(8),
     "response": one_of(["displacement", "velocity", "acceleration"]),
     "sign": one_of(["+", "-"]),
+    "window": one_of(["hann", "boxcar"]),
     "fs_hz": gt(0, " Hz"),
     "force_key": ANY,
     "response_key": ANY,

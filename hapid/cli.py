@@ -98,7 +98,8 @@ def cmd_frf(a):
     run = io.load_run(a.run)
     if a.h1:
         frf = estimate_frf_h1(run.fs_hz, run.R_A, run.R_I, run.L, nperseg=a.nperseg,
-                              f_band_hz=(a.f_min_hz or 0.0, a.f_max_hz or run.fs_hz / 2))  # fmt: skip
+                              f_band_hz=(a.f_min_hz or 0.0, a.f_max_hz or run.fs_hz / 2),
+                              window=a.window)  # fmt: skip
     else:
         frf = estimate_frf(run, cond_warn=a.cond_warn)
     out = io.save_frf(a.out, frf)
