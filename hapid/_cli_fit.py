@@ -7,7 +7,8 @@ parse results in, library calls, one report out).
 - an impedance FRF with ``Z`` — a single measured impedance → one ``M, B, K``.
 
 and on ``--method`` through :data:`PAIR_METHODS` / :data:`SINGLE_METHODS` (name → function
-``(data, args) -> Fitted``): adding a method is one function and one table entry. Every
+``(data, args, band_hz) -> Fitted``; ``data`` already restricted to the band): adding a method
+is one function and one table entry. Every
 method sees the same band (``--f-min-hz``/``--f-max-hz``; default every frequency in the
 file), selected before the fit and echoed in the report; every fit gets a
 :class:`hapid.fit.FitQuality` over that band, printed and stored in the model file. Extra
@@ -22,7 +23,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-TWO_PI = 2.0 * np.pi
+from ._constants import TWO_PI
 
 
 class FitCommandError(ValueError):
@@ -52,7 +53,7 @@ def _nls_refuse(res, a):
 
 
 # ---- the haptic hand/total pair ---------------------------------------------------------------
-def _pair_wls(frf, a) -> Fitted:
+def _pair_wls(frf, a, band) -> Fitted:
     from .fit import positize, wls
 
     raw = wls(frf, omega_c=TWO_PI * a.omega_c_hz)
@@ -61,7 +62,7 @@ def _pair_wls(frf, a) -> Fitted:
     return Fitted(raw, {"method": "wls"}, "closed form")
 
 
-def _pair_nls(frf, a) -> Fitted:
+def _pair_nls(frf, a, band) -> Fitted:
     from .fit import fit_nls
 
     res = fit_nls(frf, weight=a.weight, solver=a.solver, f_max_hz=None,
@@ -75,9 +76,39 @@ def _pair_nls(frf, a) -> Fitted:
     return Fitted(res.model, meta, status, notes=notes)
 
 
+def _pair_ml(frf, a) -> Fitted:
+    """Sample maximum likelihood on the run's spectra (``hapid.fit.fit_ml``); the run is the
+    file read by :func:`run_fit` (``a.ml_run``), ``frf`` its banded FRF (for the report)."""
+    from .fit import crb_band_db, fit_ml
+
+    run = getattr(a, "ml_run", None)
+    if run is None:  # pragma: no cover - run_fit always sets it for --method ml
+        raise FitCommandError("--method ml needs the run file")
+    solver = a.solver if a.solver in ("lm", "dogleg", "gauss_newton", "bfgs", "nonlinear_cg") else "lm"  # fmt: skip
+    f = np.asarray(frf.freq_hz)
+    res = fit_ml(run, f_min_hz=float(f.min()), f_max_hz=float(f.max()),
+                 model_floor=a.model_floor, solver=solver, max_steps=a.max_steps)  # fmt: skip
+    if not bool(res.ok) and not a.allow_unconverged:
+        raise FitCommandError(
+            f"ML fit did not converge (status {res.status} after {int(res.n_steps)} steps); "
+            "no model written (use --allow-unconverged to write it anyway)"
+        )
+    meta = dict(method="ml", status=res.status, cost=float(res.cost), steps=int(res.n_steps),
+                weight="ml", solver=solver, model_floor=float(a.model_floor),
+                sigma2=float(res.sigma2), covariance=np.asarray(res.covariance),
+                crb=np.asarray(res.crb), theta=np.asarray(res.theta))  # fmt: skip
+    notes = (f"at the PSD boundary: {', '.join(res.boundary)}",) if res.boundary else ()
+    clo, chi = crb_band_db(res.theta, res.crb, res.scale, frf.omega, f_max_hz=a.band_hz)
+    notes += (f"Cramér–Rao limit of the P·P̂⁻¹ band to {a.band_hz:g} Hz (median over "
+              f"N(θ̂, CRB)): {clo:+.1f} / {chi:+.1f} dB",)  # fmt: skip
+    status = (f"{res.status} after {int(res.n_steps)} steps, cost {float(res.cost):.4g}, "
+              f"σ̂² {float(res.sigma2):.3g} (≈1: noise explains the misfit; ≫1: model error)")  # fmt: skip
+    return Fitted(res.model, meta, status, notes=notes)
+
+
 # ---- a single impedance ----------------------------------------------------------------------
 def _single(method: str):
-    def run(zfrf, a) -> Fitted:
+    def run(zfrf, a, band) -> Fitted:
         from .fit import fit_impedance
 
         if a.weight not in ("relative", "noise"):
@@ -86,7 +117,8 @@ def _single(method: str):
                 "relative or noise"
             )
         res = fit_impedance(zfrf, method=method, positize=a.positize and method == "wls",
-                            weight=a.weight, max_steps=a.max_steps)  # fmt: skip
+                            weight=a.weight, max_steps=a.max_steps, f_min_hz=band[0],
+                            f_max_hz=band[1])  # fmt: skip
         if method == "nls" and not res.ok and not a.allow_unconverged:
             raise FitCommandError(
                 f"NLS fit did not converge (status {res.status} after {res.n_steps} steps); "
@@ -101,15 +133,31 @@ def _single(method: str):
     return run
 
 
-PAIR_METHODS: dict[str, Callable] = {"wls": _pair_wls, "nls": _pair_nls}
+PAIR_METHODS: dict[str, Callable] = {"wls": _pair_wls, "nls": _pair_nls, "ml": _pair_ml}
 SINGLE_METHODS: dict[str, Callable] = {"wls": _single("wls"), "nls": _single("nls")}
 #: every method name ``hapid fit --method`` accepts (the parser's choices)
 METHODS = tuple(dict.fromkeys([*PAIR_METHODS, *SINGLE_METHODS]))
 
 
 def extra_quality_lines(quality, fitted: Fitted, data, a):
-    """Hook for report lines that need more than the fit (e.g. a known true plant)."""
-    return quality
+    """Hook for report lines that need more than the fit: the band against a known true
+    plant (``--true-device``, haptic pair only)."""
+    name = getattr(a, "true_device", None)
+    if not name or not hasattr(data, "Z_T"):
+        return quality
+    from .device import preset
+    from .fit import pphat_band_db
+
+    dev = preset(name)
+    if dev.n != data.n:
+        raise FitCommandError(f"--true-device {name} has n = {dev.n} rods but the data n = {data.n}")
+    P = np.asarray(dev.sampled_P(np.asarray(data.omega)))
+    lo, hi = pphat_band_db(P, fitted.model, data.omega, a.band_hz)
+    return quality.with_line(
+        "vs_true",
+        f"P·P̂⁻¹ band to {a.band_hz:g} Hz against the TRUE sampled plant of {name}: "
+        f"{float(lo):+.1f} / {float(hi):+.1f} dB",
+    )
 
 
 def _band(a, f_all_hz: np.ndarray) -> tuple[float, float]:
@@ -134,13 +182,27 @@ def run_fit(a) -> None:
     from .impedance_frf import model_units
 
     kind = io.file_kind(a.frf, "an FRF file (freq_hz with Z_H, Z_T or Z)")
-    if kind not in ("frf", "impedance_frf"):
+    if a.method == "ml":
+        if kind != "run":
+            raise FitCommandError(
+                f"{a.frf}: holds a {kind} file; --method ml needs the run file (per-experiment, "
+                "per-period R_A, R_I, L: an FRF has lost the noise covariances), e.g. "
+                "hapid simulate --out run.npz; hapid fit run.npz --method ml"
+            )
+        from .experiment import estimate_frf
+
+        a.ml_run = io.load_run(a.frf)
+        kind = "frf"
+    elif kind not in ("frf", "impedance_frf"):
         raise FitCommandError(
             f"{a.frf}: holds a {kind} file, not an FRF; hapid fit takes an FRF with Z_H, Z_T "
             "(hapid frf on a run file) or an impedance FRF with Z (hapid frf on a time series)"
         )
     single = kind == "impedance_frf"
-    data = io.load_impedance_frf(a.frf) if single else io.load_frf(a.frf)
+    if a.method == "ml":
+        data = estimate_frf(a.ml_run)
+    else:
+        data = io.load_impedance_frf(a.frf) if single else io.load_frf(a.frf)
     table = SINGLE_METHODS if single else PAIR_METHODS
     if a.method not in table:
         raise FitCommandError(
@@ -155,7 +217,7 @@ def run_fit(a) -> None:
             else "haptic hand/total pair Z_H, Z_T (N/m)")  # fmt: skip
     f = np.asarray(sel.freq_hz)
     print(f"data: {what}, n = {data.n}, from {a.frf}")
-    how = ("every frequency in the file (--f-min-hz/--f-max-hz to narrow)"
+    how = ("every frequency in the file; narrow it with --f-min-hz/--f-max-hz"
            if a.f_min_hz is None and a.f_max_hz is None
            else f"--f-min-hz {lo:g} --f-max-hz {hi:g}")  # fmt: skip
     print(f"band: {f.min():g}–{f.max():g} Hz, {f.size} of {np.size(data.freq_hz)} frequencies "
@@ -163,7 +225,7 @@ def run_fit(a) -> None:
     if not single and a.method == "nls" and a.f_max_hz is None and f.max() > 40:
         print("note: every frequency is fitted; for a haptic device the NLS fit is usually "
               "best with --f-max-hz 40 (the paper scene's band)")  # fmt: skip
-    fitted = table[a.method](sel, a)
+    fitted = table[a.method](sel, a, (lo, hi))
     q = fitted.quality
     if q is None:
         band = (lo, hi)
@@ -267,7 +329,12 @@ def register_fit(sub, func) -> None:
                        epilog="example: hapid fit z.npz --method nls --f-min-hz 5 --f-max-hz 50 "
                        "--out model.npz")  # fmt: skip
     f.add_argument("frf", help="FRF file (.npz, .csv, .mat) holding Z_H, Z_T or Z")
-    f.add_argument("--method", choices=list(METHODS), default="nls")
+    f.add_argument("--method", choices=list(METHODS), default="nls",
+                   help="wls, nls (FRF file) or ml (sample maximum likelihood: the RUN file)")  # fmt: skip
+    f.add_argument("--model-floor", type=float, default=0.3,
+                   help="ml: relative equation-error floor φ for unmodeled dynamics (0 = pure ML)")  # fmt: skip
+    f.add_argument("--true-device", help="simulated data: also report the P·P̂⁻¹ band against "
+                   "this preset's true sampled plant (cu5, tripod3, hexapod6)")  # fmt: skip
     f.add_argument("--positize", action="store_true", help="positize the WLS model (paper 5.1)")
     f.add_argument("--weight", choices=["relative", "paper", "noise", "blend"], default="relative")
     f.add_argument("--solver", default="lm", help="lm (default), dogleg, gauss_newton, bfgs, "

@@ -337,6 +337,14 @@ def save_frf(path, frf: FRF) -> Path:
     return _write_arrays(path, arrays)
 
 
+def save_draws(path, freq_hz, draws: dict) -> Path:
+    """Write predictive plant draws (``hapid predict``): ``freq_hz (N,)`` and each of
+    ``draws`` (e.g. ``P``, ``Z_H``, ``Z_T``: ``(S, N, n, n)`` complex) to an ``.npz``."""
+    arrays = {"freq_hz": np.asarray(freq_hz, dtype=np.float64)}
+    arrays |= {k: np.asarray(v, dtype=np.complex128) for k, v in draws.items()}
+    return _write_arrays(path, arrays)
+
+
 def load_frf(path) -> FRF:
     """Read and validate an FRF file."""
     what = "an FRF file (freq_hz, Z_H, Z_T)"

@@ -30,7 +30,6 @@ lowpass_hz, siso_gm_db, siso_pm_deg; ``[analysis]`` f_min_hz, n_freq, band_hz;
 from __future__ import annotations
 
 import copy
-import json
 import os
 import tomllib
 from pathlib import Path
@@ -301,7 +300,3 @@ def run_scene(cfg: dict, outputs=None, *, cache_dir=".hapid_cache/stages", out_d
     want = list(outputs if outputs is not None else cfg["outputs"]["want"])
     Path(cfg["outputs"]["dir"]).mkdir(parents=True, exist_ok=True)
     return graph().run(cfg, want, cache_dir=cache_dir, progress=progress)
-
-
-def dumps(obj) -> str:
-    return json.dumps(obj, indent=2, default=float)

@@ -114,8 +114,8 @@ def _quantization_step(L: np.ndarray) -> float:
     return 0.0
 
 
-def run_spectra(run: Run, f_max_hz: float | None = 40.0) -> RunSpectra:
-    """:class:`RunSpectra` of ``run`` at its excited frequencies ≤ ``f_max_hz`` (numpy).
+def run_spectra(run: Run, f_max_hz: float | None = 40.0, f_min_hz: float = 0.0) -> RunSpectra:
+    """:class:`RunSpectra` of ``run`` at its excited frequencies in ``[f_min_hz, f_max_hz]``.
 
     Needs ``P ≥ 2`` periods (the covariance is estimated from their scatter).
     """
@@ -128,6 +128,7 @@ def run_spectra(run: Run, f_max_hz: float | None = 40.0) -> RunSpectra:
         )
     f = np.asarray(run.freq_hz, dtype=float)
     keep = np.ones(f.shape, bool) if f_max_hz is None else f <= f_max_hz * (1 + 1e-12)
+    keep &= f >= f_min_hz * (1 - 1e-12)
     if keep.sum() < 3:
         raise ValueError(
             f"fit_ml: only {int(keep.sum())} excited frequencies ≤ f_max_hz={f_max_hz} Hz; "
@@ -322,12 +323,13 @@ def fit_ml(
     init: ImpedanceModel | NLSResult | None = None,
     *,
     f_max_hz: float | None = 40.0,
+    f_min_hz: float = 0.0,
     model_floor: float = 0.0,
     solver: str = "lm",
     max_steps: int = 500,
     rtol: float = 1e-8,
     atol: float = 1e-10,
-    ftol: float = 1e-10,
+    ftol: float = 1e-8,
     patience: int = 20,
     pd_eps: float = 0.0,
     init_floor: float = 1e-6,
@@ -341,7 +343,8 @@ def fit_ml(
       periods) — the spectra and their noise covariances come from it. An FRF is not
       enough (it has lost the input noise): ``ValueError``.
     - ``init``: starting model; default ``fit_nls(estimate_frf(run), f_max_hz=f_max_hz)``.
-    - ``f_max_hz``: only excited frequencies ≤ this enter (Hz; ``None`` = all).
+    - ``f_max_hz``, ``f_min_hz``: only excited frequencies in this band enter (Hz;
+      ``f_max_hz=None``: no upper edge). The start and the scale use the FRF up to ``f_max_hz``.
     - ``model_floor``: relative equation-error floor φ (module docstring; 0 = pure ML).
     - ``solver``: ``"lm"`` (default), ``"dogleg"``, ``"gauss_newton"``, ``"bfgs"``,
       ``"nonlinear_cg"``; ``max_steps``, ``rtol``, ``atol``, ``ftol``, ``patience``,
@@ -365,7 +368,7 @@ def fit_ml(
         raise ValueError(f"fit_ml: max_steps must be a positive int, got {max_steps!r}")
     if not (np.isfinite(model_floor) and model_floor >= 0):
         raise ValueError(f"fit_ml: model_floor must be finite and ≥ 0, got {model_floor}")
-    spectra = run_spectra(run, f_max_hz)
+    spectra = run_spectra(run, f_max_hz, f_min_hz)
     frf = estimate_frf(run)
     scale = data_scale(frf, f_max_hz)
     if init is None:
@@ -424,22 +427,28 @@ def cramer_rao(run: Run, model: ImpedanceModel, *, f_max_hz: float | None = 40.0
 
 
 def _band_draws(theta, cov, scale, omega, n_draws, seed):
-    lam, V = np.linalg.eigh(0.5 * (np.asarray(cov) + np.asarray(cov).T))
-    root = V * np.sqrt(np.maximum(lam, 0.0))
-    z = np.random.default_rng(seed).standard_normal((n_draws, root.shape[0]))
-    thetas = jnp.asarray(np.asarray(theta)[None] + z @ root.T)
+    """Draws of the (min, max) dB of σ(P(θ̂)·P̂⁻¹) with ``P̂⁻¹`` linearized at ``θ̂``."""
+    from ..impedance import singular_values
+
+    theta = jnp.asarray(theta)
     s = 1j * jnp.asarray(omega)
-    ref = theta_to_model(jnp.asarray(theta), scale).P(s)
+    model = theta_to_model(theta, scale)
+    P0 = model.P(s)
 
-    def one(t):
-        Pinv = theta_to_model(t, scale).P_inv(s)
-        from ..impedance import singular_values
+    def pinv_flat(t):
+        Pi = theta_to_model(t, scale).P_inv(s)
+        return jnp.concatenate([jnp.real(Pi).ravel(), jnp.imag(Pi).ravel()])
 
-        db = 20.0 * jnp.log10(singular_values(ref @ Pinv))
-        return jnp.min(db), jnp.max(db)
-
-    lo, hi = jax.lax.map(one, thetas)
-    return np.asarray(lo), np.asarray(hi)
+    G = jax.jacfwd(pinv_flat)(theta)  # (2·N·n², p)
+    cov = np.asarray(cov)
+    lam, V = np.linalg.eigh(0.5 * (cov + cov.T))
+    root = jnp.asarray(V * np.sqrt(np.maximum(lam, 0.0)))
+    z = jnp.asarray(np.random.default_rng(seed).standard_normal((n_draws, root.shape[0])))
+    d = (G @ root @ z.T).T  # (draws, 2·N·n²)
+    half = d.shape[1] // 2
+    dPi = (d[:, :half] + 1j * d[:, half:]).reshape((n_draws,) + P0.shape)
+    db = 20.0 * jnp.log10(singular_values(jnp.eye(P0.shape[-1]) + P0 @ dPi))
+    return np.asarray(jnp.min(db, axis=(1, 2))), np.asarray(jnp.max(db, axis=(1, 2)))
 
 
 def crb_band_db(
@@ -455,10 +464,13 @@ def crb_band_db(
 ) -> tuple[float, float]:
     """The P·P̂⁻¹ band an efficient estimator reaches at this noise level.
 
-    Draws ``θ ~ N(theta, crb)`` (the Cramér–Rao bound, scaled units), and for each the
-    singular values of ``P(θ̂) P(θ)⁻¹`` (dB) over ``omega`` ≤ ``f_max_hz`` (rad/s grid, Hz
-    limit). Returns the ``quantile`` (default median) of the draws' lower band edge taken
-    from below and of the upper edge from above: ``(lo dB ≤ 0, hi dB ≥ 0)``.
+    Draws ``δθ ~ N(0, crb)`` (the Cramér–Rao bound, scaled units) and, with ``P̂⁻¹``
+    linearized at ``theta`` (the Cholesky coordinates are quadratic near the PSD boundary,
+    where the bound is large along directions ``P̂`` does not see to first order: sampling
+    the nonlinear map there would blow up), the singular values of
+    ``P(θ̂)(P̂⁻¹(θ̂) + ∂P̂⁻¹ δθ)`` (dB) over ``omega`` ≤ ``f_max_hz`` (rad/s grid, Hz limit).
+    Returns the ``quantile`` (default median) over draws of the lower band edge taken from
+    below and of the upper edge from above: ``(lo dB ≤ 0, hi dB ≥ 0)``.
     """
     omega = np.asarray(omega)
     keep = omega <= TWO_PI * f_max_hz * (1 + 1e-12)

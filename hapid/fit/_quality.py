@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
 
-TWO_PI = 2.0 * np.pi
+from .._constants import TWO_PI
 
 #: warn when the median data-fit relative error exceeds this (dB; −6 dB ≈ 50 %)
 MEDIAN_WARN_DB = -6.0
