@@ -412,14 +412,18 @@ def _sweep_cross(a):
             from . import sweep as _sweep
 
             try:
-                _sweep.classify(key, load_scene_checked(a.scene), getattr(a, "estimator", "wls+positize"))
+                _sweep.classify(
+                    key, load_scene_checked(a.scene), getattr(a, "estimator", "wls+positize")
+                )
             except ValueError as e:
                 raise ValueError(f"--vary: {e}") from None
+            cfg = load_scene_checked(a.scene)
             for s in vals.split(","):
                 try:
-                    float(s)
+                    x = float(s)
                 except ValueError:
                     raise ValueError(f"--vary {key}: {s!r} is not a number") from None
+                _check_swept_value(cfg, key, s, x)
             continue
         test, allowed = SWEEP_KEYS[key]
         for s in vals.split(","):
@@ -430,6 +434,24 @@ def _sweep_cross(a):
             xv = _as_int_if_whole(x) if allowed.startswith("an integer") else x
             if not test(xv):
                 raise ValueError(f"--vary {key} must be {allowed}, got {s}")
+
+
+def _check_swept_value(cfg: dict, key: str, text: str, x: float) -> None:
+    """A swept value of any scene option obeys that option's scene rule (an integer option
+    takes whole numbers only)."""
+    import copy
+
+    from . import sweep as _sweep
+
+    sec, k, i = _sweep._parse(key)
+    cur = cfg[sec][k] if i is None else None
+    if _int(cur):
+        if not (math.isfinite(x) and x == int(x)):
+            raise ValueError(f"--vary {key} must be an integer, got {text}")
+        x = int(x)
+    c = copy.deepcopy(cfg)
+    _sweep._set(c, key, x)
+    check_scene(c, f"--vary {key}={text}")
 
 
 _CROSS = {"simulate": _protocol_cross, "analyze": _analyze_cross, "tune": _tune_cross,

@@ -64,6 +64,8 @@ def test_simulate_fs_zero_without_numpy_warnings(files):
          "--quantile must be in (0, 1], got 1.5"),
         (["sweep", "scene.toml", "--vary", "protocol.periods=0", "--out", "sw"],
          "--vary protocol.periods must be an integer ≥ 1, got 0"),
+        (["sweep", "scene.toml", "--vary", "controller.zeta_den=0.5,-1", "--out", "sw"],
+         "--vary controller.zeta_den=-1: controller.zeta_den must be > 0"),
         (["sweep", "scene.toml", "--vary", "controller.k=0.5", "--chunk", "0", "--out", "sw"],
          "--chunk must be an integer ≥ 1, got 0"),
         (["analyze", "--model", "model.npz", "--device", "cu5", "--k", "0", "--out", "a.json"],
