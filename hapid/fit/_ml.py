@@ -46,10 +46,11 @@ Two floors keep ``S_k`` positive definite:
 
 Uncertainty: the Fisher information ``F = JᵀJ`` of the whitened residual with the weighting
 held at ``θ̂`` (the derivative of ``S(θ)`` multiplies the zero-mean ``e`` and drops out of
-the expected information). ``crb = F⁺`` is the Cramér–Rao bound of the fitted model at the
-data's noise level (estimated: measured 𝓛 in place of the noise-free one, sample
-covariances); ``covariance = max(1, σ̂²)·F⁺`` with ``σ̂² = 2V/(m − p)`` (≫ 1 signals model
-error, which inflates the Laplace covariance rather than being hidden).
+the expected information). ``crb = F⁺`` (with φ = 0) is the Cramér–Rao bound of the fitted
+model at the data's noise level (estimated: measured 𝓛 in place of the noise-free one,
+sample covariances); ``covariance = max(1, σ̂²)·F_φ⁺`` (information of the cost as fitted,
+with its floor) with ``σ̂² = 2V/(m − p)`` (≫ 1 signals model error, which inflates the
+Laplace covariance rather than being hidden).
 """
 
 from __future__ import annotations
@@ -287,8 +288,10 @@ class MLResult(NLSResult):
     """:class:`NLSResult` of :func:`fit_ml`, plus the Cramér–Rao bound.
 
     - ``cost``: ``V(θ̂) = Σ eᴴ S⁻¹ e`` (≈ ``m/2`` real residuals' worth at the truth).
-    - ``crb``: ``(p, p)`` Cramér–Rao bound ``F⁺`` of ``theta`` (scaled units) at ``θ̂``.
-    - ``covariance``: ``max(1, sigma2)·crb`` (``sigma2 = 2V/(m − p)``).
+    - ``crb``: ``(p, p)`` Cramér–Rao bound ``F⁺`` of ``theta`` (scaled units) at ``θ̂`` from
+      the measurement noise alone (``model_floor`` = 0): what the data allow.
+    - ``covariance``: ``max(1, sigma2)·F_φ⁺`` with the information ``F_φ`` of the cost as
+      fitted (with the ``model_floor``) and ``sigma2 = 2V/(m − p)``.
     - ``dof``: ν = E(P − 1) degrees of freedom of the sample covariances.
     """
 
@@ -304,18 +307,19 @@ def _pinv_psd(F):
 
 
 @eqx.filter_jit
-def _ml_core(problem: MLProblem, theta0, dyn, static):
+def _ml_core(problem: MLProblem, noise_only: MLProblem, theta0, dyn, static):
     solver, linear_solver = static
     theta, n_steps, code = _run_solver(problem, theta0, solver, dyn["rtol"], dyn["atol"],
                                        dyn["max_steps"], linear_solver, dyn["ftol"],
                                        dyn["patience"])  # fmt: skip
     cost = problem.cost(theta)
-    crb = _pinv_psd(problem.fisher(theta))
+    fisher_inv = _pinv_psd(problem.fisher(theta))
+    crb = _pinv_psd(noise_only.fisher(theta))
     p = theta.shape[-1]
     sigma2 = 2.0 * cost / jnp.maximum(problem.n_residuals - p, 1)
     finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(cost)
     code = jnp.where(finite, code, FAILED).astype(jnp.int32)
-    return theta, n_steps, code, cost, crb, sigma2
+    return theta, n_steps, code, cost, crb, sigma2, fisher_inv
 
 
 def fit_ml(
@@ -385,9 +389,11 @@ def fit_ml(
     problem = make_ml_problem(spectra, scale, model_floor=model_floor, pd_eps=pd_eps)
     dyn = dict(rtol=jnp.asarray(rtol), atol=jnp.asarray(atol), ftol=jnp.asarray(ftol),
                max_steps=jnp.asarray(max_steps), patience=jnp.asarray(patience))  # fmt: skip
-    theta, n_steps, code, cost, crb, sigma2 = _ml_core(
-        problem, theta0, dyn, (solver, linear_solver)
+    noise_only = make_ml_problem(spectra, scale, model_floor=0.0, pd_eps=pd_eps)
+    theta, n_steps, code, cost, crb, sigma2, fisher_inv = _ml_core(
+        problem, noise_only, theta0, dyn, (solver, linear_solver)
     )
+
     model = theta_to_model(theta, scale, pd_eps)
     return MLResult(
         model=model,
@@ -396,7 +402,7 @@ def fit_ml(
         status_code=code,
         n_steps=jnp.asarray(n_steps).astype(jnp.int32),
         cost=cost,
-        covariance=jnp.maximum(sigma2, 1.0) * crb,
+        covariance=jnp.maximum(sigma2, 1.0) * fisher_inv,
         sigma2=sigma2,
         n_residuals=jnp.asarray(problem.n_residuals),
         at_boundary=boundary_report(model, rtol=boundary_rtol),
