@@ -70,7 +70,7 @@ def main(argv=None):
         t = time.perf_counter()
         r = fit_ml(run, nls, model_floor=phi, pd_eps=a.pd_eps)
         dt = time.perf_counter() - t
-        lo, hi = crb_band_db(r.theta, r.crb, r.scale, w)
+        lo, hi = crb_band_db(r.model, r.crb, r.scale, w)
         row(f"ML φ={phi:g}", r.model, f"{r.status}, {int(r.n_steps)} steps, σ̂² {float(r.sigma2):.3g}, "
             f"Cramér–Rao band {lo:+.2f} / {hi:+.2f} dB, {dt:.1f} s")  # fmt: skip
 
