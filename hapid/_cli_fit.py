@@ -98,7 +98,7 @@ def _pair_ml(frf, a, band=None) -> Fitted:
                 sigma2=float(res.sigma2), covariance=np.asarray(res.covariance),
                 crb=np.asarray(res.crb), theta=np.asarray(res.theta))  # fmt: skip
     notes = (f"at the PSD boundary: {', '.join(res.boundary)}",) if res.boundary else ()
-    clo, chi = crb_band_db(res.theta, res.crb, res.scale, frf.omega, f_max_hz=a.band_hz)
+    clo, chi = crb_band_db(res.model, res.crb, res.scale, frf.omega, f_max_hz=a.band_hz)
     notes += (f"Cramér–Rao limit of the P·P̂⁻¹ band to {a.band_hz:g} Hz (median over "
               f"N(θ̂, CRB)): {clo:+.1f} / {chi:+.1f} dB",)  # fmt: skip
     status = (f"{res.status} after {int(res.n_steps)} steps, cost {float(res.cost):.4g}, "
