@@ -29,12 +29,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import Section, fs, measure, standalone, table  # noqa: E402
 
 import hapid  # noqa: E402,F401
+from hapid._constants import TWO_PI
 from hapid.control import Compensator  # noqa: E402
 from hapid.scene import merge, run_scene  # noqa: E402
 from hapid.tune import Box, Family, ParamMap, Requirements, make_scenarios, penalized, robust_design  # noqa: E402
 from hapid.uncertainty import laplace_samples  # noqa: E402
-
-TWO_PI = 2 * np.pi
 
 
 def _fmt(v):

@@ -1,7 +1,7 @@
 """Global JAX configuration applied on ``import hapid``.
 
 float64 is switched on before any array is created: the s² terms of an impedance at 100 Hz
-are ~4·10⁵ times the constant terms, and float32 loses the fit (DESIGN.md, Conventions).
+are ~4·10⁵ times the constant terms, and float32 loses the fit (docs/conventions.md, "Arrays, units, precision").
 """
 
 import os

@@ -1,24 +1,42 @@
-"""A tiny lazy stage graph with an on-disk cache keyed by a hash of each stage's inputs.
+"""A tiny lazy stage graph with an on-disk cache keyed by each stage's inputs and hapid's source.
 
 A stage is a pure function of its own options and its dependencies' results. Its key is
-``sha256(name, options, dependency keys, hapid version)``, so changing one option recomputes
-that stage and everything downstream of it, and nothing else. Results are pickled under
-``cache_dir/<name>-<key>.pkl`` (written atomically). ``Graph.run`` computes only the stages
-the requested targets need and records which stages were computed and which came from cache.
+``sha256(source hash, name, options, dependency keys)``: changing one option recomputes that
+stage and everything downstream of it, and nothing else; changing any ``.py`` file of the
+``hapid`` package (:func:`source_hash`) invalidates every entry, so results of old code never
+survive. ``Graph.run`` computes only the stages the requested targets need and records which
+stages were computed, which came from the cache, and how long each took.
+
+Values are stored without pickle, as ``cache_dir/<name>-<key>.npz``: the arrays of the result
+plus one JSON string describing its structure (:func:`encode` / :func:`decode`: dicts,
+lists, tuples, named tuples, dataclasses and equinox modules of ``hapid`` classes, arrays,
+numbers, strings, ``None``). A result that does not fit this description is simply not cached.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
+import importlib
 import json
-import os
-import pickle
-import tempfile
+import time
 from collections.abc import Callable
 from pathlib import Path
 
-VERSION = "0.1.0"
+import numpy as np
+
+_PKG_ROOT = Path(__file__).resolve().parent
+
+
+@functools.lru_cache(maxsize=1)
+def source_hash() -> str:
+    """sha256 of every ``.py`` file of the installed ``hapid`` package (path and bytes)."""
+    h = hashlib.sha256()
+    for p in sorted(_PKG_ROOT.rglob("*.py")):
+        h.update(str(p.relative_to(_PKG_ROOT)).encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()[:16]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,16 +56,125 @@ def _canon(obj):
     if isinstance(obj, float | int | str | bool) or obj is None:
         return obj
     try:
-        import numpy as np
-
         return _canon(np.asarray(obj).tolist())
     except Exception:  # noqa: BLE001
         return repr(obj)
 
 
 def stage_key(name: str, options: dict, dep_keys: list[str]) -> str:
-    blob = json.dumps([VERSION, name, _canon(options), dep_keys], sort_keys=True)
+    blob = json.dumps([source_hash(), name, _canon(options), dep_keys], sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+# ---- pickle-free codec -----------------------------------------------------------------------
+class Unencodable(TypeError):
+    """A result the cache cannot store without pickle."""
+
+
+def _is_array(x) -> bool:
+    return isinstance(x, np.ndarray | np.generic) or type(x).__module__.startswith("jax")
+
+
+def encode(obj) -> tuple[dict, dict]:
+    """``(tree, arrays)``: a JSON-able description of ``obj`` and its arrays by name."""
+    arrays: dict[str, np.ndarray] = {}
+
+    def enc(x):
+        if x is None or isinstance(x, bool | str):
+            return x
+        if isinstance(x, int) and not isinstance(x, bool):
+            return {"int": x}
+        if isinstance(x, float):
+            return {"float": repr(x)}
+        if _is_array(x):
+            a = np.asarray(x)
+            if a.dtype == object:
+                raise Unencodable("object array")
+            name = f"a{len(arrays)}"
+            arrays[name] = a
+            return {"array": name, "jax": not isinstance(x, np.ndarray | np.generic)}
+        if isinstance(x, dict):
+            if not all(isinstance(k, str) for k in x):
+                raise Unencodable("dict with non-string keys")
+            return {"dict": {k: enc(v) for k, v in x.items()}}
+        if isinstance(x, tuple) and hasattr(x, "_fields"):
+            return {"namedtuple": _cls_name(x), "items": [enc(v) for v in x]}
+        if isinstance(x, list | tuple):
+            return {"list" if isinstance(x, list) else "tuple": [enc(v) for v in x]}
+        if dataclasses.is_dataclass(x) and not isinstance(x, type):
+            fields = {f.name: enc(getattr(x, f.name)) for f in dataclasses.fields(x)}
+            return {"object": _cls_name(x), "fields": fields}
+        raise Unencodable(f"cannot store a {type(x).__name__} without pickle")
+
+    return enc(obj), arrays
+
+
+def _cls_name(x) -> str:
+    cls = type(x)
+    if not cls.__module__.startswith("hapid"):
+        raise Unencodable(f"{cls.__module__}.{cls.__qualname__} is not a hapid class")
+    return f"{cls.__module__}:{cls.__qualname__}"
+
+
+def _cls(name: str):
+    mod, _, qual = name.partition(":")
+    if not (mod == "hapid" or mod.startswith("hapid.")):
+        raise ValueError(f"cache entry names a non-hapid class {name!r}")
+    obj = importlib.import_module(mod)
+    for part in qual.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
+def decode(tree, arrays):
+    """Inverse of :func:`encode` (classes restricted to the ``hapid`` package)."""
+    import jax.numpy as jnp
+
+    def dec(t):
+        if t is None or isinstance(t, bool | str):
+            return t
+        if "int" in t:
+            return int(t["int"])
+        if "float" in t:
+            return float(t["float"])
+        if "array" in t:
+            a = arrays[t["array"]]
+            return jnp.asarray(a) if t["jax"] else a
+        if "dict" in t:
+            return {k: dec(v) for k, v in t["dict"].items()}
+        if "namedtuple" in t:
+            return _cls(t["namedtuple"])(*[dec(v) for v in t["items"]])
+        if "list" in t:
+            return [dec(v) for v in t["list"]]
+        if "tuple" in t:
+            return tuple(dec(v) for v in t["tuple"])
+        if "object" in t:
+            cls = _cls(t["object"])
+            obj = object.__new__(cls)
+            for k, v in t["fields"].items():
+                object.__setattr__(obj, k, dec(v))
+            return obj
+        raise ValueError(f"bad cache tree node {sorted(t)}")
+
+    return dec(tree)
+
+
+def _load(path: Path):
+    from . import io
+
+    arrays, meta = io.load_cache_entry(path)
+    return decode(json.loads(meta), arrays)
+
+
+def _store(path: Path, result) -> bool:
+    from . import io
+
+    try:
+        tree, arrays = encode(result)
+    except Unencodable:
+        return False
+    io.save_cache_entry(path, arrays, json.dumps(tree))
+    return True
 
 
 class Graph:
@@ -78,36 +205,31 @@ class Graph:
 
     def run(self, config: dict, targets, cache_dir=None, progress: Callable | None = None):
         """Compute ``targets``; returns ``(results, log)`` with ``log = {"computed": [...],
-        "cached": [...], "keys": {...}}``."""
-        results, keys = {}, {}
-        log = {"computed": [], "cached": [], "keys": keys}
+        "cached": [...], "keys": {...}, "seconds": {stage: wall time}}``. ``progress(name)``
+        is called before a stage is computed; ``cache_dir=None`` bypasses the cache."""
+        results, keys, secs = {}, {}, {}
+        log = {"computed": [], "cached": [], "keys": keys, "seconds": secs}
         cache = Path(cache_dir) if cache_dir else None
         for name in self.needed(targets):
             st = self.stages[name]
             opts = st.options(config)
             key = stage_key(name, opts, [keys[d] for d in st.deps])
             keys[name] = key
-            path = cache / f"{name}-{key}.pkl" if (cache and st.cache) else None
+            path = cache / f"{name}-{key}.npz" if (cache and st.cache) else None
+            t0 = time.perf_counter()
             if path is not None and path.exists():
                 try:
-                    with open(path, "rb") as fh:
-                        results[name] = pickle.load(fh)
+                    results[name] = _load(path)
                     log["cached"].append(name)
+                    secs[name] = time.perf_counter() - t0
                     continue
-                except Exception:  # noqa: BLE001  (stale/corrupt cache entry: recompute)
+                except Exception:  # noqa: BLE001  (corrupt or foreign entry: recompute)
                     pass
             if progress:
                 progress(name)
             results[name] = st.fn(opts, *[results[d] for d in st.deps])
             log["computed"].append(name)
             if path is not None:
-                path.parent.mkdir(parents=True, exist_ok=True)
-                fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-                try:
-                    with os.fdopen(fd, "wb") as fh:
-                        pickle.dump(results[name], fh)
-                    os.replace(tmp, path)
-                except Exception:  # noqa: BLE001  (unpicklable result: just don't cache)
-                    if os.path.exists(tmp):
-                        os.unlink(tmp)
+                _store(path, results[name])
+            secs[name] = time.perf_counter() - t0
         return results, log

@@ -85,13 +85,27 @@ def cmd_frf(a):
     import numpy as np
 
     from . import io
-    from .experiment import estimate_frf
+    from .experiment import estimate_frf, estimate_frf_h1
 
+    kind = "timeseries" if a.add or a.force_key != "force" else io.file_kind(a.run, "a run file or a time-series file")
+    if kind in ("timeseries", "unknown"):  # unknown: the reader names the arrays it found
+        from ._cli_fit import run_frf_lab
+
+        return run_frf_lab(a)  # lab records → single impedance Z = F/x
+    if kind != "run":
+        raise CLIError(f"{a.run}: holds a {kind} file; hapid frf takes a run file (R_A, R_I, L) "
+                       "or a time series (fs_hz, force, response)")  # fmt: skip
     run = io.load_run(a.run)
-    frf = estimate_frf(run, cond_warn=a.cond_warn)
+    if a.h1:
+        frf = estimate_frf_h1(run.fs_hz, run.R_A, run.R_I, run.L, nperseg=a.nperseg,
+                              f_band_hz=(a.f_min_hz or 0.0, a.f_max_hz or run.fs_hz / 2),
+                              window=a.window)  # fmt: skip
+    else:
+        frf = estimate_frf(run, cond_warn=a.cond_warn)
     out = io.save_frf(a.out, frf)
     rel = np.asarray(frf.Z_H_std) / np.abs(np.asarray(frf.Z_H)) if frf.Z_H_std is not None else None
-    print(f"FRF: {frf.Z_H.shape[0]} frequencies, n={frf.n}; cond(𝓛) "
+    print(f"FRF (haptic pair Z_H, Z_T in N/m{', H1' if a.h1 else ''}): {frf.Z_H.shape[0]} "
+          f"frequencies, n={frf.n}; cond(𝓛) "
           f"{float(np.min(frf.cond_L)):.3g}–{float(np.max(frf.cond_L)):.3g}" +
           (f"; median relative std of Z_H {np.median(rel):.2e}" if rel is not None else "") +
           f" → {out}")  # fmt: skip
@@ -127,6 +141,12 @@ def cmd_demo(a):
     print(f"wrote {out / 'run.npz'}, {out / 'frf.npz'}, {out / 'frf_singular_values.png'}")
 
 
+def _register_lab_frf_args(f):
+    from ._cli_fit import register_lab_frf_args
+
+    register_lab_frf_args(f)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="hapid",
@@ -155,10 +175,11 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Empirical impedances Z_H = −𝓡_I 𝓛⁻¹, Z_T = −𝓡_A 𝓛⁻¹ per "
                        "excited frequency (paper section 4.1), with element std.",
                        epilog="example: hapid frf run.npz --out frf.npz --plot frf.png")  # fmt: skip
-    f.add_argument("run", help="run file (.npz, .csv or .mat)")
-    f.add_argument("--out", required=True, help="output FRF file")
+    f.add_argument("run", help="run file, or lab time series (fs_hz, force, response); .npz, .csv or .mat")
+    f.add_argument("--out", required=True, help="output FRF file (an impedance FRF for a time series)")
     f.add_argument("--plot", help="also write a figure of σ(Z_H), σ(Z_T), σ(P)")
     f.add_argument("--cond-warn", type=float, default=1e3, help="warn where cond(𝓛) exceeds this")
+    _register_lab_frf_args(f)
     f.set_defaults(func=cmd_frf)
 
     d = sub.add_parser("demo", help="simulate the default device, estimate its FRF, plot σ",
@@ -169,7 +190,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     for register in _EXTRA:
         register(sub)
-    return p
+    from ._cli_help import annotate
+
+    return annotate(p)  # missing help texts; every option's default in its help
 
 
 def cmd_paper(a):
@@ -186,6 +209,8 @@ def cmd_paper(a):
     print((out / "summary.md").read_text())
     print(f"computed {len(log['computed'])} stages ({len(log['cached'])} from cache) in "
           f"{time.perf_counter() - t0:.1f} s")  # fmt: skip
+    print("per stage: " + ", ".join(f"{k} {v:.1f} s" + (" (cache)" if k in log["cached"] else "")
+                                     for k, v in log["seconds"].items()))  # fmt: skip
     print(f"figures: {', '.join(str(out / f'fig{i}.png') for i in range(5, 11))}")
     print(f"summary: {out / 'summary.md'}, {out / 'summary.json'}")
 
@@ -205,6 +230,7 @@ def cmd_run(a):
                                progress=lambda name: print(f"  … {name}", flush=True))  # fmt: skip
     print(f"computed: {', '.join(log['computed']) or '—'}; from cache: {', '.join(log['cached']) or '—'} "
           f"({time.perf_counter() - t0:.1f} s)")  # fmt: skip
+    print("per stage: " + ", ".join(f"{k} {v:.1f} s" for k, v in log["seconds"].items()))
     print(f"outputs in {a.out or cfg['outputs']['dir']}")
 
 
@@ -242,84 +268,73 @@ def _register_scene(sub):
 
 
 def cmd_fit(a):
-    import numpy as np
+    from ._cli_fit import run_fit
 
-    from . import io
-    from .fit import crhp_report, fit_nls, positize, pphat_band_db, wls
-
-    frf = io.load_frf(a.frf)
-    raw = wls(frf, omega_c=TWO_PI * a.omega_c_hz)
-    before = crhp_report(raw)
-    meta = {}
-    if a.method == "wls":
-        model = positize(raw) if a.positize else raw
-        status, cost = "closed form", float("nan")
-        meta["method"] = "wls+positize" if a.positize else "wls"
-    else:
-        res = fit_nls(frf, weight=a.weight, solver=a.solver, f_max_hz=a.f_max_hz,
-                      omega_c=TWO_PI * a.omega_c_hz, max_steps=a.max_steps)  # fmt: skip
-        if not bool(res.ok) and not a.allow_unconverged:
-            raise CLIError(f"NLS fit did not converge (status {res.status} after {int(res.n_steps)} "
-                           "steps); no model written (use --allow-unconverged to write it anyway)")  # fmt: skip
-        model, status, cost = res.model, res.status, float(res.cost)
-        meta.update(method="nls", status=status, cost=cost, steps=int(res.n_steps),
-                    weight=a.weight, solver=a.solver, covariance=np.asarray(res.covariance),
-                    theta=np.asarray(res.theta))  # fmt: skip
-        if res.boundary:
-            print(f"note: at the PSD boundary: {', '.join(res.boundary)}")
-    after = crhp_report(model)
-    lo, hi = pphat_band_db(frf.P, model, frf.omega, a.band_hz)
-    out = io.save_model(a.out, model, **meta)
-    print(f"{meta['method']}: status {status}" + (f", cost {cost:.4g}" if np.isfinite(cost) else ""))
-    print(f"CRHP roots of det Ẑ_H, det Ẑ_T: before {int(before.hand)}, {int(before.total)} → "
-          f"after {int(after.hand)}, {int(after.total)}")  # fmt: skip
-    print(f"P·P̂⁻¹ band to {a.band_hz:g} Hz (measured P): {float(lo):+.1f} / {float(hi):+.1f} dB → {out}")
-
-
-TWO_PI = 6.283185307179586
+    run_fit(a)
 
 
 def cmd_analyze(a):
-    import json
 
     import numpy as np
 
-    from . import io, scene
-    from .control import analyze_loop, discretize_compensator, discretize_controller, max_siso_gain
+    from . import io, pipeline, scene
+    from .control import max_siso_gain
 
     model = io.load_model(a.model)
     cfg = scene.merge({})
-    g = scene.compensator(cfg["controller"] | ({"k": a.k} if a.k is not None else {}))
+    if a.design:
+        from .tune import load_design
+
+        g, _ = load_design(a.design)
+        if a.k is not None:
+            raise CLIError("--k and --design are exclusive (the design file holds its own gain)")
+    else:
+        g = scene.compensator(cfg["controller"] | ({"k": a.k} if a.k is not None else {}))
     if a.frf:
         frf = io.load_frf(a.frf)
-        omega, P, ts = np.asarray(frf.omega), np.asarray(frf.P), 1.0 / a.fs
+        if not a.fs > 0:
+            raise CLIError(f"--fs must be a positive sampling rate in Hz, got {a.fs:g}")
+        ts = None if a.continuous else 1.0 / a.fs
+        plant = pipeline.frf_plant(frf, ts)
+        if ts is not None and float(np.max(frf.freq_hz)) > 0.5 * a.fs:
+            raise CLIError(f"{a.frf} extends to {float(np.max(frf.freq_hz)):g} Hz, beyond the sampled "
+                           f"controller's Nyquist frequency fs/2 = {0.5 * a.fs:g} Hz (--fs {a.fs:g}); "
+                           "give the FRF's real sampling rate with --fs, or use --continuous")  # fmt: skip
         print("note: a measured FRF has few frequencies: the Nyquist verdict needs a dense grid "
               "and may be unresolved; margins and bandwidth are read on the FRF grid")  # fmt: skip
     else:
-        from .device import preset
-
-        dev = preset(a.device)
+        dev = pipeline.device({**cfg["device"], "preset": a.device})
         if dev.n != model.n:
             raise CLIError(f"model has n = {model.n} rods but device {a.device} has {dev.n}")
-        omega = scene.analysis_grid(cfg["analysis"], dev.fs_hz)
-        P, ts = np.asarray(dev.sampled_P(omega)), dev.ts
-    if P.shape[-1] != model.n:
-        raise CLIError(f"model has n = {model.n} rods but the plant has {P.shape[-1]}")
+        if a.continuous:
+            omega = pipeline.analysis_grid(5e-3, int(cfg["analysis"]["n_freq"]), f_max_hz=5e3)
+        else:
+            omega = scene.analysis_grid(cfg["analysis"], dev.fs_hz)
+        plant = pipeline.device_plant(dev, omega, continuous=a.continuous)
+        ts = None if a.continuous else dev.ts
+    if plant.n != model.n:
+        raise CLIError(f"model has n = {model.n} rods but the plant has {plant.n}")
+    c = None
     if a.controller == "mimo":
-        G = np.asarray(discretize_controller(model, g, ts).at_omega(omega))
-        c = None
+        ctrl = pipeline.controller(model, g, ts=ts)
     else:
-        gd = np.asarray(discretize_compensator(g, ts).at_omega(omega)).reshape(-1)
-        c = float(max_siso_gain(P, omega, gd)) if a.siso_gain is None else a.siso_gain
-        G = (c * gd)[:, None, None] * np.eye(model.n)
-    rep = analyze_loop(P, G, omega)
+        if a.siso_gain is None:
+            gs = pipeline.controller(None, g, kind="siso", n=model.n, ts=ts)
+            gd = np.asarray(gs.response(plant.omega))[:, 0, 0]
+            c = float(max_siso_gain(np.asarray(plant.P), np.asarray(plant.omega), gd))
+        else:
+            c = a.siso_gain
+        ctrl = pipeline.controller(None, g, kind="siso", c=c, n=model.n, ts=ts)
+    rep = pipeline.loop(ctrl, plant)
     s = rep.summary()
-    out = {"controller": a.controller, "siso_gain": c, **s}
+    out = {"controller": a.controller, "siso_gain": c, "continuous": bool(a.continuous),
+           "design": a.design, "controller_rhp_poles": int(ctrl.p_rhp), **s}  # fmt: skip
     if a.out:
-        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.out).write_text(json.dumps(out, indent=2, default=float))
+        io.save_json(a.out, out)
     verdict = "STABLE" if s["stable"] else ("UNSTABLE" if s.get("nyquist_resolved", True) else "UNDECIDED (grid too coarse)")
-    print(f"closed loop: {verdict} (generalized Nyquist, {s['n_encirclements']} encirclements)")
+    kind = f"sampled at {1 / ts:g} Hz" if ts else "continuous-time"
+    print(f"closed loop ({kind} controller): {verdict} (generalized Nyquist, {s['n_encirclements']} "
+          f"encirclements, {int(ctrl.p_rhp)} open-loop RHP pole(s) of the controller)")  # fmt: skip
     if s["stable"]:
         print(f"isotropic bandwidth {s['iso_bandwidth_hz']:.2f} Hz (paper-literal "
               f"{s['iso_bandwidth_literal_hz']:.2f} Hz); GM {s['gm_db']:.1f} dB, PM {s['pm_deg']:.1f}°, "
@@ -339,6 +354,7 @@ def cmd_posterior(a):
     ps = posterior_from_files(a.frf, a.out, method=a.method, n_samples=a.samples,
                               n_steps=a.steps, seed=a.seed, backend_path=a.hdf5,
                               fit_options={"f_max_hz": a.f_max_hz},
+                              posterior_options={"model_error": a.model_error},
                               sampler_options={"moves": a.moves} | ({"n_walkers": a.walkers} if a.walkers else {}),
                               fix_boundary=not a.free_boundary)  # fmt: skip
     print(ps.summary())
@@ -346,15 +362,18 @@ def cmd_posterior(a):
 
 
 def cmd_robust(a):
-    import json
 
+    from .io import to_json
     from .uncertainty import robust_from_files
     from .uncertainty._files import side_by_side
 
     if len(a.model) == 1:
         res = robust_from_files(a.samples, a.model[0], a.out, gm_db=a.gm_db, pm_deg=a.pm_deg,
                                 max_samples=a.max_samples, device=a.device, n_subjects=a.subjects)  # fmt: skip
-        print(json.dumps(res, indent=2, default=float)[:4000])
+        print(to_json(res)[:4000])
+        for batch in ("posterior", "device"):
+            if res.get(batch) is not None and not res[batch]["passed"]:
+                print(f"{batch}: NOT passed — " + "; ".join(res[batch]["reasons"]))
     else:
         res = {Path(m).stem: robust_from_files(a.samples, m, None, gm_db=a.gm_db, pm_deg=a.pm_deg,
                                                max_samples=a.max_samples, device=a.device,
@@ -362,34 +381,17 @@ def cmd_robust(a):
                for m in a.model}  # fmt: skip
         print(side_by_side(res))
         if a.out:
-            from .io import _atomic_write
-            from .uncertainty._files import _jsonable
+            from .io import save_json
 
-            text = json.dumps(res, indent=2, default=_jsonable).encode()
-            _atomic_write(a.out, lambda fh: fh.write(text))
+            save_json(a.out, res)
     if a.out:
         print(f"report → {a.out}")
 
 
 def _register_stages(sub):
-    f = sub.add_parser("fit", help="fit M, B, K models to an FRF (paper WLS or hapid NLS + PD)",
-                       description="Fit Ẑ_H, Ẑ_T = M s² + B s + K to an FRF file: the paper's "
-                       "weighted least squares (optionally positized) or hapid's nonlinear fit "
-                       "with positive-semidefinite M, B, K (Cholesky factors).",
-                       epilog="example: hapid fit frf.npz --method nls --weight relative --out model.npz")  # fmt: skip
-    f.add_argument("frf", help="FRF file (.npz, .csv, .mat)")
-    f.add_argument("--method", choices=["wls", "nls"], default="nls")
-    f.add_argument("--positize", action="store_true", help="positize the WLS model (paper 5.1)")
-    f.add_argument("--weight", choices=["relative", "paper", "noise", "blend"], default="relative")
-    f.add_argument("--solver", default="lm", help="lm (default), dogleg, gauss_newton, bfgs, "
-                   "nonlinear_cg, jaxopt_lm")  # fmt: skip
-    f.add_argument("--f-max-hz", type=float, default=40.0, help="NLS fit band (Hz), default 40")
-    f.add_argument("--omega-c-hz", type=float, default=7.0, help="paper weight corner (Hz)")
-    f.add_argument("--max-steps", type=int, default=500)
-    f.add_argument("--band-hz", type=float, default=30.0, help="report the P·P̂⁻¹ band to here")
-    f.add_argument("--allow-unconverged", action="store_true")
-    f.add_argument("--out", required=True, help="model file (.npz)")
-    f.set_defaults(func=cmd_fit)
+    from ._cli_fit import register_fit
+
+    register_fit(sub, cmd_fit)
 
     an = sub.add_parser("analyze", help="closed-loop analysis: stability first, then bandwidth, margins",
                         description="Analyze the force loop of a model's controller on a simulated "
@@ -402,6 +404,10 @@ def _register_stages(sub):
     src.add_argument("--frf", help="measured FRF file whose P closes the loop")
     an.add_argument("--controller", choices=["mimo", "siso"], default="mimo")
     an.add_argument("--k", type=float, help="override the gain k of g(s) (paper: 0.85)")
+    an.add_argument("--design", help="design file (.npz) from `hapid tune`: its tuned g closes the loop")  # fmt: skip
+    an.add_argument("--continuous", action="store_true",
+                    help="analyse the continuous-time controller with the continuous plant (as the "
+                    "paper does; 0.005 Hz–5 kHz grid) instead of the sampled loop")  # fmt: skip
     an.add_argument("--siso-gain", type=float, help="SISO c (default: the 6 dB / 30° design rule)")
     an.add_argument("--fs", type=float, default=1000.0, help="sampling rate for --frf (Hz)")
     an.add_argument("--out", help="JSON report")
@@ -420,6 +426,9 @@ def _register_stages(sub):
     po.add_argument("--steps", type=int, help="emcee steps (default: run to 50 τ)")
     po.add_argument("--samples", type=int, default=4000, help="Laplace draws")
     po.add_argument("--f-max-hz", type=float, default=40.0)
+    po.add_argument("--model-error", choices=["white", "gp", "none"], default="white",
+                    help="model-error term: white (independent per frequency, default), gp (smooth "
+                         "random function of log-frequency, marginalized), none")  # fmt: skip
     po.add_argument("--seed", type=int, default=0)
     po.add_argument("--hdf5", help="emcee HDF5 backend file")
     po.set_defaults(func=cmd_posterior)
@@ -453,9 +462,12 @@ def cmd_sweep(a):
         key, _, vals = item.partition("=")
         if not vals:
             raise CLIError(f"--vary needs key=v1,v2,…; got {item!r}")
-        vary[key] = [float(v) for v in vals.split(",")]
+        try:
+            vary[key] = [float(v) for v in vals.split(",")]
+        except ValueError:
+            raise CLIError(f"--vary {key}: values must be numbers, got {vals!r}") from None
     t0 = time.perf_counter()
-    keys, rows, metrics = sweep.run_sweep(cfg, vary, chunk=a.chunk)
+    keys, rows, metrics = sweep.run_sweep(cfg, vary, chunk=a.chunk, estimator=a.estimator)
     out = Path(a.out)
     csv_path = sweep.write_csv(out / "sweep.csv", keys, rows, metrics)
     fig_path = sweep.plot_sweep(keys, rows, metrics, out / "sweep.png")
@@ -469,22 +481,25 @@ def cmd_sweep(a):
 def _register_sweep(sub):
     sw = sub.add_parser("sweep", help="batched sweep over numeric scene options (one compiled vmap)",
                         description="Evaluate a scene's pipeline over the Cartesian product of "
-                        "option values as one batched JAX computation: P·P̂⁻¹ band, stability, "
-                        "isotropic bandwidth, T peak and disk margin per configuration.",
+                        "option values as one batched JAX computation: P·P̂⁻¹ band, stability "
+                        "(the same verdict as hapid analyze), isotropic bandwidth, GM/PM, T peak "
+                        "and disk margin per configuration.",
                         epilog="example: hapid sweep scenes/paper.toml --vary controller.k=0.4,0.6,0.85 "
                         "--vary protocol.noise=0.005,0.05 --out out/sweep")  # fmt: skip
     sw.add_argument("scene")
     sw.add_argument("--vary", action="append", required=True, metavar="KEY=V1,V2,…",
-                    help="sweepable: fit.omega_c_hz, protocol.noise, protocol.position_noise, "
-                    "protocol.periods, protocol.seed, controller.k, device.subject_seed, "
-                    "device.dx, device.dy, device.dz")  # fmt: skip
+                    help="any numeric scene option: device.dx…droll, device.subject_seed, "
+                    "protocol.noise/position_noise/periods/seed/amplitude, fit.* (NLS options "
+                    "with --estimator nls), controller.k/lag_zero_hz/lag_pole_hz/zeta_num/"
+                    "zeta_den/notch_hz[i]/lowpass_hz[i], analysis.f_min_hz/n_freq/band_hz")  # fmt: skip
+    sw.add_argument("--estimator", default="wls+positize",
+                    help="frf → model estimator: wls, wls+positize (default), nls")  # fmt: skip
     sw.add_argument("--chunk", type=int, default=64, help="configurations per compiled call")
     sw.add_argument("--out", default="out/sweep")
     sw.set_defaults(func=cmd_sweep)
 
 
 def cmd_tune(a):
-    import json
 
     from .tune import tune_from_files
 
@@ -497,21 +512,22 @@ def cmd_tune(a):
                           n_holdout=a.n_holdout, quantile=a.quantile, n_subjects=a.subjects,
                           seed=a.seed, max_steps=a.max_steps, keep_dc_gain=not a.free_dc)  # fmt: skip
     r = res["result"]
+    print(res.get("decision", ""))
     print(f"tuned in {r.wall_s:.1f} s: claimed robust bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, "
           f"smooth constraints {'met' if r.feasible else 'NOT met'} on the training scenarios")  # fmt: skip
     for p in r.parameters():
         print(f"  {p['name']:16s} {p['start']:10.4g} → {p['tuned']:10.4g}")
     tab = res.get("table", {})
     if tab:
+        from ._cli_predict import recheck_table
+
         print("non-smooth re-check (held-out samples / true plant / time domain):")
-        for k in tab["tuned"]:
-            if k == "validate_s":
-                continue
-            print(f"  {k:40s} {tab['start'][k]!s:>24.24s}  →  {tab['tuned'][k]!s:>24.24s}")
+        print(recheck_table(tab["start"], tab["tuned"]))
     if a.report:
-        Path(a.report).write_text(json.dumps({"start": tab.get("start"), "tuned": tab.get("tuned"),
-                                              "constraints": r.constraints, "history": r.history,
-                                              "parameters": r.parameters()}, indent=2, default=float))  # fmt: skip
+        from .io import save_json
+
+        save_json(a.report, {"start": tab.get("start"), "tuned": tab.get("tuned"), "constraints": r.constraints,
+                             "history": r.history, "parameters": r.parameters()})  # fmt: skip
     print(f"design → {a.out} ({time.perf_counter() - t:.1f} s)")
 
 
@@ -540,11 +556,34 @@ def _register_tune(sub):
     tu.set_defaults(func=cmd_tune)
 
 
-_EXTRA: list = [_register_scene, _register_stages, _register_sweep, _register_tune]  # later stages register their subcommands here
+def _register_predict(sub):
+    from ._cli_predict import register
+
+    register(sub)
+
+
+_EXTRA: list = [_register_scene, _register_stages, _register_sweep, _register_tune, _register_predict]  # later stages register their subcommands here
+
+
+def _one_line_errors(parser) -> None:
+    """argparse's own errors (bad type, missing option) as one ``hapid: error:`` line too."""
+
+    def error(p, message):
+        p.print_usage(sys.stderr)
+        cmd = p.prog.removeprefix("hapid").strip()
+        print(f"hapid: error: {cmd + ': ' if cmd else ''}{message}", file=sys.stderr)
+        sys.exit(2)
+
+    parser.error = error.__get__(parser)
+    for act in parser._actions:
+        for sub in (getattr(act, "choices", None) or {}).values():
+            if isinstance(sub, argparse.ArgumentParser):
+                sub.error = error.__get__(sub)
 
 
 def main(argv=None) -> int:
     parser = build_parser()
+    _one_line_errors(parser)
     a = parser.parse_args(argv)
     if not getattr(a, "command", None):
         parser.print_help()
@@ -552,12 +591,21 @@ def main(argv=None) -> int:
     warnings.simplefilter("default")
     warnings.formatwarning = lambda m, c, *_: f"hapid: warning: {m}\n"
     try:
+        from ._cli_checks import check_args
+
+        check_args(parser, a)  # every option and scene key, before any work
         a.func(a)
     except (ValueError, FileNotFoundError, CLIError, OSError) as e:
         if os.environ.get("HAPID_DEBUG"):
             raise
         print(f"hapid: error: {e}", file=sys.stderr)
         return 2
+    except Exception as e:  # a bug: still one line (HAPID_DEBUG=1 for the traceback)
+        if os.environ.get("HAPID_DEBUG"):
+            raise
+        print(f"hapid: internal error ({type(e).__name__}, please report; HAPID_DEBUG=1 shows "
+              f"the traceback): {e}", file=sys.stderr)  # fmt: skip
+        return 1
     return 0
 
 

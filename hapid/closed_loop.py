@@ -21,6 +21,7 @@ from jaxtyping import Array, Float
 
 from . import _config  # noqa: F401
 from .device import Device
+from .lti import StateSpace, feedback
 
 
 class ClosedLoop(eqx.Module):
@@ -49,17 +50,12 @@ def closed_loop(device: Device, controller) -> ClosedLoop:
     Ac, Bc, Cc, Dc = controller.A, controller.B, controller.C, controller.D
     nx, nc = Ad.shape[0], Ac.shape[0]
     CR, DR = Cd[n:], Dd[n:]
-    if d == 0:
-        # R_I[k] = CR x + DR u[k], u = Cc xc + Dc (r − R_I): solve the algebraic loop
-        Minv = jnp.linalg.inv(jnp.eye(n) + DR @ Dc)
-        # u = Minv (Cc xc + Dc r − Dc CR x)... derived from R_I = CR x + DR u
-        Kx = -Minv @ Dc @ CR
-        Kc = Minv @ Cc
-        Kr = Minv @ Dc
-        A = jnp.block([[Ad + Bd @ Kx, Bd @ Kc], [Bc @ (-CR - DR @ Kx), Ac - Bc @ DR @ Kc]])
-        B = jnp.concatenate([Bd @ Kr, Bc @ (jnp.eye(n) - DR @ Kr)], axis=0)
-        C = jnp.concatenate([Cd + Dd @ Kx, Dd @ Kc], axis=1)
-        return ClosedLoop(A, B, C, n)
+    if d == 0:  # R_I[k] depends on u[k] through D: solve the algebraic loop (hapid.lti.feedback)
+        plant = StateSpace(Ad, Bd, CR, DR, ts=dev.ts)
+        cl = feedback(plant, StateSpace(Ac, Bc, Cc, Dc, ts=dev.ts))
+        Ku = cl.C[CR.shape[0] :]  # u = Ku [x; x_c] + (…) r
+        C = jnp.concatenate([Cd, jnp.zeros((2 * n, nc))], axis=1) + Dd @ Ku
+        return ClosedLoop(cl.A, cl.B, C, n)
     nb = d * n
     # buffer b = [u_cmd[k−d], …, u_cmd[k−1]]; applied u[k] = b[0:n]
     S = jnp.zeros((nb, nb)).at[: nb - n, n:].set(jnp.eye(nb - n)) if d > 1 else jnp.zeros((nb, nb))

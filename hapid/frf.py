@@ -22,9 +22,8 @@ import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from . import _config  # noqa: F401
+from ._constants import TWO_PI
 from .impedance import plant
-
-TWO_PI = 2.0 * np.pi
 
 
 class FRF(eqx.Module):
@@ -36,7 +35,7 @@ class FRF(eqx.Module):
     cond_L: Float[Array, " N"] | None = None
 
     def __post_init__(self):
-        # hapid computes in float64 (DESIGN.md): lower-precision input is upcast, with a
+        # hapid computes in float64 (docs/conventions.md): lower-precision input is upcast, with a
         # warning, so that no stage silently runs in float32
         require_x64("FRF")
         for name, dt in _DTYPES.items():
@@ -146,8 +145,8 @@ def check_frf_arrays(omega, Z_H, Z_T, Z_H_std=None, Z_T_std=None) -> None:
             raise ValueError("FRF: frequencies must be strictly increasing")
         for name, a in (("Z_H", Z_H), ("Z_T", Z_T), ("Z_H_std", Z_H_std), ("Z_T_std", Z_T_std)):
             if a is not None and _is_concrete(a) and not np.all(np.isfinite(np.asarray(a))):
-                bad = np.argwhere(~np.isfinite(np.asarray(a)))[0]
-                raise ValueError(f"FRF: {name} contains NaN or inf (first at index {tuple(bad)})")
+                bad = tuple(int(i) for i in np.argwhere(~np.isfinite(np.asarray(a)))[0])
+                raise ValueError(f"FRF: {name} contains NaN or inf (first at index {bad})")
 
 
 def _is_concrete(x) -> bool:

@@ -6,12 +6,11 @@ Figures are drawn by ``hapid.plot``; this module picks the data and writes the f
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
-TWO_PI = 2 * np.pi
+from ._constants import TWO_PI
 
 PAPER = {
     "plant_span_db": "25–50",
@@ -32,7 +31,8 @@ def figure(num: int, out_dir, *deps) -> str:
     if num == 5:
         (siso,) = deps
         fig, _ = plot.sigma_T_minus_I(
-            {f"SISO, {k} (c = {v['c']:.3g})": v["report"] for k, v in siso.items() if v["report"] is not None},
+            {f"SISO, c = {v['c']:.3g}" + (f" ({k})" if not k.startswith("c=") else ""): v["report"]
+             for k, v in siso.items() if v["report"] is not None},
             title="Fig. 5 — σ(T(jω) − I) under SISO control G = c·g(s)·I",
         )  # fmt: skip
     elif num in (6, 7):
@@ -47,6 +47,7 @@ def figure(num: int, out_dir, *deps) -> str:
             {"paper WLS + positize": np.asarray(pick(wls["model"])), "hapid NLS + PD": np.asarray(pick(nls["model"]))},
             title=f"Fig. {num} — singular values of {which} (measured, solid) and its models",
             name=which,
+            Z_std=None if getattr(frf, which + "_std") is None else np.asarray(getattr(frf, which + "_std")),
         )  # fmt: skip
     elif num == 8:
         device, frf, wls, nls = deps
@@ -55,17 +56,19 @@ def figure(num: int, out_dir, *deps) -> str:
         curves = {}
         for label, m in (("paper WLS + positize", wls["model"]), ("hapid NLS + PD", nls["model"])):
             curves[label] = P @ np.asarray(m.P_inv(1j * frf.omega))
-        fig, _ = plot.pphat(f, curves, title="Fig. 8 — singular values of P·P̂⁻¹ (true sampled plant)")
+        fig, _ = plot.pphat(
+            f, curves, title="Fig. 8 — singular values of P·P̂⁻¹ (true sampled plant)"
+        )
     elif num == 9:
         mimo, plant = deps
         fig, _ = plot.loci({"paper WLS + positize": mimo["wls"]["report"], "hapid NLS + PD": mimo["nls"]["report"]},
                            title="Fig. 9 — characteristic loci of P(z)G(z) (eigenvalues)")  # fmt: skip
     elif num == 10:
-        (mimo,) = deps
-        fig, _ = plot.sigma_T_minus_I(
-            {"MIMO, paper WLS + positize": mimo["wls"]["report"], "MIMO, hapid NLS + PD": mimo["nls"]["report"]},
-            title="Fig. 10 — σ(T(jω) − I), MIMO controller G = g(s) Ẑ_T Ẑ_H⁻¹",
-        )  # fmt: skip
+        mimo, *rest = deps
+        reps = {"MIMO, paper WLS + positize": mimo["wls"]["report"], "MIMO, hapid NLS + PD": mimo["nls"]["report"]}
+        if rest:  # the scene's tuned-g loop (the summary's third column)
+            reps["MIMO, hapid NLS + PD + tuned g"] = rest[0]["report"]
+        fig, _ = plot.sigma_T_minus_I(reps, title="Fig. 10 — σ(T(jω) − I), MIMO controller G = g(s) Ẑ_T Ẑ_H⁻¹")  # fmt: skip
     else:
         raise ValueError(f"no figure {num}")
     plot.save(fig, out)
@@ -87,7 +90,9 @@ def loop_numbers(rep) -> dict:
     return {k: (s[k] if isinstance(s[k], bool) else _f(s[k])) for k in keys}
 
 
-def summary(out_dir, device, frf, wls, nls, mimo, siso) -> dict:
+def summary(out_dir, device, frf, wls, nls, mimo, siso, tuned=None, tuned_mimo=None) -> dict:
+    """The summary table (``summary.json``, ``summary.md``) from the scene's stage results;
+    ``tuned``/``tuned_mimo`` (the scene's tuned-g stages) fill the third column."""
     from .fit import anisotropy_reduction, pphat_band_db
     from .impedance import span_db
 
@@ -111,22 +116,35 @@ def summary(out_dir, device, frf, wls, nls, mimo, siso) -> dict:
             "mimo": loop_numbers(mimo[key]["report"]),
         }
         if key == "wls":
-            entry["crhp_roots_before_positize"] = {"hand": wls["crhp_before"][0], "total": wls["crhp_before"][1]}
-            entry["crhp_roots_after_positize"] = {"hand": wls["crhp_after"][0], "total": wls["crhp_after"][1]}
+            entry["crhp_roots_before_positize"] = {
+                "hand": wls["crhp_before"][0],
+                "total": wls["crhp_before"][1],
+            }
+            entry["crhp_roots_after_positize"] = {
+                "hand": wls["crhp_after"][0],
+                "total": wls["crhp_after"][1],
+            }
         else:
             entry["status"], entry["steps"] = nls["status"], nls["steps"]
         res["fits"][key] = entry
     res["siso"] = {k: {"c": _f(v["c"]), **loop_numbers(v["report"])} for k, v in siso.items()}
-    # third column: the same NLS + PD model with g(s) tuned by gradients (hapid.tune; cached)
-    from .tune import paper_column
+    # third column: the same NLS + PD model with g(s) tuned by gradients (the scene's tuned stages)
+    if tuned is not None and tuned_mimo is not None:
+        from . import io
 
-    tuned = paper_column(device, nls["model"], TWO_PI * np.asarray(mimo["nls"]["report"].freq_hz))
-    res["tuned"] = {"label": "hapid NLS + PD + tuned g", "mimo": loop_numbers(tuned["report"]),
-                    "g": tuned["parameters"], "design_file": tuned["design_file"]}  # fmt: skip
+        dfile = Path(out_dir) / "design_tuned.npz"
+        io_save = getattr(io, "save_design", None)
+        if io_save is None:
+            from .tune import save_design as io_save
+        io_save(dfile, tuned["g"], constraints=tuned["constraints"], history=tuned["history"])
+        res["tuned"] = {"label": "hapid NLS + PD + tuned g", "mimo": loop_numbers(tuned_mimo["report"]),
+                        "g": tuned["parameters"], "design_file": str(dfile)}  # fmt: skip
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "summary.json").write_text(json.dumps(res, indent=2))
-    (out / "summary.md").write_text(summary_markdown(res))
+    from . import io
+
+    io.save_json(out / "summary.json", res)
+    io.save_text(out / "summary.md", summary_markdown(res))
     return res
 
 
@@ -145,7 +163,11 @@ def summary_markdown(res: dict) -> str:
 
     def tpk(e):
         m = e["mimo"]
-        return "—" if m.get("t_peak_db") is None else f"{m['t_peak_db']:.1f} dB at {m['t_peak_hz']:.1f} Hz"
+        return (
+            "—"
+            if m.get("t_peak_db") is None
+            else f"{m['t_peak_db']:.1f} dB at {m['t_peak_hz']:.1f} Hz"
+        )
 
     X = res.get("tuned")
     rows = [
@@ -194,6 +216,11 @@ def summary_markdown(res: dict) -> str:
     lines += [f"| {a} | {b} | {c} | {d} | {e} |" for a, b, c, d, e in rows]
     lines += ["", f"NLS status: {N.get('status')} after {N.get('steps')} steps.", ""]
     if X is not None:
-        lines += ["Tuned g (hapid.tune, robust over the device's pose/subject variants, nominal plant "
-                  "held out): " + ", ".join(f"{k} {v:.3g}" for k, v in X["g"].items()) + " (Hz for frequencies).", ""]
+        lines += [
+            "Tuned g (hapid.tune, robust over the device's pose/subject variants, nominal plant "
+            "held out): "
+            + ", ".join(f"{k} {v:.3g}" for k, v in X["g"].items())
+            + " (Hz for frequencies).",
+            "",
+        ]
     return "\n".join(lines)

@@ -8,8 +8,6 @@ matplotlib.use("Agg", force=False)
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-TWO_PI = 2 * np.pi
-
 
 def _sv(A):
     return np.linalg.svd(np.asarray(A), compute_uv=False)
@@ -66,40 +64,82 @@ def frf_overview(frf, *, title_prefix: str = ""):
 ISO = 1 - 1 / np.sqrt(2)
 
 
-def sigma_T_minus_I(reports: dict, *, title: str = "", f_max_hz: float = 100.0):
-    """σ(T(jω) − I) on a linear magnitude axis (as the paper's Figs. 5 and 10), one panel
-    per loop; the isotropic-bandwidth threshold 1 − 1/√2 dashed and the bandwidth marked."""
+def _sv_colors(n: int):
+    """One colour per singular value / locus index (σ_1 largest … σ_n smallest)."""
+    return [plt.get_cmap("viridis")(x) for x in np.linspace(0.0, 0.85, n)]
+
+
+def sigma_T_minus_I(
+    reports: dict, *, title: str = "", f_max_hz: float = 100.0, y_min: float = 1e-4
+):
+    """σ(T(jω) − I) per loop (the paper's Figs. 5 and 10), one panel per loop, on a log
+    magnitude axis so the isotropic-bandwidth threshold 1 − 1/√2 (dashed) is not squashed
+    against a large resonance; each σ_k labelled, the bandwidth marked (dotted)."""
     k = len(reports)
-    fig, axes = plt.subplots(1, k, figsize=(6.2 * k, 4.2), squeeze=False, sharey=True)
+    fig, axes = plt.subplots(1, k, figsize=(5.6 * k, 4.4), squeeze=False, sharey=True)
+    lows = []
     for ax, (label, rep) in zip(axes[0], reports.items(), strict=True):
         f = np.asarray(rep.freq_hz)
         m = (f >= 0.1) & (f <= f_max_hz)
         sv = np.asarray(rep.sv_T_minus_I)
-        ax.semilogx(f[m], sv[m], lw=1.3)
-        ax.axhline(ISO, color="k", ls="--", lw=1, label="1 − 1/√2 ≈ 0.293")
+        lows.append(np.min(sv[m]))
+        n = sv.shape[1]
+        for i, c in enumerate(_sv_colors(n)):
+            name = "σ̄ (largest)" if i == 0 else ("σ̲ (smallest)" if i == n - 1 else f"σ_{i + 1}")
+            ax.loglog(f[m], np.maximum(sv[m, i], y_min), lw=1.3, color=c, label=name)
+        ax.axhline(ISO, color="k", ls="--", lw=1, label="threshold 1 − 1/√2 ≈ 0.293")
         bw = float(rep.iso_bandwidth_hz)
         stable = bool(rep.stable)
         if stable and np.isfinite(bw):
-            ax.axvline(bw, color="C3", ls=":", lw=1.2, label=f"iso-bandwidth {bw:.2f} Hz")
-        ttl = label if stable else f"{label} — UNSTABLE (no bandwidth)"
-        ax.set_title(ttl, fontsize=9)
+            ax.axvline(bw, color="C3", ls=":", lw=1.4, label=f"iso-bandwidth {bw:.2f} Hz")
+        ax.set_title(label if stable else f"{label} — UNSTABLE (no bandwidth)", fontsize=9)
         ax.set_xlabel("frequency (Hz)")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
-    axes[0][0].set_ylabel("σ(T(jω) − I)  (magnitude, not dB)")
-    fig.suptitle(title)
+        ax.legend(fontsize=7, loc="lower right")
+    axes[0][0].set_ylim(bottom=max(y_min, 0.3 * float(np.nanmin(lows))))
+    axes[0][0].set_ylabel("σ_k(T(jω) − I)  (magnitude, log axis)")
+    if title:
+        fig.suptitle(title)
     fig.tight_layout()
     return fig, axes
 
 
-def impedance_fit(f, Z, f_model, models: dict, *, title: str = "", name: str = "Z"):
-    """Singular values of a measured impedance (solid, markers) and of its models (dashed,
-    dotted) in dB re 1 N/m — the paper's Figs. 6 and 7."""
+def _sv_std(Z, Z_std):
+    """First-order std of each singular value of ``Z`` ``(N, n, n)`` from independent,
+    circular complex element noise of std ``Z_std`` (``E|δZ_ij|² = s_ij²``):
+    ``δσ_k = Re(u_kᴴ δZ v_k)``, so ``var σ_k = ½ Σ_ij |u_ik|² |v_jk|² s_ij²``."""
+    U, sv, Vh = np.linalg.svd(np.asarray(Z))
+    w = np.abs(U) ** 2  # (N, i, k)
+    v = np.abs(Vh) ** 2  # (N, k, j)
+    var = 0.5 * np.einsum("nik,nkj,nij->nk", w, v, np.asarray(Z_std) ** 2)
+    return sv, np.sqrt(var)
+
+
+def impedance_fit(f, Z, f_model, models: dict, *, title: str = "", name: str = "Z", Z_std=None):
+    """Singular values of a measured impedance (black, markers; ±1 std error bars from the
+    FRF's element std ``Z_std``, first order) and of its models (dashed, dotted) in dB re
+    1 N/m — the paper's Figs. 6 and 7."""
     fig, ax = plt.subplots(figsize=(7.0, 4.6))
-    sv = _sv(Z)
+    if Z_std is not None:
+        sv, sd = _sv_std(Z, Z_std)
+    else:
+        sv, sd = _sv(Z), None
+    note = ""
+    if sd is not None and not np.any(sd > 0):  # e.g. Z_T from noiseless commands and encoders
+        note, sd = " (its std is 0: no noise source enters this estimate)", None
+    elif sd is not None:  # say how big the bars are: at low noise they hide behind the markers
+        note = f" (±1 std bars, median {np.median(20 * np.log10(1 + sd / sv)):.2g} dB)"
     for k in range(sv.shape[1]):
-        ax.semilogx(f, 20 * np.log10(sv[:, k]), "-", marker=".", color="k", lw=1.2,
-                    label=f"measured {name}" if k == 0 else None)  # fmt: skip
+        y = 20 * np.log10(sv[:, k])
+        lab = f"measured {name}{note}" if k == 0 else None
+        if sd is None:
+            ax.semilogx(f, y, "-", marker=".", color="k", lw=1.2, label=lab)
+        else:
+            lo = 20 * np.log10(np.maximum(sv[:, k] - sd[:, k], 1e-3 * sv[:, k]))
+            hi = 20 * np.log10(sv[:, k] + sd[:, k])
+            ax.errorbar(f, y, yerr=[y - lo, hi - y], fmt="-", marker=".", color="k", lw=1.2,
+                        elinewidth=1.0, capsize=2, label=lab)  # fmt: skip
+            ax.set_xscale("log")
     for i, (label, Zm) in enumerate(models.items()):
         svm = _sv(Zm)
         for k in range(svm.shape[1]):
@@ -126,7 +166,9 @@ def pphat(f, curves: dict, *, title: str = "", band_db: float = 7.0, f_band_hz: 
                         label=f"paper: ±{band_db:g} dB to {f_band_hz:g} Hz")  # fmt: skip
         ax.axhline(0, color="k", lw=0.8)
         m = f <= f_band_hz
-        ax.set_title(f"{label}: {sv[m].min():+.1f} / {sv[m].max():+.1f} dB to {f_band_hz:g} Hz", fontsize=9)
+        ax.set_title(
+            f"{label}: {sv[m].min():+.1f} / {sv[m].max():+.1f} dB to {f_band_hz:g} Hz", fontsize=9
+        )
         ax.set_xlabel("frequency (Hz)")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
@@ -137,8 +179,12 @@ def pphat(f, curves: dict, *, title: str = "", band_db: float = 7.0, f_band_hz: 
 
 
 def loci(reports: dict, *, title: str = "", f_range=(0.1, 500.0)):
-    """Characteristic loci (eigenvalues of P G): Nyquist plane (top) and Bode magnitude and
-    phase (bottom) per loop — the paper's Fig. 9."""
+    """Characteristic loci (eigenvalues λ_i of P G, tracked over frequency): Nyquist plane
+    (top; solid ω > 0, dotted its mirror image ω < 0) and Bode magnitude and phase (bottom) per
+    loop — the paper's Fig. 9. The phase is unwrapped only strictly below the Nyquist
+    frequency (the grid's last point), where the discrete loci turn real and their angle jumps."""
+    from matplotlib.lines import Line2D
+
     k = len(reports)
     fig, axes = plt.subplots(3, k, figsize=(6.2 * k, 11), squeeze=False,
                              gridspec_kw={"height_ratios": [2.2, 1, 1]})  # fmt: skip
@@ -146,13 +192,16 @@ def loci(reports: dict, *, title: str = "", f_range=(0.1, 500.0)):
         f = np.asarray(rep.freq_hz)
         m = (f >= f_range[0]) & (f <= f_range[1])
         lam = np.asarray(rep.loci)[m]
+        n = lam.shape[1]
+        colors = [f"C{i}" for i in range(n)]
         ax = axes[0][j]
-        for i in range(lam.shape[1]):
-            ax.plot(lam[:, i].real, lam[:, i].imag, lw=1.1, color=f"C{i}")
-            ax.plot(lam[:, i].real, -lam[:, i].imag, lw=0.6, ls=":", color=f"C{i}")
+        for i in range(n):
+            ax.plot(lam[:, i].real, lam[:, i].imag, lw=1.1, color=colors[i], label=f"λ_{i + 1}")
+            ax.plot(lam[:, i].real, -lam[:, i].imag, lw=0.6, ls=":", color=colors[i])
         th = np.linspace(0, 2 * np.pi, 200)
         ax.plot(np.cos(th), np.sin(th), color="0.6", lw=0.8, label="unit circle")
         ax.plot([-1], [0], "r+", ms=12, mew=2, label="−1")
+        mirror = Line2D([], [], color="0.3", ls=":", lw=0.8, label="dotted: mirror, ω < 0")
         ax.set_xlim(-3, 2)
         ax.set_ylim(-2.5, 2.5)
         ax.set_aspect("equal")
@@ -162,19 +211,26 @@ def loci(reports: dict, *, title: str = "", f_range=(0.1, 500.0)):
                      f"PM {pm:.1f}°", fontsize=9)  # fmt: skip
         ax.set_xlabel("Re λ_i(PG)")
         ax.set_ylabel("Im λ_i(PG)")
-        ax.legend(fontsize=8, loc="lower left")
-        axes[1][j].semilogx(f[m], 20 * np.log10(np.abs(lam)), lw=1.1)
+        handles, _ = ax.get_legend_handles_labels()
+        ax.legend(handles=handles + [mirror], fontsize=7, loc="lower left", ncol=2)
+        for i in range(n):
+            axes[1][j].semilogx(f[m], 20 * np.log10(np.abs(lam[:, i])), lw=1.1, color=colors[i],
+                                label=f"λ_{i + 1}")  # fmt: skip
         axes[1][j].axhline(0, color="k", lw=0.8)
         axes[1][j].set_ylim(-60, 50)
         axes[1][j].set_ylabel("|λ_i(PG)| (dB)")
         axes[1][j].grid(True, which="both", alpha=0.3)
-        ph = np.degrees(np.unwrap(np.angle(lam), axis=0))
-        axes[2][j].semilogx(f[m], ph, lw=1.1)
+        axes[1][j].legend(fontsize=7, ncol=n, loc="lower left")
+        below = f[m] < (1 - 1e-6) * f.max()  # strictly below Nyquist (the grid's last point)
+        ph = np.degrees(np.unwrap(np.angle(lam[below]), axis=0))
+        for i in range(n):
+            axes[2][j].semilogx(f[m][below], ph[:, i], lw=1.1, color=colors[i])
         axes[2][j].axhline(-180, color="k", lw=0.8)
-        axes[2][j].set_ylabel("phase λ_i(PG) (deg)")
+        axes[2][j].set_ylabel("phase λ_i(PG) (deg, below Nyquist)")
         axes[2][j].set_xlabel("frequency (Hz)")
         axes[2][j].grid(True, which="both", alpha=0.3)
-    fig.suptitle(title)
+    if title:
+        fig.suptitle(title)
     fig.tight_layout()
     return fig, axes
 
@@ -189,9 +245,18 @@ def sweep(keys, rows, metrics):
         m = np.all(others == c, axis=1) if others.shape[1] else np.ones(len(x), bool)
         o = np.argsort(x[m])
         lab = ", ".join(f"{k}={v:g}" for k, v in zip(keys[1:], c, strict=True)) or None
-        axes[0].plot(x[m][o], metrics["iso_bandwidth_hz"][m][o], marker="o", ms=3, color=f"C{j % 10}", label=lab)
+        axes[0].plot(
+            x[m][o],
+            metrics["iso_bandwidth_hz"][m][o],
+            marker="o",
+            ms=3,
+            color=f"C{j % 10}",
+            label=lab,
+        )
         axes[1].plot(x[m][o], metrics["pphat_max_db"][m][o], marker="o", ms=3, color=f"C{j % 10}")
-        axes[1].plot(x[m][o], metrics["pphat_min_db"][m][o], marker="o", ms=3, ls="--", color=f"C{j % 10}")
+        axes[1].plot(
+            x[m][o], metrics["pphat_min_db"][m][o], marker="o", ms=3, ls="--", color=f"C{j % 10}"
+        )
         axes[2].plot(x[m][o], metrics["disk_margin"][m][o], marker="o", ms=3, color=f"C{j % 10}")
     axes[0].set_ylabel("isotropic bandwidth (Hz; missing = unstable)")
     axes[1].set_ylabel("P·P̂⁻¹ band to 30 Hz (dB): max solid, min dashed")

@@ -1,39 +1,44 @@
 """Scenes: a small TOML file names the device, protocol, estimators, controller and outputs.
 
 ``run_scene`` computes only the stages the requested outputs need, each cached on disk under a
-hash of its inputs (``hapid._stages``): a Z_H figure needs no controller; no MCMC unless a
-posterior is asked for; no time-domain simulation unless the protocol says so. Changing one
-option recomputes only the stages downstream of it.
+hash of its inputs and of hapid's source (``hapid._stages``): a Z_H figure needs no
+controller; no tuning unless the summary (or fig10) asks for the tuned g; no time-domain
+simulation unless the protocol says so. Changing one option recomputes only the stages
+downstream of it.
 
 Stage graph::
 
     device ─► run ─► frf ─┬─► wls ─┐                         ┌─► fig5 (SISO σ(T − I))
                           └─► nls ─┴─► mimo ◄─ plant ◄─ device├─► fig9, fig10 (MIMO)
     controller ───────────────────────► mimo, siso ─────────┴─► summary
-    frf, wls, nls ─► fig6, fig7, fig8                     posterior ─► robust
+    device, nls ─► tuned (g by hapid.tune) ─► tuned_mimo ──────────► summary, fig10
+    frf, wls, nls ─► fig6, fig7, fig8
+
+Every stage function composes :mod:`hapid.pipeline` (experiment → frf → fit → controller →
+loop); the loop verdict (controller's own RHP poles included) is the pipeline's.
 
 Config sections (all optional, defaults = the paper reproduction on ``cu5``):
 ``[device]`` preset, move (dx, dy, dz, dyaw, dpitch, droll from home), subject_seed,
 light_damping, extra_modes, encoder; ``[protocol]`` freqs ("paper" or list, Hz), periods,
 transient, pattern, phases, amplitude, seed, noise, position_noise, encoder_res, synthesis
 ("periodic" | "time_domain"), friction; ``[fit]`` omega_c_hz, positize, weight, f_max_hz,
-solver; ``[controller]`` k, lag_zero_hz, lag_pole_hz, notch_hz, zeta_num, zeta_den,
-lowpass_hz, siso_gm_db, siso_pm_deg; ``[analysis]`` f_min_hz, n_freq, band_hz;
+solver, max_steps, rtol, atol, ftol, patience, blend_floor, p_weight, pd_eps, init_floor
+(the NLS options of :func:`hapid.fit.fit_nls`); ``[controller]`` k, lag_zero_hz, lag_pole_hz,
+notch_hz, zeta_num, zeta_den, lowpass_hz, siso_gm_db, siso_pm_deg; ``[analysis]`` f_min_hz, n_freq, band_hz;
 ``[posterior]`` walkers, steps, seed, samples; ``[outputs]`` want = [...], dir.
 """
 
 from __future__ import annotations
 
 import copy
-import json
+import os
 import tomllib
 from pathlib import Path
 
 import numpy as np
 
+from ._grids import nyquist_grid
 from ._stages import Graph, Stage
-
-TWO_PI = 2 * np.pi
 
 DEFAULTS: dict = {
     "device": {"preset": "cu5", "move": [0.0] * 6, "subject_seed": None, "light_damping": False,
@@ -43,7 +48,9 @@ DEFAULTS: dict = {
                  "position_noise": 0.0, "encoder_res": 2e-6, "synthesis": "periodic",
                  "friction": False},
     "fit": {"omega_c_hz": 7.0, "positize": True, "weight": "relative", "f_max_hz": 40.0,
-            "solver": "lm"},
+            "solver": "lm", "max_steps": 500, "rtol": 1e-8, "atol": 1e-10, "ftol": 1e-8,
+            "patience": 20, "blend_floor": 0.02, "p_weight": 1.0, "pd_eps": 0.0,
+            "init_floor": 1e-6},
     "controller": {"k": 0.85, "lag_zero_hz": 30.0, "lag_pole_hz": 0.6,
                    "notch_hz": [17.0, 55.0, 100.0], "zeta_num": 0.2, "zeta_den": 0.5,
                    "lowpass_hz": [100.0, 200.0], "siso_gm_db": 6.0, "siso_pm_deg": 30.0},
@@ -93,97 +100,74 @@ def set_option(cfg: dict, dotted: str, value) -> dict:
     return out
 
 
-# ---- stage functions ------------------------------------------------------------------------
+# ---- stage functions: each composes hapid.pipeline ------------------------------------------
 def _device(o):
-    import jax
+    from . import pipeline
 
-    from .device import Pose, preset, virtual_subject
-
-    kw = {"extra_modes": o["extra_modes"]}
-    if o["preset"] == "cu5":
-        kw.update(light_damping=o["light_damping"], encoder=o["encoder"])
-    mv = list(o["move"]) + [0.0] * (6 - len(o["move"]))
-    dev = preset(o["preset"], pose=Pose().moved(*mv), **kw)
-    if o["subject_seed"] is not None:
-        import equinox as eqx
-
-        # every preset's first three DOF are the translations the subject ranges describe
-        hand = virtual_subject(jax.random.PRNGKey(int(o["subject_seed"])), dev.hand, 3)
-        dev = eqx.tree_at(lambda d: d.hand, dev, hand)
-    return dev
+    return pipeline.device(o)
 
 
 def _protocol(o):
-    from .experiment import Protocol, paper_frequencies
+    from . import pipeline
 
-    freqs = paper_frequencies() if o["freqs"] == "paper" else np.asarray(o["freqs"], dtype=float)
-    return Protocol(
-        freq_hz=tuple(freqs), n_periods=int(o["periods"]), transient_periods=int(o["transient"]),
-        pattern=o["pattern"], phases=o["phases"], amplitude=float(o["amplitude"]),
-        seed=int(o["seed"]), force_noise=float(o["noise"]),
-        position_noise=float(o["position_noise"]), encoder_resolution=float(o["encoder_res"]),
-    )  # fmt: skip
+    return pipeline.protocol(o)
 
 
 def _run(o, device):
-    from .experiment import periodic_run, time_domain_run
+    from . import pipeline
 
-    prot = _protocol(o)
-    if o["synthesis"] == "time_domain" or o["friction"]:
-        return time_domain_run(device, prot, friction=bool(o["friction"]))
-    if o["synthesis"] != "periodic":
-        raise ValueError(f"protocol.synthesis must be 'periodic' or 'time_domain', got {o['synthesis']!r}")
-    return periodic_run(device, prot)
+    return pipeline.experiment(
+        device, _protocol(o), synthesis=o["synthesis"], friction=o["friction"]
+    )
 
 
 def _frf(o, run):
-    from .experiment import estimate_frf
+    from . import pipeline
 
-    return estimate_frf(run)
+    return pipeline.frf(run)
+
+
+WLS_KEYS = ("omega_c_hz", "positize")
+NLS_KEYS = ("weight", "f_max_hz", "solver", "omega_c_hz", "max_steps", "rtol", "atol", "ftol",
+            "patience", "blend_floor", "p_weight", "pd_eps", "init_floor")  # fmt: skip
 
 
 def _wls(o, frf):
-    from .fit import crhp_report, positize, wls
+    from . import pipeline
 
-    raw = wls(frf, omega_c=TWO_PI * float(o["omega_c_hz"]))
-    model = positize(raw) if o["positize"] else raw
-    before, after = crhp_report(raw), crhp_report(model)
-    return {"model": model, "raw": raw,
-            "crhp_before": (int(before.hand), int(before.total)),
-            "crhp_after": (int(after.hand), int(after.total))}  # fmt: skip
+    f = pipeline.fit(frf, "wls+positize" if o["positize"] else "wls", omega_c_hz=o["omega_c_hz"])
+    return {"fit": f, "model": f.model,
+            "crhp_before": (int(f.crhp_hand_raw), int(f.crhp_total_raw)),
+            "crhp_after": (int(f.crhp_hand), int(f.crhp_total))}  # fmt: skip
 
 
 def _nls(o, frf):
-    from .fit import fit_nls
+    from . import pipeline
 
-    res = fit_nls(frf, weight=o["weight"], f_max_hz=o["f_max_hz"], solver=o["solver"],
-                  omega_c=TWO_PI * float(o["omega_c_hz"]))  # fmt: skip
-    return {"model": res.model, "result": res, "status": res.status, "steps": int(res.n_steps),
+    f = pipeline.fit(frf, "nls", **o)
+    res = f.result
+    return {"fit": f, "model": f.model, "result": res, "status": f.status, "steps": int(res.n_steps),
             "cost": float(res.cost)}  # fmt: skip
 
 
 def compensator(o):
-    from .control import Compensator
+    """g(s) of a scene's ``[controller]`` options (Hz → rad/s)."""
+    from . import pipeline
 
-    return Compensator.paper(
-        k=float(o["k"]), lag_zeros=[TWO_PI * float(o["lag_zero_hz"])],
-        lag_poles=[TWO_PI * float(o["lag_pole_hz"])],
-        notch_omega=[TWO_PI * float(f) for f in o["notch_hz"]],
-        notch_zeta_num=float(o["zeta_num"]), notch_zeta_den=float(o["zeta_den"]),
-        lowpass=[TWO_PI * float(f) for f in o["lowpass_hz"]],
-    )  # fmt: skip
+    return pipeline.compensator(o)
 
 
 def analysis_grid(o, fs_hz: float) -> np.ndarray:
     """Analysis frequencies (rad/s): log-spaced from ``f_min_hz`` to just below Nyquist, plus
     the Nyquist frequency itself (the discrete loop's contour ends there)."""
-    f = np.geomspace(float(o["f_min_hz"]), 0.49999 * fs_hz, int(o["n_freq"]) - 1)
-    return TWO_PI * np.append(f, 0.5 * fs_hz)
+    return nyquist_grid(fs_hz, int(o["n_freq"]), float(o["f_min_hz"]))
 
 
 def _plant(o, device):
-    omega = analysis_grid(o, device.fs_hz)
-    return {"omega": omega, "P": np.asarray(device.sampled_P(omega)), "ts": device.ts}
+    from . import pipeline
+
+    pl = pipeline.device_plant(device, analysis_grid(o, device.fs_hz))
+    return {"omega": np.asarray(pl.omega), "P": np.asarray(pl.P), "ts": pl.ts, "plant": pl}
 
 
 def _controller(o):
@@ -191,15 +175,11 @@ def _controller(o):
 
 
 def _mimo_one(model, g, plant):
-    from .control import analyze_loop, controller_unstable_poles, discretize_controller
+    from . import pipeline
 
-    ctrl = discretize_controller(model, g, plant["ts"])
-    G = np.asarray(ctrl.at_omega(plant["omega"]))
-    # the controller's own RHP poles (CRHP roots of det Ẑ_H, unstable poles of g) count as
-    # open-loop unstable poles in the Nyquist criterion; the device plant is stable
-    p_ol = int(controller_unstable_poles(model, g))
-    rep = analyze_loop(plant["P"], G, plant["omega"], P_ol_rhp=p_ol)
-    return {"report": rep, "controller": ctrl, "p_ol": p_ol}
+    ctrl = pipeline.controller(model, g, ts=plant["ts"])
+    rep = pipeline.loop(ctrl, plant["plant"], pipeline.MetricsSpec(arrays=True))  # figures 9, 10
+    return {"report": rep, "p_ol": int(ctrl.p_rhp)}
 
 
 def _mimo(o, plant, wls_out, nls_out, ctrl):
@@ -208,10 +188,12 @@ def _mimo(o, plant, wls_out, nls_out, ctrl):
 
 
 def _siso(o, plant, ctrl):
-    from .control import analyze_loop, discretize_compensator, max_siso_gain
+    from . import pipeline
+    from .control import discretize_compensator, max_siso_gain
 
-    gd = np.asarray(discretize_compensator(ctrl["g"], plant["ts"]).at_omega(plant["omega"]))
-    gd = gd.reshape(-1)
+    gd = np.asarray(
+        discretize_compensator(ctrl["g"], plant["ts"]).at_omega(plant["omega"])
+    ).reshape(-1)
     n = plant["P"].shape[-1]
     out = {}
     cmax = float(max_siso_gain(plant["P"], plant["omega"], gd, ctrl["gm_db"], ctrl["pm_deg"]))
@@ -219,21 +201,41 @@ def _siso(o, plant, ctrl):
         if not np.isfinite(c):
             out[label] = {"c": c, "report": None}
             continue
-        G = (c * gd)[:, None, None] * np.eye(n)
-        out[label] = {"c": c, "report": analyze_loop(plant["P"], G, plant["omega"])}
+        C = pipeline.controller(None, ctrl["g"], kind="siso", c=c, n=n, ts=plant["ts"])
+        out[label] = {
+            "c": c,
+            "report": pipeline.loop(C, plant["plant"], pipeline.MetricsSpec(arrays=True)),
+        }
     return out
+
+
+def _tuned(o, device, nls_out):
+    from .tune import tuned_design
+
+    return tuned_design(device, nls_out["model"], fast=o["fast"])
+
+
+def _tuned_mimo(o, plant, nls_out, tuned):
+    return _mimo_one(nls_out["model"], tuned["g"], plant)
+
+
+def _fast_flag(c):
+    return {"fast": os.environ.get("HAPID_FAST", "0") == "1"}
 
 
 STAGES = [
     Stage("device", (), lambda c: c["device"], lambda o: _device(o)),
     Stage("run", ("device",), lambda c: c["protocol"], _run),
     Stage("frf", ("run",), lambda c: {}, _frf),
-    Stage("wls", ("frf",), lambda c: {k: c["fit"][k] for k in ("omega_c_hz", "positize")}, _wls),
-    Stage("nls", ("frf",), lambda c: {k: c["fit"][k] for k in ("weight", "f_max_hz", "solver", "omega_c_hz")}, _nls),
+    Stage("wls", ("frf",), lambda c: {k: c["fit"][k] for k in WLS_KEYS}, _wls),
+    Stage("nls", ("frf",), lambda c: {k: c["fit"][k] for k in NLS_KEYS}, _nls),
     Stage("controller", (), lambda c: c["controller"], lambda o: _controller(o)),
     Stage("plant", ("device",), lambda c: c["analysis"], _plant),
     Stage("mimo", ("plant", "wls", "nls", "controller"), lambda c: {}, _mimo),
     Stage("siso", ("plant", "controller"), lambda c: {}, _siso),
+    # the tuned-g column: a short robust tuning of g on the device's pose/subject variants
+    Stage("tuned", ("device", "nls"), _fast_flag, _tuned),
+    Stage("tuned_mimo", ("plant", "nls", "tuned"), lambda c: {}, _tuned_mimo),
 ]  # fmt: skip
 
 
@@ -256,8 +258,9 @@ OUT_STAGES = [
     _out_stage("fig7", ("frf", "wls", "nls"), _fig(7)),
     _out_stage("fig8", ("device", "frf", "wls", "nls"), _fig(8)),
     _out_stage("fig9", ("mimo", "plant"), _fig(9)),
-    _out_stage("fig10", ("mimo",), _fig(10)),
-    _out_stage("summary", ("device", "frf", "wls", "nls", "mimo", "siso"), lambda o, *d: _summary(o["dir"], *d)),
+    _out_stage("fig10", ("mimo", "tuned_mimo"), _fig(10)),  # + the tuned-g loop
+    _out_stage("summary", ("device", "frf", "wls", "nls", "mimo", "siso", "tuned", "tuned_mimo"),
+               lambda o, *d: _summary(o["dir"], *d)),
     _out_stage("frf_file", ("frf",), lambda o, frf: _save_frf(o["dir"], frf)),
     _out_stage("model_files", ("wls", "nls"), lambda o, w, n: _save_models(o["dir"], w, n)),
 ]  # fmt: skip
@@ -284,7 +287,7 @@ def _save_models(out_dir, w, n):
     return [str(a), str(b)]
 
 
-_EXTRA_STAGES: list[Stage] = []  # the uncertainty stages register here
+_EXTRA_STAGES: list[Stage] = []  # other modules may register stages here (none do yet)
 
 
 def graph() -> Graph:
@@ -301,7 +304,3 @@ def run_scene(cfg: dict, outputs=None, *, cache_dir=".hapid_cache/stages", out_d
     want = list(outputs if outputs is not None else cfg["outputs"]["want"])
     Path(cfg["outputs"]["dir"]).mkdir(parents=True, exist_ok=True)
     return graph().run(cfg, want, cache_dir=cache_dir, progress=progress)
-
-
-def dumps(obj) -> str:
-    return json.dumps(obj, indent=2, default=float)

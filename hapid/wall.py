@@ -41,7 +41,7 @@ from jaxtyping import Array
 
 from . import _config  # noqa: F401
 from .device import ParallelDevice
-from .device._device import zoh
+from .lti import zoh
 
 
 class WallUnstableWarning(UserWarning):

@@ -49,7 +49,7 @@ def test_cu5_geometry_matches_device_md():
 
 
 def test_cu5_plant_span_matches_paper_section_4_3():
-    """P = Z_H Z_T⁻¹ singular-value span 25–50 dB over 1–30 Hz (paper 4.3, DEVICE.md)."""
+    """P = Z_H Z_T⁻¹ singular-value span 25–50 dB over 1–30 Hz (paper 4.3, docs/device.md)."""
     f = np.linspace(1.0, 30.0, 300)
     sv = np.linalg.svd(np.asarray(cu5().P(2j * np.pi * f)), compute_uv=False)
     span = 20 * np.log10(sv[:, 0] / sv[:, -1])

@@ -11,6 +11,12 @@
 * :func:`discretize_compensator`, :func:`discretize_controller` — sampled controllers.
 """
 
+from ..lti import StateSpace as StateSpace
+from ..lti import closed_loop_is_stable as closed_loop_is_stable
+from ..lti import closed_loop_matrix as closed_loop_matrix
+from ..lti import closed_loop_poles as closed_loop_poles
+from ..lti import closed_loop_well_posed as closed_loop_well_posed
+from ..lti import series as series
 from ._compensator import Compensator as Compensator
 from ._controller import ControllerCheck as ControllerCheck
 from ._controller import ControllerWarning as ControllerWarning
@@ -41,9 +47,3 @@ from ._metrics import loop_metrics as loop_metrics
 from ._nyquist import characteristic_loci as characteristic_loci
 from ._nyquist import nyquist_encirclements as nyquist_encirclements
 from ._nyquist import track_loci as track_loci
-from ._statespace import StateSpace as StateSpace
-from ._statespace import closed_loop_is_stable as closed_loop_is_stable
-from ._statespace import closed_loop_matrix as closed_loop_matrix
-from ._statespace import closed_loop_poles as closed_loop_poles
-from ._statespace import closed_loop_well_posed as closed_loop_well_posed
-from ._statespace import series as series

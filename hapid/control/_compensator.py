@@ -19,9 +19,8 @@ import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
-from ._statespace import StateSpace, series
-
-TWO_PI = 2.0 * np.pi
+from .._constants import TWO_PI
+from ..lti import StateSpace, series
 
 
 def _vec(x) -> Array:

@@ -24,11 +24,11 @@ import numpy as np
 from jaxtyping import Array, Bool, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
+from .._constants import TWO_PI
 from ._lapack import after, lu_det_solve
 from ._margins import disk_margin_from_peak, loci_margins
 from ._nyquist import characteristic_loci, nyquist_encirclements
 
-TWO_PI = 2.0 * np.pi
 ISO_THRESHOLD = 1.0 - 1.0 / np.sqrt(2.0)
 """``1 − 1/√2 ≈ 0.293``: the paper's isotropic-bandwidth threshold on σ̄(T − I)."""
 
@@ -102,11 +102,24 @@ class LoopReport(eqx.Module):
     cond_L: Float[Array, " N"]
     loci: Complex[Array, "N n"]
 
+    @property
+    def ok(self):
+        """True when the closed loop is stable (bool array for a batch; works under ``jit``)."""
+        return self.stable
+
+    @property
+    def status(self):
+        """``"stable"``, ``"unstable"`` or ``"undecided"`` (the grid did not resolve the
+        Nyquist count); a numpy array of them for a batch."""
+        st, res = np.asarray(self.stable), np.asarray(self.nyquist_resolved)
+        names = np.where(st, "stable", np.where(res, "unstable", "undecided"))
+        return str(names) if names.ndim == 0 else names
+
     def summary(self) -> dict:
         """The scalar fields as python ``bool``/``int``/``float`` (lists for a batched report).
 
-        ``stable`` comes first. Non-finite values stay ``nan``/``inf`` (``json.dumps`` writes
-        them as ``NaN``/``Infinity``).
+        ``stable`` comes first. Non-finite values stay ``nan``/``inf`` here; the JSON writer
+        (:func:`hapid.io.save_json`) writes them as ``null``.
         """
         out = {}
         for name in _SCALARS:

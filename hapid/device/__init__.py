@@ -1,10 +1,10 @@
 """Simulated n-rod haptic interfaces: geometry, hand, mechanism chain, extra modes, presets."""
 
+from ..lti import StateSpace as StateSpace
+from ..lti import zoh as zoh
 from ._device import Device as Device
 from ._device import ParallelDevice as ParallelDevice
 from ._device import SecondOrderDevice as SecondOrderDevice
-from ._device import StateSpace as StateSpace
-from ._device import zoh as zoh
 from ._geometry import Geometry as Geometry
 from ._geometry import Pose as Pose
 from ._geometry import cu5_geometry as cu5_geometry

@@ -26,35 +26,9 @@ from jaxtyping import Array, Complex, Float
 
 from .. import _config  # noqa: F401
 from ..impedance import ImpedanceModel, SecondOrder
+from ..lti import StateSpace, zoh
 from ._geometry import Geometry, Pose
 from ._parts import ExtraModes, Hand, Mechanism
-
-
-class StateSpace(eqx.Module):
-    """``ẋ = A x + B u``, ``y = C x + D u`` (continuous) or ``x⁺ = A x + B u`` (discrete)."""
-
-    A: Float[Array, "nx nx"]
-    B: Float[Array, "nx nu"]
-    C: Float[Array, "ny nx"]
-    D: Float[Array, "ny nu"]
-
-    def freqresp(self, s: Complex[Array, " N"]) -> Complex[Array, "N ny nu"]:
-        """``C (sI − A)⁻¹ B + D`` at each ``s`` (use ``z`` for a discrete system)."""
-        s = jnp.asarray(s, dtype=jnp.complex128)
-        nx = self.A.shape[0]
-        lhs = s[:, None, None] * jnp.eye(nx) - self.A
-        X = jnp.linalg.solve(
-            lhs, jnp.broadcast_to(self.B.astype(jnp.complex128), (s.shape[0],) + self.B.shape)
-        )
-        return self.C @ X + self.D
-
-
-def zoh(ss: StateSpace, dt: float) -> StateSpace:
-    """Exact zero-order-hold discretization with step ``dt`` (s)."""
-    nx, nu = ss.B.shape
-    aug = jnp.zeros((nx + nu, nx + nu)).at[:nx, :nx].set(ss.A).at[:nx, nx:].set(ss.B)
-    E = jax.scipy.linalg.expm(aug * dt)
-    return StateSpace(E[:nx, :nx], E[:nx, nx:], ss.C, ss.D)
 
 
 class Device(eqx.Module):
@@ -141,7 +115,7 @@ def _right_solve(A, B):
 
 class ParallelDevice(Device):
     """An ``n``-rod parallel interface: geometry + pose, hand + stylus, per-rod mechanism
-    chain and extra modes (DEVICE.md). The encoders sit on the motor/roller, so ``L`` is the
+    chain and extra modes (docs/device.md). The encoders sit on the motor/roller, so ``L`` is the
     motor-side rod displacement and the measured ``Z_H`` includes the chain's compliance.
 
     Generalized coordinates ``q = [u1, u2, ξ, h, r]``: motor and rod displacements along

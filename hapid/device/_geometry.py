@@ -114,7 +114,7 @@ def dof_matrix(translations: int, rotation_axes: tuple[int, ...]) -> np.ndarray:
 
 
 def cu5_geometry() -> Geometry:
-    """The 5-rod layout of DEVICE.md: rods to front A from 60°, 180°, 300°; to rear B from
+    """The 5-rod layout of docs/device.md: rods to front A from 60°, 180°, 300°; to rear B from
     120°, 240°; A = c + 0.04 x̂, B = c − 0.12 x̂; DOF = 3 translations + rotations about ŷ, ẑ."""
     hexa = hexagon()
     base = hexa[[1, 3, 5, 2, 4]]

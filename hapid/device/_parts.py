@@ -40,13 +40,13 @@ class Hand(eqx.Module):
         return jax.vmap(jnp.diag)(z)
 
 
-# DEVICE.md, nominal subject: (M kg, k1 N/m, b1 N·s/m, k2 N/m, b2 N·s/m) per translation axis.
+# docs/device.md, nominal subject: (M kg, k1 N/m, b1 N·s/m, k2 N/m, b2 N·s/m) per translation axis.
 _TRANSLATION = {  # world x = fore-aft (along the stylus at home), y = left-right, z = up-down
     "x": (0.204, 769.9, 0.78, 271.7, 18.06),
     "y": (0.218, 379.5, 1.84, 78.8, 4.65),
     "z": (0.269, 552.4, 3.61, 105.3, 6.43),
 }
-# Rotation (assumed, DEVICE.md): inertia 1.5e-3 kg·m²; grasp 0.6 N·m/rad, 0.004 N·m·s/rad;
+# Rotation (assumed, docs/device.md): inertia 1.5e-3 kg·m²; grasp 0.6 N·m/rad, 0.004 N·m·s/rad;
 # wrist 0.4 N·m/rad, 0.02 N·m·s/rad. Roll about the stylus (6-rod device only) is our own
 # assumption: a pen rolls easily in the fingers, so a tenth of those numbers.
 _ROTATION = (1.5e-3, 0.6, 0.004, 0.4, 0.02)
@@ -78,7 +78,7 @@ def nominal_hand(translations: int = 3, rotation_axes: tuple[int, ...] = (1, 2))
 
 def virtual_subject(key, hand: Hand, translations: int = 3) -> Hand:
     """Draw a virtual subject: translation-axis hand mass, grasp stiffness and arm damping
-    log-uniform over DEVICE.md's 95 % ranges (M 0.02–0.57 kg, k1 228–1043 N/m,
+    log-uniform over the 95 % ranges of docs/device.md (M 0.02–0.57 kg, k1 228–1043 N/m,
     b2 3.7–27.6 N·s/m); other parameters and rotational DOF stay nominal."""
     k1, k2, k3 = jax.random.split(key, 3)
     t = translations
@@ -119,8 +119,8 @@ class Mechanism(eqx.Module):
     v_smooth: float = 5e-3
 
 
-# Changed from DEVICE.md (which invites tuning): traction damping 8 → 80 N·s/m and sensor +
-# gimbal damping 15 → 40 N·s/m. With DEVICE.md's light damping the traction resonance
+# Changed from the lightly damped starting values (docs/device.md): traction damping 8 → 80 N·s/m
+# and sensor + gimbal damping 15 → 40 N·s/m. With the light damping the traction resonance
 # (45–62 Hz) stands 15–20 dB above any second-order model in P·P̂⁻¹, and the paper's g(s),
 # whose 55 Hz notch removes only 8 dB (ζ1/ζ2 = 0.2/0.5), cannot stabilize the MIMO loop
 # (GM −3.9 dB with the WLS model, confirmed by closed-loop eigenvalues). That the paper's
@@ -128,11 +128,11 @@ class Mechanism(eqx.Module):
 # sharper than its notches; a roller–rod friction contact is well damped. With 80/40 the
 # paper's protocol + WLS + paper g gives iso-bandwidth 2.7 Hz, GM 4.3 dB, PM 28°, T peak
 # 6.3 dB at 14 Hz (paper: ≈3 Hz, ≈5 dB, ≈20°, 6 dB near 15 Hz); the plant span (set by
-# drive damping and geometry) is unchanged. ``light_damping=True`` restores DEVICE.md.
+# drive damping and geometry) is unchanged. ``light_damping=True`` restores the light values.
 def nominal_mechanism(n: int, light_damping: bool = False) -> Mechanism:
-    """The per-rod chain of DEVICE.md: 0.40 kg, 30 N·s/m (5 viscous + 1 N Coulomb),
+    """The per-rod chain of docs/device.md: 0.40 kg, 30 N·s/m (5 viscous + 1 N Coulomb),
     traction 2.5e4 N/m, rod 0.10 kg, sensor 4e4 N/m, identical for every rod; traction and
-    sensor damping 80 and 40 N·s/m (DEVICE.md's 8 and 15 with ``light_damping``)."""
+    sensor damping 80 and 40 N·s/m (8 and 15 with ``light_damping``)."""
     f = lambda v: jnp.full((n,), float(v))  # noqa: E731
     b_t, b_s = (8.0, 15.0) if light_damping else (80.0, 40.0)
     return Mechanism(
@@ -162,6 +162,6 @@ def no_modes() -> ExtraModes:
 
 def default_modes() -> ExtraModes:
     """cu5's one extra mode: actuator-mount compliance, 30 g at 230 Hz, ζ = 0.03, on the
-    motor. Our assumption (DEVICE.md leaves "extra modes" open): above the fit band, it
+    motor. Our assumption (docs/device.md leaves "extra modes" open): above the fit band, it
     makes the measured impedances deviate from second order near the top of the protocol."""
     return ExtraModes(jnp.array([230.0]), jnp.array([0.03]), jnp.array([0.03]), (0,))

@@ -1,4 +1,4 @@
-"""Preset devices: ``cu5`` (DEVICE.md), a 3-rod tripod and a 6-rod hexapod."""
+"""Preset devices: ``cu5`` (docs/device.md), a 3-rod tripod and a 6-rod hexapod."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ def _parallel(geometry, hand, pose, extra_modes, delay_samples, fs_hz, light_dam
 def cu5(pose: Pose | None = None, *, extra_modes: bool = True, delay_samples: int = 1,
         fs_hz: float = 1000.0, light_damping: bool = False,
         encoder: str = "motor") -> ParallelDevice:  # fmt: skip
-    """The default 5-rod device of DEVICE.md (3 translations + 2 rotations of the stylus).
+    """The default 5-rod device of docs/device.md (3 translations + 2 rotations of the stylus).
 
     ``encoder="motor"`` (default) reads rod length at the motor/roller, so the measured Z_H
     includes the traction and sensor compliance; ``"rod"`` reads the rod itself.

@@ -10,6 +10,9 @@ from ._excitation import paper_frequencies as paper_frequencies
 from ._excitation import patterns as patterns
 from ._excitation import schroeder_phases as schroeder_phases
 from ._fast import simulate_frf as simulate_frf
+from ._impedance import RESPONSE_KINDS as RESPONSE_KINDS
+from ._impedance import TimeSeries as TimeSeries
+from ._impedance import estimate_impedance_h1 as estimate_impedance_h1
 from ._protocol import Protocol as Protocol
 from ._protocol import Run as Run
 from ._protocol import validate_run as validate_run

@@ -64,7 +64,7 @@ class Protocol:
 
 @dataclasses.dataclass(frozen=True)
 class Run:
-    """A measured (or simulated) periodic run, the run-file contract of DESIGN.md.
+    """A measured (or simulated) periodic run, the run-file contract of docs/contracts.md.
 
     fs_hz, period_samples; freq_hz ``(K,)`` excited frequencies (multiples of
     ``fs_hz/period_samples``); R_A, R_I, L ``(E, T, n)``: commanded actuator forces (N),

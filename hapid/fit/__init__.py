@@ -4,6 +4,8 @@
 - :func:`positize`, :func:`crhp_report` — paper section 5.1 and its root check.
 - :func:`fit_nls` — hapid's fit: PSD hand and mechanism matrices (``L Lᵀ``, free-sign
   diagonal), joint Z_H/Z_T residuals, optimistix solvers, Laplace covariance.
+- :func:`fit_ml` — sample maximum likelihood (errors-in-variables) on a periodic run's
+  spectra with their noise covariances; Cramér–Rao bound and its P·P̂⁻¹ band.
 - diagnostics — singular values of Z vs Ẑ and of P P̂⁻¹, the paper's band and anisotropy
   reduction.
 """
@@ -16,6 +18,12 @@ from ._diagnostics import model_relative_errors as model_relative_errors
 from ._diagnostics import pphat as pphat
 from ._diagnostics import pphat_band_db as pphat_band_db
 from ._diagnostics import pphat_singular_values as pphat_singular_values
+from ._ml import MLResult as MLResult
+from ._ml import cramer_rao as cramer_rao
+from ._ml import crb_band_db as crb_band_db
+from ._ml import fit_ml as fit_ml
+from ._ml import ml_cost as ml_cost
+from ._ml import run_spectra as run_spectra
 from ._nls import SOLVERS as SOLVERS
 from ._nls import WEIGHTS as WEIGHTS
 from ._nls import Problem as Problem
@@ -38,8 +46,15 @@ from ._positize import CRHPReport as CRHPReport
 from ._positize import crhp_report as crhp_report
 from ._positize import positize as positize
 from ._positize import positize_matrix as positize_matrix
+from ._quality import FitQuality as FitQuality
+from ._quality import fit_quality as fit_quality
+from ._quality import impedance_quality as impedance_quality
+from ._quality import pair_quality as pair_quality
 from ._result import FitFailedError as FitFailedError
 from ._result import NLSResult as NLSResult
+from ._single import ImpedanceFit as ImpedanceFit
+from ._single import fit_impedance as fit_impedance
+from ._single import wls_single as wls_single
 from ._wls import OMEGA_C_PAPER as OMEGA_C_PAPER
 from ._wls import paper_weight as paper_weight
 from ._wls import wls as wls

@@ -13,9 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._constants import TWO_PI
 from ..frf import FRF
-
-TWO_PI = 2.0 * np.pi
 
 
 def is_concrete(*xs) -> bool:

@@ -14,10 +14,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
 
+from .._constants import TWO_PI
 from ..frf import FRF
 from ..impedance import ImpedanceModel, singular_values
-
-TWO_PI = 2.0 * np.pi
 
 
 class ImpedanceSV(NamedTuple):

@@ -1,7 +1,7 @@
 # ruff: noqa: F722  (jaxtyping shape strings such as "N n n" are not Python expressions)
 """The one place hapid touches jaxopt (a cross-check backend that can be dropped).
 
-jaxopt is no longer developed upstream (DESIGN.md, "Solvers"); :func:`jaxopt_lm` is the whole
+jaxopt is no longer developed upstream (docs/conventions.md, "Solvers"); :func:`jaxopt_lm` is the whole
 interface, imported lazily so hapid works without jaxopt installed.
 """
 

@@ -19,7 +19,7 @@ the complex estimate, real and imaginary parts together):
 
 P residual weight: ``p_weight/‖P(jω)‖_F``.
 
-Fit band. Only frequencies ``≤ f_max_hz`` enter (default 40 Hz: DESIGN.md, "Weights and fit
+Fit band. Only frequencies ``≤ f_max_hz`` enter (default 40 Hz: docs/conventions.md, "Weights and fit
 band" — a measured device's Z_H, Z_T are far from second order above ~20 Hz, and relative
 weights on data up to ~40 Hz gave the best P·P̂⁻¹ band over 1–30 Hz; use ``None`` for all
 frequencies, e.g. on strictly second-order synthetic data). Out-of-band frequencies are
@@ -27,7 +27,7 @@ masked (zero residual) so shapes stay static under ``jit``/``vmap``.
 
 Scaling. ``s`` is divided by ``ω_ref`` (geometric mean of the band's frequencies) and Z by
 ``z_ref`` (median magnitude of the band's Z_H and Z_T elements); ``theta`` lives in those
-units (DESIGN.md: the starting Jacobian's condition number dropped 15–40×).
+units (docs/conventions.md: the starting Jacobian's condition number dropped 15–40×).
 """
 
 from __future__ import annotations
@@ -64,6 +64,8 @@ LEAST_SQUARES_SOLVERS = ("lm", "dogleg", "gauss_newton")
 MINIMISERS = ("bfgs", "nonlinear_cg")
 SOLVERS = LEAST_SQUARES_SOLVERS + MINIMISERS + ("jaxopt_lm",)
 LINEAR_SOLVERS = ("cholesky", "qr")
+#: relative weights: a block's norm is floored at this fraction of the other block's
+RELATIVE_FLOOR = 1e-6
 
 
 def data_scale(frf: FRF, f_max_hz: float | None = None) -> Scale:
@@ -164,7 +166,11 @@ def make_problem(
     Z_H, Z_T = frf.Z_H / zr, frf.Z_T / zr
     fro = lambda Z: jnp.linalg.norm(Z, axis=(-2, -1))[:, None, None]  # noqa: E731
     if weight == "relative":
-        W_H, W_T = mask / fro(Z_H), mask / fro(Z_T)
+        # a block whose data is zero (a single impedance loaded with Z_H = 0) has no size of
+        # its own: it is weighted relative to the other block (1e6/‖Z_other‖), not 1/0
+        nH, nT = fro(Z_H), fro(Z_T)
+        W_H = mask / jnp.maximum(nH, RELATIVE_FLOOR * nT)
+        W_T = mask / jnp.maximum(nT, RELATIVE_FLOOR * nH)
     elif weight == "paper":
         h = (omega_c**2 / (1j * frf.omega + omega_c) ** 2)[:, None, None]
         W_H = W_T = mask * h
@@ -386,7 +392,7 @@ def fit_nls(
     - ``throw``: raise (also under ``jit``, via ``eqx.error_if``) if the fit did not converge.
     - ``blend_floor``: relative model-error floor of ``"blend"`` weights.
     - ``pd_eps``: add ``pd_eps·I`` (scaled units) to every matrix, making them strictly PD.
-    - ``linear_solver``: ``"cholesky"`` (normal equations, default; DESIGN.md "CPU pitfalls")
+    - ``linear_solver``: ``"cholesky"`` (normal equations, default; docs/conventions.md "CPU pitfalls")
       or ``"qr"`` (optimistix's default) for the Gauss–Newton-type solvers.
     - ``boundary_rtol``: an eigenvalue ≤ boundary_rtol × largest counts as on the boundary.
     - ``ftol``, ``patience``: (``lm``, ``dogleg``, ``gauss_newton``) also stop (as converged)

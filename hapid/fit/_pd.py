@@ -5,7 +5,7 @@ Each of the six symmetric matrices ``M_H, B_H, K_H, M_M, B_M, K_M`` (hand, then 
 is written ``A = L Lᵀ (+ eps·I)`` with ``L`` lower triangular. The diagonal of ``L`` has a
 free sign: ``L Lᵀ`` is PSD whatever the sign, and the optimum may sit on the PSD boundary,
 where an exp/softplus diagonal would make Levenberg–Marquardt crawl for thousands of steps
-(DESIGN.md, "Cholesky details that matter"). The total impedance is ``Z_T = Z_M + Z_H``.
+(docs/conventions.md, "Cholesky details that matter"). The total impedance is ``Z_T = Z_M + Z_H``.
 
 The unconstrained vector ``theta`` has length ``6·n(n+1)/2`` (90 for n = 5): six blocks of
 ``n(n+1)/2`` lower-triangle entries in ``numpy.tril_indices`` (row-major) order, in the order
@@ -108,14 +108,22 @@ def model_to_scaled(model: ImpedanceModel, scale: Scale) -> Float[Array, "6 n n"
 def model_to_theta(
     model: ImpedanceModel, scale: Scale | None = None, floor: float = 1e-6
 ) -> Float[Array, " p"]:
-    """``theta`` of a model: :func:`project_pd` (relative ``floor``), then Cholesky factors.
+    """``theta`` of a model: each scaled matrix projected PD, then its Cholesky factor.
+
+    The six matrices ``M_H, B_H, K_H, M_M, B_M, K_M`` are taken in ``scale`` units (all
+    O(1)) and symmetrized; eigenvalues are clipped from below at ``floor`` × that matrix's
+    largest |eigenvalue| and at ``floor·1e-3`` × the largest of all six (so an all-zero
+    matrix — a mechanism of a single impedance loaded as ``Z_H = Z_T``, or a hand of
+    ``Z_H = 0`` — becomes a small multiple of I that the solver can move off, instead of a
+    NaN Cholesky factor). The mechanism is ``total − hand`` of the given model, never
+    re-derived after a floor was added to the total (which rounds the floor away).
 
     The Cholesky factors have positive diagonals; any sign pattern represents the same model.
     """
     scale = Scale.identity() if scale is None else scale
-    mats = model_to_scaled(project_pd(model, floor=floor), scale)
-    # project_pd makes them symmetric PD up to the floor; a final symmetrization guards
-    # the Cholesky against rounding.
+    mats = model_to_scaled(model, scale)
+    mats = _project_matrix(mats, floor, global_floor=floor * 1e-3)
+    # a final symmetrization guards the Cholesky against rounding
     mats = 0.5 * (mats + jnp.swapaxes(mats, -1, -2))
     L = jnp.linalg.cholesky(mats)
     n = model.n
@@ -133,12 +141,19 @@ def canonical_theta(theta: Float[Array, " p"]) -> Float[Array, " p"]:
     return L[:, rows, cols].reshape(-1)
 
 
-def _project_matrix(A: Float[Array, "... n n"], floor: float) -> Float[Array, "... n n"]:
+def _project_matrix(
+    A: Float[Array, "... n n"], floor: float, global_floor: float | None = None
+) -> Float[Array, "... n n"]:
+    """Symmetrize and clip eigenvalues at ``floor·max|λ|`` of each matrix; with
+    ``global_floor`` also at ``global_floor·max|λ|`` over the stack (axis ``-3``)."""
     A = 0.5 * (A + jnp.swapaxes(A, -1, -2))
     lam, V = jnp.linalg.eigh(A)
     top = jnp.max(jnp.abs(lam), axis=-1, keepdims=True)
-    # relative floor; an all-zero matrix gets a tiny absolute one so the Cholesky exists
-    lo = jnp.maximum(floor * top, jnp.finfo(A.dtype).tiny ** 0.5)
+    lo = floor * top
+    if global_floor is not None:
+        lo = jnp.maximum(lo, global_floor * jnp.max(top, axis=-2, keepdims=True))
+    # an all-zero matrix still gets a tiny absolute floor so the Cholesky exists
+    lo = jnp.maximum(lo, jnp.finfo(A.dtype).tiny ** 0.5)
     lam = jnp.maximum(lam, lo)
     return (V * lam[..., None, :]) @ jnp.swapaxes(V, -1, -2)
 

@@ -66,6 +66,16 @@ class CRHPReport(NamedTuple):
         """True when neither impedance has a closed-right-half-plane root."""
         return (self.hand == 0) & (self.total == 0)
 
+    @property
+    def status(self) -> str:
+        """``"ok"`` or which impedance has closed-RHP roots (concrete counts only)."""
+        bad = [f"det Ẑ_{k} has {int(v)} CRHP root(s)" for k, v in (("H", self.hand), ("T", self.total)) if int(v)]
+        return "; ".join(bad) or "ok"
+
+    def summary(self) -> dict:
+        """Plain-python counts and verdict."""
+        return {"ok": bool(self.ok), "status": self.status, "hand": int(self.hand), "total": int(self.total)}
+
 
 def crhp_report(model: ImpedanceModel, tol: float = 0.0) -> CRHPReport:
     """Closed-RHP root counts of ``det(Ẑ_H)`` and ``det(Ẑ_T)`` (``SecondOrder.n_crhp_roots``)."""

@@ -18,14 +18,13 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
-import numpy as np
 from jaxtyping import Array, Complex, Float
 
+from .._constants import TWO_PI
 from ..frf import FRF
 from ..impedance import ImpedanceModel, SecondOrder
 from ._checks import band_mask, check_fit_input
 
-TWO_PI = 2.0 * np.pi
 OMEGA_C_PAPER = 7.0 * TWO_PI
 """The paper's weighting corner ω_c = 7·2π rad/s (7 Hz)."""
 

@@ -23,6 +23,7 @@ from ._objective import cvar as cvar
 from ._objective import penalized as penalized
 from ._objective import scenario_constraints as scenario_constraints
 from ._paper import paper_column as paper_column
+from ._paper import tuned_design as tuned_design
 from ._params import ParamMap as ParamMap
 from ._recipe import posterior_grid as posterior_grid
 from ._recipe import posterior_plants as posterior_plants

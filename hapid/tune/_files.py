@@ -18,14 +18,10 @@ from ._params import _FIELDS
 
 
 def save_design(path, g: Compensator, **info) -> Path:
-    """Write ``g`` (and JSON-able ``info``) atomically-enough to ``path`` (.npz)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    arrays = {f: np.asarray(getattr(g, f), dtype=float) for f in _FIELDS}
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, **arrays, json=np.asarray(json.dumps(info, default=_jsonable)))
-    tmp.replace(path)
-    return path
+    """Write ``g`` and JSON-able ``info`` to ``path`` (.npz), atomically: :func:`hapid.io.save_design`."""
+    from ..io import save_design as _save
+
+    return _save(path, g, **info)
 
 
 def load_design(path) -> tuple[Compensator, dict]:
@@ -33,21 +29,28 @@ def load_design(path) -> tuple[Compensator, dict]:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such design file")
-    with np.load(path, allow_pickle=False) as z:
-        missing = [f for f in _FIELDS if f not in z]
-        if missing:
-            raise ValueError(f"{path}: not a design file (missing {', '.join(missing)})")
-        g = Compensator(**{f: z[f] for f in _FIELDS})
+    from ..io import _numeric, _read_arrays
+
+    z = _read_arrays(path, "a design file (hapid tune)")
+    missing = [f for f in _FIELDS if f not in z]
+    if missing:
+        raise ValueError(f"{path}: not a design file (missing {', '.join(missing)})")
+    arrays = {f: _numeric(z, f, path) for f in _FIELDS}
+    for f, a in arrays.items():
+        positive = f in ("k", "lag_zeros", "lag_poles", "notch_omega", "notch_zeta_den", "lowpass")
+        if not np.all(np.isfinite(a)) or np.any(a <= 0 if positive else a < 0):
+            raise ValueError(
+                f"{path}: {f} = {a.tolist()}; expected finite values {'> 0' if positive else '≥ 0'}"
+            )
+    try:
+        g = Compensator(**arrays)
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from None
+    try:
         info = json.loads(str(z["json"])) if "json" in z else {}
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: its 'json' entry is not valid JSON ({e})") from None
     return g, info
-
-
-def _jsonable(x):
-    if isinstance(x, np.ndarray | np.generic):
-        return x.tolist()
-    if hasattr(x, "__array__"):
-        return np.asarray(x).tolist()
-    return str(x)
 
 
 def design_info(out: dict) -> dict:

@@ -49,12 +49,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from .._constants import TWO_PI
 from ..control import ISO_THRESHOLD
 from ._params import ParamMap
 from ._response import g_response, smooth_sigma_max
 from ._scenarios import Scenarios
-
-TWO_PI = 2.0 * np.pi
 
 
 @dataclasses.dataclass(frozen=True)

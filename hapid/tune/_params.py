@@ -15,9 +15,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from .._constants import TWO_PI
 from ..control import Compensator
 
-TWO_PI = 2.0 * np.pi
 _FIELDS = (
     "k",
     "lag_zeros",

@@ -2,7 +2,7 @@
 """Differentiable pieces of the design objective that need no LAPACK call.
 
 * :func:`g_response` — ``g(jω)`` (continuous) or the matched pole-zero discrete ``g_d(e^{jωt_s})``
-  in closed form, section by section (the same discretization as
+  in closed form (:func:`hapid.lti.matched_response`: the same discretization as
   :func:`hapid.control.discretize_compensator`, ``infinite_zeros="minus_one"``).
 * :func:`smooth_sigma_max` — a smooth upper bound of the largest singular value:
   ``s_p(X) = tr((XᴴX)^p)^{1/(2p)}`` with ``p = 2^k``. Since ``tr(A^p) = Σ λ_i^p`` for the
@@ -21,45 +21,18 @@ from jaxtyping import Array, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
 from ..control import Compensator
-
-
-def _cosh_sqrt(u):
-    """``cosh(√u)`` for real u of either sign, smooth at 0 (entire function of u)."""
-    small = jnp.abs(u) < 1e-4
-    us = jnp.where(small, 1.0, u)
-    pos = jnp.cosh(jnp.sqrt(jnp.where(us > 0, us, 1.0)))
-    neg = jnp.cos(jnp.sqrt(jnp.where(us < 0, -us, 1.0)))
-    series = 1.0 + u / 2.0 + u * u / 24.0
-    return jnp.where(small, series, jnp.where(u > 0, pos, neg))
-
-
-def _pair(zeta, w, ts):
-    """``q² + c1 q + c2`` with roots ``e^{r t_s}``, ``r = −ζω ± ω√(ζ²−1)``."""
-    c1 = -2.0 * jnp.exp(-zeta * w * ts) * _cosh_sqrt((w * ts) ** 2 * (zeta**2 - 1.0))
-    c2 = jnp.exp(-2.0 * zeta * w * ts)
-    return c1, c2
+from ..lti import matched_response
 
 
 def g_response(
     g: Compensator, omega: Float[Array, " N"], ts: float | None = None
 ) -> Complex[Array, " N"]:
-    """``g(jω)`` (``ts=None``) or the matched pole-zero ``g_d(e^{jω t_s})`` (ω in rad/s)."""
+    """``g(jω)`` (``ts=None``) or the matched pole-zero ``g_d(e^{jω t_s})`` (ω in rad/s):
+    :func:`hapid.lti.matched_response`."""
     omega = jnp.asarray(omega, dtype=jnp.float64)
     if ts is None:
         return g.at_omega(omega)
-    q = jnp.exp(1j * omega * ts)[:, None]
-    z, p = g.lag_zeros, g.lag_poles
-    a, b = jnp.exp(-z * ts), jnp.exp(-p * ts)
-    K = (z / p) * (1.0 - b) / (1.0 - a)
-    lag = jnp.prod(K * (q - a) / (q - b), axis=-1)
-    w = g.notch_omega
-    n1, n2 = _pair(g.notch_zeta_num, w, ts)
-    d1, d2 = _pair(g.notch_zeta_den, w, ts)
-    Kn = (1.0 + d1 + d2) / (1.0 + n1 + n2)
-    notch = jnp.prod(Kn * (q * q + n1 * q + n2) / (q * q + d1 * q + d2), axis=-1)
-    bl = jnp.exp(-g.lowpass * ts)
-    lp = jnp.prod((1.0 - bl) / 2.0 * (q + 1.0) / (q - bl), axis=-1)
-    return g.k * lag * notch * lp
+    return matched_response(g, omega, ts)
 
 
 def smooth_sigma_max(X: Complex[Array, "... n n"], k: int = 6) -> Float[Array, ...]:

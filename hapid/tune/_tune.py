@@ -23,12 +23,11 @@ import numpy as np
 import optimistix as optx
 
 from .. import _config  # noqa: F401  (float64)
+from .._constants import TWO_PI
 from ..control import Compensator
 from ._objective import Box, Requirements, aggregate, penalized
 from ._params import ParamMap
 from ._response import g_response
-
-TWO_PI = 2.0 * np.pi
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,6 +57,16 @@ class TuneResult:
     def feasible(self) -> bool:
         """Every smooth constraint met (to 1e-3 in log units) on the training scenarios."""
         return all(v <= 1e-3 for v in self.constraints.values())
+
+    ok = property(lambda self: self.feasible, doc="The smooth constraints are met (:attr:`feasible`).")
+    status = property(lambda self: "feasible" if self.feasible else "infeasible", doc="``feasible``/``infeasible``.")
+
+    def summary(self) -> dict:
+        """Plain-python summary: verdict, claimed bandwidths (Hz), constraints, parameters."""
+        return {"ok": self.ok, "status": self.status, "bandwidth_hz": float(self.bandwidth_hz),
+                "bandwidth0_hz": float(self.bandwidth0_hz),
+                "constraints": {k: float(v) for k, v in self.constraints.items()},
+                "parameters": self.parameters(), "wall_s": float(self.wall_s)}  # fmt: skip
 
     def parameters(self) -> list[dict]:
         """Rows ``{name, start, tuned}`` (frequencies in Hz)."""

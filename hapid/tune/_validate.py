@@ -17,18 +17,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import _config  # noqa: F401  (float64)
-from ..control import Compensator, analyze_loop, controller_unstable_poles, discretize_controller
+from .. import (
+    _config,  # noqa: F401  (float64)
+    pipeline,
+)
+from .._grids import nyquist_grid as device_grid
+from ..control import Compensator
 
-TWO_PI = 2.0 * np.pi
 _LOOP_KEYS = ("stable", "iso_bandwidth_hz", "gm_db", "pm_deg", "disk_margin", "disk_gm_db",
               "disk_pm_deg", "t_peak_db", "t_peak_hz", "nyquist_resolved")  # fmt: skip
-
-
-def device_grid(fs_hz: float, n_freq: int = 1500, f_min_hz: float = 1e-3) -> np.ndarray:
-    """The paper analysis grid (rad/s): log-spaced to just below Nyquist, plus Nyquist."""
-    f = np.geomspace(f_min_hz, 0.49999 * fs_hz, n_freq - 1)
-    return TWO_PI * np.append(f, 0.5 * fs_hz)
 
 
 def _clean(d):
@@ -46,9 +43,9 @@ def _clean(d):
 def true_plant_loop(g: Compensator, model, device, omega=None) -> dict:
     """Loop numbers of the discretized controller with ``device.sampled_P`` (Nyquist first)."""
     omega = device_grid(device.fs_hz) if omega is None else np.asarray(omega, dtype=float)
-    P = np.asarray(device.sampled_P(omega))
-    G = np.asarray(discretize_controller(model, g, device.ts).at_omega(omega))
-    rep = analyze_loop(P, G, omega, P_ol_rhp=int(controller_unstable_poles(model, g)))
+    rep = pipeline.loop(
+        pipeline.controller(model, g, ts=device.ts), pipeline.device_plant(device, omega)
+    )
     s = rep.summary()
     return _clean({k: s[k] for k in _LOOP_KEYS}) | {"report": rep}
 
@@ -64,7 +61,7 @@ def step_response(g: Compensator, model, device, *, n_samples: int = 800, direct
     """
     from ..closed_loop import closed_loop, simulate_loop
 
-    ctrl = discretize_controller(model, g, device.ts)
+    ctrl = pipeline.controller(model, g, ts=device.ts).discrete()
     cl = closed_loop(device, ctrl)
     rho = float(cl.spectral_radius())
     n = device.n
@@ -116,18 +113,19 @@ def validate(
 
     - ``samples``: held-out posterior models (a batched :class:`~hapid.impedance.ImpedanceModel`
       or :class:`~hapid.uncertainty.PosteriorSamples`), analysed on ``omega_c`` (default
-      :func:`hapid.uncertainty.robust_omega`).
+      :func:`hapid.uncertainty.posterior_omega`, the wide grid that resolves the Nyquist
+      count of continuous loops; the 0.05–450 Hz grid miscounted most cu5 draws).
     - ``device``: the simulated device (true plant, time domain); ``variants``: ``(labels,
       P)`` of held-out device variants on ``omega_d`` (default :func:`device_grid`).
 
     Returns a dict with ``posterior`` / ``variants`` (RobustReport summaries, ``report``
     the full report), ``true_plant`` (loop numbers) and ``time_domain``.
     """
-    from ..uncertainty import robust_check, robust_omega
+    from ..uncertainty import posterior_omega, robust_check
 
     out: dict = {}
     if samples is not None:
-        omc = robust_omega() if omega_c is None else np.asarray(omega_c, dtype=float)
+        omc = posterior_omega() if omega_c is None else np.asarray(omega_c, dtype=float)
         rep = robust_check(samples, (model, g), omc, gm_db=gm_db, pm_deg=pm_deg,
                            p_stable_required=p_required, max_samples=None)  # fmt: skip
         out["posterior"] = rep.summary() | {"report": rep}
@@ -136,8 +134,9 @@ def validate(
         out["true_plant"] = true_plant_loop(g, model, device, omd)
         if variants is not None:
             labels, P = variants
-            G = np.asarray(discretize_controller(model, g, device.ts).at_omega(omd))
-            rep = robust_check(np.asarray(P), G, omd, controller_rhp=int(controller_unstable_poles(model, g)),
+            ctrl = pipeline.controller(model, g, ts=device.ts)
+            G = np.asarray(ctrl.response(omd))
+            rep = robust_check(np.asarray(P), G, omd, controller_rhp=int(ctrl.p_rhp),
                                gm_db=gm_db, pm_deg=pm_deg, p_stable_required=p_required, labels=labels)  # fmt: skip
             out["variants"] = rep.summary() | {"report": rep}
         if time_domain:

@@ -2,11 +2,6 @@
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
-import numpy as np
-
 from .. import _config  # noqa: F401  (float64)
 
 
@@ -31,7 +26,8 @@ def posterior_from_files(
     (``n_samples`` draws of the posterior's Laplace Gaussian in matrix coordinates, projected
     onto the PSD cone: :func:`posterior_laplace_samples`). ``fit_options`` go to ``fit_nls``
     (default relative weights, 40 Hz band); ``posterior_options`` to ``make_log_posterior``
-    (its ``f_max_hz`` defaults to the fit's; with ``fix_boundary`` the fit's matrices at the
+    (its ``f_max_hz`` defaults to the fit's; ``model_error="gp"`` uses the NLS fit as the GP
+    amplitudes' reference; with ``fix_boundary`` the fit's matrices at the
     PSD boundary are held fixed, :func:`boundary_fixed`); ``sampler_options`` (``n_walkers``, ``moves``,
     ``max_steps``…) to ``sample_posterior``. Returns the :class:`PosteriorSamples`.
     """
@@ -48,6 +44,8 @@ def posterior_from_files(
     popts = {"f_max_hz": fit_options["f_max_hz"]} | dict(posterior_options or {})
     if fix_boundary and nls.boundary and "fixed" not in popts:
         popts["fixed"] = boundary_fixed(nls)
+    if popts.get("model_error") == "gp":
+        popts.setdefault("reference", nls)
     post = make_log_posterior(frf, nls.scale, **popts)
     if method == "laplace":
         ps = posterior_laplace_samples(post, int(n_samples), nls, key=seed)
@@ -79,7 +77,7 @@ def robust_from_files(
     ``"device"``. Returns ``{"posterior": summary, "device": summary | None}``.
     """
     from ..control import Compensator
-    from ..io import load_model
+    from ..io import load_model, save_json
     from ._robust import device_plants, posterior_omega, robust_check, robust_omega
     from ._sampler import load_samples
 
@@ -98,7 +96,7 @@ def robust_from_files(
         out["device"] = robust_check(P, (model, g), omega, gm_db=gm_db, pm_deg=pm_deg,
                                      labels=labels).summary()  # fmt: skip
     if out_json is not None:
-        Path(out_json).write_text(json.dumps(out, indent=2, default=_jsonable))
+        save_json(out_json, out)
     return out
 
 
@@ -121,11 +119,3 @@ def side_by_side(results: dict) -> str:
             vals = [fmt.format(sm[key]) for _, key, fmt in cols]
             lines.append(f"| {label} | {batch} | {sm['n']} | " + " | ".join(vals) + " |")
     return "\n".join(lines)
-
-
-def _jsonable(x):
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    return str(x)

@@ -54,7 +54,7 @@ circular complex Gaussian, ``log p(r) = −2 log π − log det C − rᴴ C⁻�
 
 **Prior** (proper, on the sampled coordinates, so no Jacobian): ``θ'_i ~ N(0, prior_scale²)``
 (Cholesky entries, or matrix entries truncated to the PSD cone) independently (scaled units are O(1); the default ``prior_scale = 10`` is weak but keeps a
-Cholesky diagonal of an unidentified direction from drifting off, DESIGN.md "Priors and
+Cholesky diagonal of an unidentified direction from drifting off, docs/conventions.md "Priors and
 misspecification"), and ``log τ ~ N(log_tau_mean, log_tau_sd²)`` (default ``log 0.03``,
 sd 2: τ from ~5·10⁻⁴ to ~1.6 within ±2 sd).
 
@@ -86,6 +86,13 @@ DEFAULT_PRIOR_SCALE = 10.0
 DEFAULT_LOG_TAU_MEAN = float(np.log(0.03))
 DEFAULT_LOG_TAU_SD = 2.0
 TAU_NAMES = ("log_tau_H", "log_tau_M")
+ELL_NAMES = ("log_ell_H", "log_ell_M")
+SLOPE_NAMES = ("beta_H", "beta_M")
+DEFAULT_BETA_SD = 1.0  # prior sd of the amplitude slopes β (per e-fold of frequency)
+MODEL_ERRORS = ("none", "white", "gp")
+DEFAULT_LOG_ELL_MEAN = float(np.log(0.5))  # length scale in natural-log frequency units
+DEFAULT_LOG_ELL_SD = 1.0
+GP_NUGGET = 1e-8  # relative nugget on the GP kernel diagonal (conditioning only)
 _JITTER = 1e-12  # relative variance floor (numerical safety only)
 
 
@@ -172,13 +179,106 @@ def theta_to_matrix(theta: np.ndarray, n: int) -> np.ndarray:
 PARAMETERIZATIONS = ("matrix", "cholesky")
 
 
-def param_names(n: int, model_error: bool = True, parameterization: str = "cholesky") -> list[str]:
+def error_kind(model_error) -> str:
+    """Normalize ``model_error`` (``True`` = ``"white"``, ``False`` = ``"none"``, or one of
+    :data:`MODEL_ERRORS`)."""
+    if model_error is True:
+        return "white"
+    if model_error is False or model_error is None:
+        return "none"
+    if model_error not in MODEL_ERRORS:
+        raise ValueError(
+            f"model_error must be one of {MODEL_ERRORS} (or a bool), got {model_error!r}"
+        )
+    return str(model_error)
+
+
+def hyper_names(model_error) -> list[str]:
+    """Names of the model-error coordinates after θ: none, ``log_tau_H, log_tau_M`` (white)
+    or those plus ``log_ell_H, log_ell_M, beta_H, beta_M`` (gp)."""
+    kind = error_kind(model_error)
+    gp = list(ELL_NAMES) + list(SLOPE_NAMES) if kind == "gp" else []
+    return [] if kind == "none" else list(TAU_NAMES) + gp
+
+
+def param_names(n: int, model_error=True, parameterization: str = "cholesky") -> list[str]:
     """Names of the ``d`` sampled coordinates, e.g. ``"L_M_H[1,0]"`` (Cholesky factor entry),
-    ``"M_H[1,0]"`` (matrix entry), ``"log_tau_H"``."""
+    ``"M_H[1,0]"`` (matrix entry), ``"log_tau_H"``, ``"log_ell_H"``."""
     rows, cols = np.tril_indices(n)
     pre = "L_" if parameterization == "cholesky" else ""
     names = [f"{pre}{m}[{i},{j}]" for m in MATRIX_NAMES for i, j in zip(rows, cols, strict=True)]
-    return names + (list(TAU_NAMES) if model_error else [])
+    return names + hyper_names(model_error)
+
+
+def matern52(x: Float[Array, " N"], y: Float[Array, " M"], ell) -> Float[Array, "N M"]:
+    """Matérn-5/2 correlation ``(1 + √5 r/ℓ + 5r²/3ℓ²) e^{−√5 r/ℓ}``, ``r = |x − y|``."""
+    r = jnp.abs(x[:, None] - y[None, :]) * (np.sqrt(5.0) / ell)
+    return (1.0 + r + r**2 / 3.0) * jnp.exp(-r)
+
+
+def squared_exponential(x: Float[Array, " N"], y: Float[Array, " M"], ell) -> Float[Array, "N M"]:
+    """Squared-exponential correlation ``exp(−(x − y)²/2ℓ²)``."""
+    return jnp.exp(-0.5 * ((x[:, None] - y[None, :]) / ell) ** 2)
+
+
+KERNELS = {"se": squared_exponential, "matern52": matern52}
+GP_KERNEL = "matern52"
+
+
+def kernel(x, y, ell):
+    """The GP correlation in use (:data:`GP_KERNEL`)."""
+    return KERNELS[GP_KERNEL](x, y, ell)
+
+
+def gp_covariance(logw, a_H, a_M, var_H, var_T, noise_corr, hyper):
+    """Per-element covariance of the stacked real residual ``[r_H; r_T]`` (``2N``) under the
+    GP model error: ``(E, 2N, 2N)`` with ``E = n²`` elements (row-major), for the real part
+    and (identically) for the imaginary part.
+
+    ``logw (N,)`` log-frequency ``log(ω/ω_ref)``, ``a_H, a_M (N,)`` RMS element sizes,
+    ``var_H, var_T (N, n, n)`` the FRF's ``std²``, ``hyper = (log τ_H, log τ_M, log ℓ_H,
+    log ℓ_M, β_H, β_M)``. The amplitude of ``X ∈ {H, M}`` is ``τ_X (ω/ω_ref)^β_X a_X(ω)``;
+    each of re/im carries half the complex variance (circular): ``K_X = ½ b_X b_Xᵀ ⊙ k(ℓ_X)``
+    with ``b_X`` that amplitude; the blocks are ``[[K_H + D_H, K_H + D_HT], [K_H + D_HT,
+    K_H + K_M + D_T]]``.
+    """
+    tau, ell = jnp.exp(hyper[:2]), jnp.exp(hyper[2:4])
+    a_H = a_H * jnp.exp(hyper[4] * logw)
+    a_M = a_M * jnp.exp(hyper[5] * logw)
+    KH = 0.5 * tau[0] ** 2 * (a_H[:, None] * a_H[None, :]) * kernel(logw, logw, ell[0])
+    KM = 0.5 * tau[1] ** 2 * (a_M[:, None] * a_M[None, :]) * kernel(logw, logw, ell[1])
+    N = logw.shape[0]
+    n2 = var_H.shape[-1] * var_H.shape[-2]
+    dH = 0.5 * jnp.moveaxis(var_H.reshape(N, n2), 0, 1)  # (E, N)
+    dT = 0.5 * jnp.moveaxis(var_T.reshape(N, n2), 0, 1)
+    dHT = noise_corr * jnp.sqrt(dH * dT)
+    nug = GP_NUGGET * (jnp.diag(KH) + jnp.diag(KM)) + _JITTER * 0.5 * (a_H + a_M) ** 2
+    top = jnp.concatenate([KH, KH], axis=1)
+    bot = jnp.concatenate([KH, KH + KM], axis=1)
+    base = jnp.concatenate([top, bot], axis=0)
+    diag = jnp.concatenate([dH + nug, dT + nug], axis=1)  # (E, 2N)
+    off = jax.vmap(jnp.diag)(dHT)  # (E, N, N)
+    z = jnp.zeros_like(off)
+    offb = jnp.concatenate([jnp.concatenate([z, off], 2), jnp.concatenate([off, z], 2)], 1)
+    return base[None] + jax.vmap(jnp.diag)(diag) + offb
+
+
+def gp_log_likelihood(rH_re, rH_im, rT_re, rT_im, C):
+    """Sum over elements and re/im of ``log N([r_H; r_T]; 0, C_e)``; residuals ``(N, n, n)``,
+    ``C`` from :func:`gp_covariance`."""
+    N = rH_re.shape[0]
+    flat = lambda r: jnp.moveaxis(r.reshape(N, -1), 0, 1)  # noqa: E731  (E, N)
+    Y = jnp.stack(
+        [
+            jnp.concatenate([flat(rH_re), flat(rT_re)], 1),
+            jnp.concatenate([flat(rH_im), flat(rT_im)], 1),
+        ],
+        axis=-1,
+    )  # fmt: skip  (E, 2N, 2)
+    L = jnp.linalg.cholesky(C)
+    W = jax.scipy.linalg.solve_triangular(L, Y, lower=True)
+    logdet = 2.0 * jnp.sum(jnp.log(jnp.diagonal(L, axis1=-2, axis2=-1)))
+    return -0.5 * jnp.sum(W**2) - logdet - 2 * N * np.log(2 * np.pi) * C.shape[0]
 
 
 class LogPosterior(eqx.Module):
@@ -206,6 +306,10 @@ class LogPosterior(eqx.Module):
     psd_constraint: bool = eqx.field(static=True, default=True)
     theta_fixed: Float[Array, " p"] | None = None  # full θ holding the fixed matrices' entries
     free_idx: tuple[int, ...] = eqx.field(static=True, default=())  # () = every entry is free
+    kind: str = eqx.field(static=True, default="white")  # model error: none | white | gp
+    ref_theta: Float[Array, " p"] | None = None  # gp: reference θ (Cholesky) of a_H, a_M
+    log_ell_mean: float = eqx.field(static=True, default=DEFAULT_LOG_ELL_MEAN)
+    log_ell_sd: float = eqx.field(static=True, default=DEFAULT_LOG_ELL_SD)
 
     @property
     def n(self) -> int:
@@ -217,7 +321,8 @@ class LogPosterior(eqx.Module):
 
     @property
     def n_tau(self) -> int:
-        return 2 if self.model_error else 0
+        """Model-error coordinates after θ: 0 (none), 2 (white: log τ), 4 (gp: log τ, log ℓ)."""
+        return {"none": 0, "white": 2, "gp": 6}[self.kind] if self.model_error else 0
 
     @property
     def n_free(self) -> int:
@@ -245,7 +350,9 @@ class LogPosterior(eqx.Module):
 
     @property
     def names(self) -> list[str]:
-        names = param_names(self.n, self.model_error, self.parameterization)
+        names = param_names(
+            self.n, self.kind if self.model_error else "none", self.parameterization
+        )
         if not self.free_idx:
             return names
         return [names[i] for i in self.free_idx] + names[self.n_theta :]
@@ -267,7 +374,11 @@ class LogPosterior(eqx.Module):
     def unconstrained(self) -> LogPosterior:
         """The same density without the PSD-cone restriction (``"matrix"``): the Gaussian
         whose mode and curvature :func:`laplace_posterior` uses."""
-        return dataclasses.replace(self, psd_constraint=False) if self.parameterization == "matrix" else self
+        return (
+            dataclasses.replace(self, psd_constraint=False)
+            if self.parameterization == "matrix"
+            else self
+        )
 
     # --- pieces --------------------------------------------------------------------------
     def model_matrices(self, theta: Float[Array, " p"]) -> Float[Array, "6 n n"]:
@@ -310,6 +421,10 @@ class LogPosterior(eqx.Module):
         imH = w * mats[1] - jnp.imag(self.Z_H)
         reT = reH + mats[5] - w2 * mats[3] + jnp.real(self.Z_H) - jnp.real(self.Z_T)
         imT = imH + w * mats[4] + jnp.imag(self.Z_H) - jnp.imag(self.Z_T)
+        if self.kind == "gp" and self.model_error:
+            C = gp_covariance(jnp.log(w[:, 0, 0]), self.a_H, self.a_M, self.var_H, self.var_T,
+                              self.noise_corr, x[p:])  # fmt: skip
+            return gp_log_likelihood(reH, imH, reT, imT, C)
         c11, c12, c22 = self.covariance_terms(x[p:])
         det = c11 * c22 - c12**2
         quad = (
@@ -323,8 +438,13 @@ class LogPosterior(eqx.Module):
             self.prior_scale * np.sqrt(2 * np.pi)
         )
         if self.model_error:
-            z = (x[p:] - self.log_tau_mean) / self.log_tau_sd
-            lp = lp - 0.5 * jnp.sum(z**2) - self.n_tau * np.log(self.log_tau_sd * np.sqrt(2 * np.pi))
+            z = (x[p : p + 2] - self.log_tau_mean) / self.log_tau_sd
+            lp = lp - 0.5 * jnp.sum(z**2) - 2 * np.log(self.log_tau_sd * np.sqrt(2 * np.pi))
+        if self.model_error and self.kind == "gp":
+            z = (x[p + 2 : p + 4] - self.log_ell_mean) / self.log_ell_sd
+            lp = lp - 0.5 * jnp.sum(z**2) - 2 * np.log(self.log_ell_sd * np.sqrt(2 * np.pi))
+            z = x[p + 4 : p + 6] / DEFAULT_BETA_SD
+            lp = lp - 0.5 * jnp.sum(z**2) - 2 * np.log(DEFAULT_BETA_SD * np.sqrt(2 * np.pi))
         if self.parameterization == "matrix" and self.psd_constraint:
             mats = self.model_matrices(self.full_theta(x))[np.asarray(self._sampled_blocks())]
             lp = jnp.where(_positive_definite(mats), lp, -jnp.inf)
@@ -341,6 +461,29 @@ class LogPosterior(eqx.Module):
     def log_prob_numpy(self, xs) -> np.ndarray:
         """:meth:`log_prob` as a float64 numpy array (what emcee's ``vectorize=True`` wants)."""
         return np.asarray(self.log_prob(np.asarray(xs, dtype=np.float64)))
+
+    def hyper_mean(self) -> np.ndarray:
+        """Prior means of the model-error coordinates ``(n_tau,)``."""
+        if self.n_tau == 0:
+            return np.zeros(0)
+        extra = [self.log_ell_mean] * 2 + [0.0, 0.0] if self.n_tau == 6 else []
+        return np.array([self.log_tau_mean] * 2 + extra)
+
+    def predictive_data(self) -> dict:
+        """What :func:`hapid.uncertainty.predictive_plants` needs to condition the model-error
+        term on the fit residuals (numpy, physical units): ``kind``, ``omega (N,)`` rad/s,
+        ``Z_H, Z_T (N, n, n)``, ``var_H, var_T (N, n, n)`` (std²), ``a_H, a_M (N,)`` and
+        ``ref_theta (p,)`` (gp), ``noise_corr``."""
+        zr = float(np.asarray(self.scale.z_ref))
+        out = {"kind": self.kind if self.model_error else "none",
+               "omega": np.asarray(jnp.imag(self.s)) * float(np.asarray(self.scale.omega_ref)),
+               "Z_H": np.asarray(self.Z_H) * zr, "Z_T": np.asarray(self.Z_T) * zr,
+               "var_H": np.asarray(self.var_H) * zr**2, "var_T": np.asarray(self.var_T) * zr**2,
+               "a_H": np.asarray(self.a_H) * zr, "a_M": np.asarray(self.a_M) * zr,
+               "noise_corr": np.float64(self.noise_corr)}  # fmt: skip
+        if self.ref_theta is not None:
+            out["ref_theta"] = np.asarray(self.ref_theta)
+        return out
 
     def split(self, xs):
         """``(theta (…, p), log_tau (…, n_tau))`` of sampled coordinates, θ the canonical
@@ -400,13 +543,16 @@ def make_log_posterior(
     scale: Scale | None = None,
     *,
     f_max_hz: float | None = DEFAULT_F_MAX_HZ,
-    model_error: bool = True,
+    model_error: bool | str = True,
     noise_corr: float = 0.0,
     prior_scale: float = DEFAULT_PRIOR_SCALE,
     log_tau_mean: float = DEFAULT_LOG_TAU_MEAN,
     log_tau_sd: float = DEFAULT_LOG_TAU_SD,
     parameterization: str = "matrix",
     fixed: dict | None = None,
+    reference=None,
+    log_ell_mean: float = DEFAULT_LOG_ELL_MEAN,
+    log_ell_sd: float = DEFAULT_LOG_ELL_SD,
 ) -> LogPosterior:
     """Build the :class:`LogPosterior` of ``frf`` (module docstring for the model).
 
@@ -414,8 +560,18 @@ def make_log_posterior(
       (default: ``hapid.fit.data_scale(frf, f_max_hz)``, the same as ``fit_nls`` uses).
     - ``f_max_hz``: only frequencies ``≤ f_max_hz`` enter (default 40 Hz like ``fit_nls``;
       ``None`` = all).
-    - ``model_error``: add the relative model-error scales ``log τ_H, log τ_M`` (default).
-      Without it the FRF's stds must be > 0 everywhere (pure measurement-noise likelihood).
+    - ``model_error``: ``"white"`` (or ``True``, default): relative model-error scales
+      ``log τ_H, log τ_M``, independent per frequency; ``"gp"``: the model error of each
+      element is a smooth random function of log-frequency (a Matérn-5/2 Gaussian process
+      with amplitudes ``τ_H a_H(ω), τ_M a_M(ω)`` (data RMS element sizes) and learned length scales ``ℓ_H, ℓ_M``,
+      marginalized in closed form: :func:`gp_covariance`); ``"none"`` (or ``False``): pure
+      measurement noise — then the FRF's stds must be > 0 everywhere.
+    - ``reference`` (gp only, required): an :class:`~hapid.fit.NLSResult` or its θ (Cholesky,
+      ``scale`` units): the shape of the GP amplitude outside the fit band
+      (:func:`gp_amplitudes`; inside it, the data's RMS element sizes as for ``"white"``).
+    - ``log_ell_mean``, ``log_ell_sd``: prior of ``log ℓ`` (ℓ in natural-log frequency
+      units; default median 0.5, i.e. a factor e^0.5 ≈ 1.65 in frequency, sd 1). The
+      amplitude slopes have the prior ``β ~ N(0, 1)``.
     - ``noise_corr``: correlation ρ ∈ (−1, 1) of the Z_H/Z_T measurement errors per element.
     - ``prior_scale``, ``log_tau_mean``, ``log_tau_sd``: the priors.
     - ``parameterization``: ``"matrix"`` (default; matrix entries on the PSD cone) or
@@ -442,7 +598,9 @@ def make_log_posterior(
     if np.ndim(frf.omega) != 1:
         raise ValueError("make_log_posterior: a single (unbatched) FRF is required")
     if parameterization not in PARAMETERIZATIONS:
-        raise ValueError(f"parameterization must be one of {PARAMETERIZATIONS}, got {parameterization!r}")
+        raise ValueError(
+            f"parameterization must be one of {PARAMETERIZATIONS}, got {parameterization!r}"
+        )
     if not (-1.0 < noise_corr < 1.0):
         raise ValueError(f"noise_corr must be in (-1, 1), got {noise_corr}")
     if not (prior_scale > 0 and log_tau_sd > 0 and np.isfinite(log_tau_mean)):
@@ -456,6 +614,10 @@ def make_log_posterior(
         a = np.asarray(getattr(band, name))
         if not np.all(np.isfinite(a)):
             raise ValueError(f"make_log_posterior: FRF {name} contains NaN or inf")
+    kind = error_kind(model_error)
+    model_error = kind != "none"
+    if not (log_ell_sd > 0 and np.isfinite(log_ell_mean)):
+        raise ValueError("log_ell_sd must be > 0 and log_ell_mean finite")
     if not model_error:
         for name in ("Z_H_std", "Z_T_std"):
             if np.any(np.asarray(getattr(band, name)) <= 0):
@@ -480,7 +642,9 @@ def make_log_posterior(
         for name, A in fixed.items():
             A = np.asarray(A, dtype=np.float64)
             if A.shape != (n, n) or not np.all(np.isfinite(A)):
-                raise ValueError(f"fixed[{name!r}] must be a finite ({n}, {n}) matrix, got shape {A.shape}")
+                raise ValueError(
+                    f"fixed[{name!r}] must be a finite ({n}, {n}) matrix, got shape {A.shape}"
+                )
             k = MATRIX_NAMES.index(name)
             th[k * t : (k + 1) * t] = (0.5 * (A + A.T) * fac[k % 3])[rows, cols]
         blocks = [MATRIX_NAMES.index(nm) for nm in fixed]
@@ -488,14 +652,17 @@ def make_log_posterior(
         theta_fixed = jnp.asarray(th)
     Z_H, Z_T = band.Z_H / zr, band.Z_T / zr
     rms = lambda Z: jnp.linalg.norm(Z, axis=(-2, -1)) / n  # noqa: E731
+    a_H, a_M, ref_theta = rms(Z_H), rms(Z_T - Z_H), None
+    if kind == "gp":
+        ref_theta = _reference_theta(reference, scale, n)
     return LogPosterior(
         s=1j * band.omega / scale.omega_ref,
         Z_H=Z_H,
         Z_T=Z_T,
         var_H=(band.Z_H_std / zr) ** 2,
         var_T=(band.Z_T_std / zr) ** 2,
-        a_H=rms(Z_H),
-        a_M=rms(Z_T - Z_H),
+        a_H=a_H,
+        a_M=a_M,
         scale=scale,
         model_error=bool(model_error),
         noise_corr=float(noise_corr),
@@ -505,7 +672,61 @@ def make_log_posterior(
         parameterization=parameterization,
         theta_fixed=theta_fixed,
         free_idx=free_idx,
+        kind=kind,
+        ref_theta=ref_theta,
+        log_ell_mean=float(log_ell_mean),
+        log_ell_sd=float(log_ell_sd),
     )
+
+
+def _reference_theta(reference, scale: Scale, n: int):
+    from ..fit._result import NLSResult
+
+    if reference is None:
+        raise ValueError("model_error='gp' needs reference= (the NLS result or its θ): the GP "
+                         "amplitudes are the reference model's element sizes")  # fmt: skip
+    if isinstance(reference, NLSResult):
+        if not (np.allclose(np.asarray(reference.scale.z_ref), np.asarray(scale.z_ref))
+                and np.allclose(np.asarray(reference.scale.omega_ref), np.asarray(scale.omega_ref))):  # fmt: skip
+            raise ValueError("reference: the NLS result's scale differs from the posterior's")
+        reference = reference.theta
+    th = np.asarray(reference, dtype=np.float64)
+    if th.shape != (n_params(n),) or not np.all(np.isfinite(th)):
+        raise ValueError(f"reference θ must be finite with shape ({n_params(n)},), got {th.shape}")
+    return jnp.asarray(fold_theta(th))
+
+
+def gp_amplitudes(
+    omega, omega_fit, a_fit, ref_theta, scale: Scale
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(a_H, a_M)`` (N,) N/m on any ``omega`` (rad/s): the data's RMS element sizes
+    ``a_fit = (a_H, a_M)`` on the fit band ``omega_fit``, log-log interpolated inside it;
+    outside, the reference model's sizes scaled to meet the data at the nearest band end."""
+    omega = np.asarray(omega, dtype=np.float64)
+    om_f = np.asarray(omega_fit, dtype=np.float64)
+    ref_new = reference_amplitudes(ref_theta, scale, omega)
+    ref_fit = reference_amplitudes(ref_theta, scale, om_f[[0, -1]])
+    out = []
+    for a, rn, rf in zip(a_fit, ref_new, ref_fit, strict=True):
+        a = np.maximum(np.asarray(a, dtype=np.float64), 1e-300)
+        rn, rf = np.maximum(np.asarray(rn), 1e-300), np.maximum(np.asarray(rf), 1e-300)
+        v = np.exp(np.interp(np.log(omega), np.log(om_f), np.log(a)))
+        v = np.where(omega < om_f[0], rn * a[0] / rf[0], v)
+        out.append(np.where(omega > om_f[-1], rn * a[-1] / rf[1], v))
+    return out[0], out[1]
+
+
+def reference_amplitudes(ref_theta, scale: Scale, omega) -> tuple[np.ndarray, np.ndarray]:
+    """``(a_H, a_M)`` (N,) in N/m: RMS element sizes ``‖Z(jω)‖_F / n`` of the reference
+    model's hand and mechanism impedances on ``omega`` (rad/s) — the GP amplitude scale."""
+    from ..fit._pd import theta_to_model
+
+    m = theta_to_model(jnp.asarray(ref_theta), scale)
+    s = 1j * jnp.asarray(omega, dtype=jnp.float64)
+    n = m.n
+    aH = jnp.linalg.norm(m.hand(s), axis=(-2, -1)) / n
+    aM = jnp.linalg.norm(m.mechanism(s), axis=(-2, -1)) / n
+    return aH, aM
 
 
 def boundary_fixed(nls_result) -> dict:

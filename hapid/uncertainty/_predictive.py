@@ -101,3 +101,179 @@ def credible_bands(
         raise ValueError(f"quantile levels must be in [0, 1], got {q}")
     per = predictive_samples(ps, omega, quantities, P_ref, chunk, max_samples, seed)
     return {k: np.quantile(v, qs, axis=0) for k, v in per.items()}
+
+
+# --- predictive draws of the plant, model error included ------------------------------
+
+
+def _interp_log(x_new, x, y):
+    """``y(x)`` log-log interpolated at ``x_new`` (constant beyond the ends)."""
+    return np.exp(np.interp(np.log(x_new), np.log(x), np.log(np.maximum(y, 1e-300))))
+
+
+def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 500, seed: int = 0,
+                      include_error: bool = True) -> dict[str, np.ndarray]:  # fmt: skip
+    """Posterior-predictive draws of the *true* ``Z_H, Z_T, P = Z_H Z_T⁻¹`` on ``omega`` (rad/s,
+    any grid), including the model-error term — not only parameter uncertainty.
+
+    Per draw ``(θ, τ, ℓ)``: ``Z(θ)`` of the second-order model plus the model-error function
+    drawn from its posterior *given that draw's fit residuals*:
+
+    - ``"gp"`` samples: the error functions ``e_H, e_M`` (per element, re and im) are the GP
+      of :func:`hapid.uncertainty._likelihood.gp_covariance`; the draw at ``omega`` is the
+      exact GP conditional on the residuals ``[Ẑ_H − Z_H(θ); Ẑ_T − Z_T(θ)]`` at the fit
+      frequencies (pathwise: a joint prior draw on fit ∪ new frequencies corrected by
+      ``K_{*x} C⁻¹ (r − ỹ)``, Matheron's rule). Far from the fit band it reverts to the prior
+      (amplitude ``τ a(ω)``, :func:`~hapid.uncertainty._likelihood.gp_amplitudes`, with the
+      slope factor ``(ω/ω_ref)^β`` held at its band-edge value beyond the fit band).
+    - ``"white"`` samples: independent circular errors of variance ``τ² a(ω)²`` at each new
+      frequency (``a`` log-log interpolated from the fit band): the white model has no
+      correlation to condition on.
+    - no model error (or ``include_error=False``): ``Z(θ)`` only.
+
+    ``Z_T`` carries ``e_H + e_M`` (``Z_T = Z_H + Z_M``). Returns ``{"omega": (N,), "Z_H",
+    "Z_T", "P": (S', N, n, n)}`` with at most ``max_samples`` draws (random subset, ``seed``).
+    """
+    from ..fit._pd import theta_to_model
+    from ._likelihood import gp_amplitudes, gp_covariance, kernel
+
+    omega = np.asarray(omega, dtype=np.float64)
+    if (
+        omega.ndim != 1
+        or omega.shape[0] < 1
+        or not np.all(np.isfinite(omega))
+        or np.any(omega <= 0)
+    ):
+        raise ValueError(
+            "predictive_plants: omega must be a 1-D array of positive frequencies (rad/s)"
+        )
+    rng = np.random.default_rng(seed)
+    S = ps.n_samples
+    idx = np.arange(S)
+    if max_samples is not None and S > max_samples:
+        idx = np.sort(rng.choice(S, max_samples, replace=False))
+    theta = ps.theta[idx]
+    kind = ps.error_kind if include_error else "none"
+    data = ps.predictive
+    if kind != "none" and data is None:
+        raise ValueError("predictive_plants: these samples carry no fit data (old file or Laplace-NLS "
+                         "draws); rerun hapid posterior, or pass include_error=False")  # fmt: skip
+    n = ps.n
+    ms = jax.vmap(lambda t: theta_to_model(t, ps.scale))(jnp.asarray(theta))
+    s_new = 1j * jnp.asarray(omega)
+    ZH = np.asarray(jax.vmap(lambda m: m.hand(s_new))(ms))
+    ZM = np.asarray(jax.vmap(lambda m: m.mechanism(s_new))(ms))
+    S_, N = ZH.shape[:2]
+    if kind == "white":
+        tau = ps.tau[idx]
+        om_fit = np.asarray(data["omega"])
+        aH = _interp_log(omega, om_fit, np.asarray(data["a_H"]))
+        aM = _interp_log(omega, om_fit, np.asarray(data["a_M"]))
+
+        def circ(sd):  # (S, N) → circular complex (S, N, n, n) with E|e|² = sd²
+            z = rng.standard_normal((2, S_, N, n, n)) * np.sqrt(0.5)
+            return (z[0] + 1j * z[1]) * sd[:, :, None, None]
+
+        ZH = ZH + circ(tau[:, :1] * aH[None])
+        ZM = ZM + circ(tau[:, 1:2] * aM[None])
+    elif kind == "gp":
+        hyper = ps.samples[idx, ps.n_theta :]
+        om_fit = np.asarray(data["omega"])
+        Nf = om_fit.shape[0]
+        ref = np.asarray(data["ref_theta"])
+        aH_f, aM_f = np.asarray(data["a_H"]), np.asarray(data["a_M"])
+        aH_n, aM_n = gp_amplitudes(omega, om_fit, (aH_f, aM_f), ref, ps.scale)
+        sf = 1j * jnp.asarray(om_fit)
+        ZHf = np.asarray(jax.vmap(lambda m: m.hand(sf))(ms))
+        ZTf = np.asarray(jax.vmap(lambda m: m.total(sf))(ms))
+        rH, rT = np.asarray(data["Z_H"])[None] - ZHf, np.asarray(data["Z_T"])[None] - ZTf
+        var_H, var_T = np.asarray(data["var_H"]), np.asarray(data["var_T"])
+        rho = float(data["noise_corr"])
+        u = np.log(np.concatenate([om_fit, omega]) / float(np.asarray(ps.scale.omega_ref)))
+        a_all = (np.concatenate([aH_f, aH_n]), np.concatenate([aM_f, aM_n]))
+        E = n * n
+        dH = 0.5 * var_H.reshape(Nf, E).T  # (E, Nf)
+        dT = 0.5 * var_T.reshape(Nf, E).T
+        dHT = rho * np.sqrt(dH * dT)
+        cond_T = np.sqrt(
+            np.clip(dT - np.where(dH > 0, dHT**2 / np.where(dH > 0, dH, 1), 0), 0, None)
+        )
+        flat = lambda r: np.moveaxis(r.reshape(r.shape[0], Nf, E), 1, 2)  # noqa: E731  (S, E, Nf)
+        y_all = np.stack([np.concatenate([flat(rH.real), flat(rT.real)], -1),
+                          np.concatenate([flat(rH.imag), flat(rT.imag)], -1)], -1)  # fmt: skip
+        gH = np.empty((S_, N, n, n), complex)
+        gM = np.empty((S_, N, n, n), complex)
+        u_j, a_j = jnp.asarray(u), tuple(jnp.asarray(a) for a in a_all)
+        sdH, cT = jnp.sqrt(jnp.asarray(dH)), jnp.asarray(cond_T)
+        lamT = jnp.asarray(np.where(dH > 0, dHT / np.where(dH > 0, np.sqrt(dH), 1), 0))
+
+        def one(h, y, key):  # y (E, 2Nf, 2): residuals; returns gH, gM (E, 2, N)
+            tau, ell = jnp.exp(h[:2]), jnp.exp(h[2:4])
+            # the amplitude slope is learned on the fit band: held constant beyond it
+            b = [a_j[i] * jnp.exp(h[4 + i] * jnp.clip(u_j, u_j[0], u_j[Nf - 1])) for i in range(2)]
+            Ks = [
+                0.5 * tau[i] ** 2 * jnp.outer(b[i], b[i]) * kernel(u_j, u_j, ell[i])
+                for i in range(2)
+            ]
+            C = gp_covariance(u_j[:Nf], a_j[0][:Nf], a_j[1][:Nf], var_H, var_T, rho, h)
+            k1, k2, k3 = jax.random.split(key, 3)
+            f = []
+            for K, kk in zip(Ks, (k1, k2), strict=True):
+                Lk = jnp.linalg.cholesky(K + 1e-9 * jnp.mean(jnp.diag(K)) * jnp.eye(K.shape[0]))
+                f.append((Lk @ jax.random.normal(kk, (Nf + N, 2 * E))).T.reshape(E, 2, Nf + N))
+            z1, z2 = jax.random.normal(k3, (2, E, 2, Nf))
+            eH = sdH[:, None] * z1
+            eT = lamT[:, None] * z1 + cT[:, None] * z2
+            sim = jnp.concatenate([f[0][..., :Nf] + eH, f[0][..., :Nf] + f[1][..., :Nf] + eT], -1)
+            resid = jnp.moveaxis(y, -1, 1) - sim  # (E, 2, 2Nf)
+            Lc = jnp.linalg.cholesky(C)[:, None]
+            alpha = jax.scipy.linalg.cho_solve((Lc, True), resid[..., None])[..., 0]
+            outH = f[0][..., Nf:] + (alpha[..., :Nf] + alpha[..., Nf:]) @ Ks[0][Nf:, :Nf].T
+            outM = f[1][..., Nf:] + alpha[..., Nf:] @ Ks[1][Nf:, :Nf].T
+            return outH, outM
+
+        run = jax.jit(jax.vmap(one))
+        keys = jax.random.split(jax.random.PRNGKey(int(rng.integers(2**31))), S_)
+        parts = [run(jnp.asarray(hyper[i : i + 50]), jnp.asarray(y_all[i : i + 50]), keys[i : i + 50])
+                 for i in range(0, S_, 50)]  # fmt: skip
+        oH = np.concatenate([np.asarray(p[0]) for p in parts])  # (S, E, 2, N)
+        oM = np.concatenate([np.asarray(p[1]) for p in parts])
+        cplx = lambda o: np.moveaxis(o[:, :, 0] + 1j * o[:, :, 1], 1, 2).reshape(S_, N, n, n)  # noqa: E731
+        gH, gM = cplx(oH), cplx(oM)
+        ZH, ZM = ZH + gH, ZM + gM
+    ZT = ZH + ZM
+    P = np.linalg.solve(np.swapaxes(ZT, -1, -2), np.swapaxes(ZH, -1, -2)).swapaxes(-1, -2)
+    return {"omega": omega, "Z_H": ZH, "Z_T": ZT, "P": P}
+
+
+def band_calibration(draws, truth, level: float = 0.9) -> dict[str, float]:
+    """How well predictive draws ``(S, N, n, n)`` (complex) describe a true response
+    ``(N, n, n)``, per frequency:
+
+    - ``coverage`` — fraction of frequencies where the truth lies inside the ``level``
+      credible ball around the draws' (elementwise re/im) median: ``‖X_true − X̃‖_F ≤
+      q_level(‖X_s − X̃‖_F)``;
+    - ``width_ratio`` — median over frequencies of that ball's radius divided by the median
+      actual error ``‖X_true − X̃‖_F`` (≤ 3 asks for a band at most 3× the error);
+    - ``element_coverage`` — fraction of (frequency, element, re/im) whose central
+      ``level`` interval holds the truth;
+    - ``rel_error_median`` — median of ``‖X_true − X̃‖_F / ‖X_true‖_F``.
+    """
+    X = np.asarray(draws)
+    T = np.asarray(truth)
+    if X.ndim != 4 or T.shape != X.shape[1:]:
+        raise ValueError(
+            f"band_calibration: draws (S, N, n, n) and truth (N, n, n), got {X.shape}, {T.shape}"
+        )
+    med = np.median(X.real, 0) + 1j * np.median(X.imag, 0)
+    d = np.linalg.norm(X - med[None], axis=(-2, -1))  # (S, N)
+    r = np.quantile(d, level, axis=0)
+    e = np.linalg.norm(T - med, axis=(-2, -1))
+    lo_q, hi_q = (1 - level) / 2, 1 - (1 - level) / 2
+    inside = []
+    for part in (np.real, np.imag):
+        lo, hi = np.quantile(part(X), [lo_q, hi_q], axis=0)
+        inside.append((part(T) >= lo) & (part(T) <= hi))
+    return {"coverage": float(np.mean(e <= r)), "width_ratio": float(np.median(r) / np.median(e)),
+            "element_coverage": float(np.mean(inside)),
+            "rel_error_median": float(np.median(e / np.linalg.norm(T, axis=(-2, -1))))}  # fmt: skip

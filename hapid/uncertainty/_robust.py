@@ -26,7 +26,17 @@ plant's are the roots of det Ẑ_T,s with ``Re > 0`` (none for PD matrices); a d
 Summary statistics. An unstable sample counts as the worst possible value of every margin
 (``−inf`` dB/deg, disk margin 0) and of the bandwidth (0 Hz), so a 5 % quantile is only
 finite when fewer than 5 % of the samples are unstable. ``passed``: ``P(stable) ≥
-p_stable_required`` and the 5 % quantiles of GM and PM meet ``gm_db`` / ``pm_deg``.
+p_stable_required`` and the 5 % quantiles of GM and PM meet ``gm_db`` / ``pm_deg``;
+:meth:`RobustReport.reasons` says which requirement failed and by how much.
+
+**Margin sign convention** (the same as :func:`hapid.control.max_siso_gain`). The raw
+``gm_db``/``pm_deg`` of a plant are *signed* (``pm = ∠λ + 180°`` wrapped to [−180°, 180°) at
+the gain crossing nearest −1; a negative value means the locus crosses beyond −180°, a
+conditionally stable crossing that a phase *lead* or gain *decrease* would destabilize).
+Stability is decided by the generalized Nyquist count, not by the sign; on a loop that count
+calls stable, the margin is the size of the smallest perturbation that reaches −1, i.e.
+``|GM|`` and ``|PM|``. Quantiles and ``passed`` therefore use ``|GM|``, ``|PM|`` of stable
+plants (unstable: ``−inf``); :meth:`RobustReport.rows` keeps the signed values.
 
 Compute path. Each chunk of plants is analysed by :func:`hapid.control.loop_metrics`'s
 screened program, ``vmap``-ed over the chunk (the last chunk padded, so one compile): XLA
@@ -48,49 +58,17 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
-from ..control import (
-    Compensator,
-    MetricsSpec,
-    controller_unstable_poles,
-    disk_margin_from_peak,
-    inverse_model_response,
-)
+from .._grids import continuous_grid as posterior_omega
+from .._grids import sampled_grid as robust_omega
+from ..control import Compensator, MetricsSpec, disk_margin_from_peak
 from ..control._metrics import metrics_exact, metrics_screened
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
 from ._sampler import PosteriorSamples
 
-TWO_PI = 2.0 * np.pi
-FIELDS = (
-    "gm_db",
-    "pm_deg",
-    "disk_margin",
-    "disk_gm_db",
-    "disk_pm_deg",
-    "iso_bandwidth_hz",
-    "t_peak_db",
-)
+FIELDS = ("gm_db", "pm_deg", "disk_margin", "disk_gm_db", "disk_pm_deg", "iso_bandwidth_hz", "t_peak_db")
 _WORST = {"gm_db": -np.inf, "pm_deg": -np.inf, "disk_margin": 0.0, "disk_gm_db": 0.0,
           "disk_pm_deg": 0.0, "iso_bandwidth_hz": 0.0, "t_peak_db": np.inf}  # fmt: skip
-
-
-def robust_omega(n_freq: int = 1000, f_min_hz: float = 0.05, f_max_hz: float = 450.0) -> np.ndarray:
-    """Grid for *sampled* plants (rad/s): ``n_freq`` log-spaced points, 0.05–450 Hz (below
-    the 1 kHz device's Nyquist frequency, above the paper's low-pass poles). Device variants
-    (:func:`device_plants`) use it."""
-    return TWO_PI * np.geomspace(f_min_hz, f_max_hz, n_freq)
-
-
-def posterior_omega(
-    n_freq: int = 1500, f_min_hz: float = 0.005, f_max_hz: float = 5000.0
-) -> np.ndarray:
-    """Grid for *continuous* model plants (posterior samples), rad/s: 0.005 Hz – 5 kHz.
-
-    The generalized Nyquist count of a continuous loop ``P̂_s · g Ẑ_T Ẑ_H⁻¹`` is only
-    resolved once the loop has rolled off at the top of the grid. On cu5 with the paper's g,
-    the 0.05–450 Hz grid stopped before that: 70 % of emcee draws came out "not stable"
-    (unresolved count) where this grid finds 85 % stable."""
-    return TWO_PI * np.geomspace(f_min_hz, f_max_hz, n_freq)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,8 +104,11 @@ class RobustReport:
         return float(np.mean(self.stable))
 
     def penalized(self, name: str) -> np.ndarray:
-        """Field ``name`` with unstable plants set to the worst value (module docstring)."""
+        """Field ``name`` with unstable plants set to the worst value; GM and PM as
+        magnitudes ``|GM|``, ``|PM|`` (module docstring, "Margin sign convention")."""
         v = np.asarray(getattr(self, name), dtype=float)
+        if name in ("gm_db", "pm_deg"):
+            v = np.abs(v)
         return np.where(self.stable, v, _WORST[name])
 
     def quantile(self, name: str, q: float) -> float:
@@ -145,11 +126,36 @@ class RobustReport:
 
     @property
     def passed(self) -> bool:
-        return (
-            self.p_stable >= self.p_stable_required
-            and self.quantile("gm_db", 0.05) >= self.gm_req_db
-            and self.quantile("pm_deg", 0.05) >= self.pm_req_deg
-        )
+        return not self.reasons()
+
+    def reasons(self) -> list[str]:
+        """Why the check did not pass — one line per failed requirement, with how far the
+        5 % quantile (or ``P(stable)``) is from the requirement and what fraction of plants
+        miss it; empty when it passed."""
+        out = []
+        if self.p_stable < self.p_stable_required:
+            n_bad = int(np.sum(~np.asarray(self.stable, bool)))
+            out.append(f"P(stable) {self.p_stable:.3f} < required {self.p_stable_required:.3f} "
+                       f"({n_bad} of {self.n} plants unstable)")  # fmt: skip
+        for name, req, unit, label in (("gm_db", self.gm_req_db, "dB", "|GM|"),
+                                       ("pm_deg", self.pm_req_deg, "°", "|PM|")):  # fmt: skip
+            q = self.quantile(name, 0.05)
+            if not q >= req:
+                frac = float(np.mean(self.penalized(name) < req))
+                short = "unstable plants" if not np.isfinite(q) else f"short by {req - q:.3g} {unit}"
+                out.append(f"{label} 5 % quantile {q:.4g} {unit} < required {req:g} {unit} ({short}; "
+                           f"{100 * frac:.1f} % of plants below {req:g} {unit})")  # fmt: skip
+        return out
+
+    @property
+    def ok(self) -> bool:
+        """The requirements are met (:attr:`passed`)."""
+        return self.passed
+
+    @property
+    def status(self) -> str:
+        """``"passed"`` or ``"failed"``."""
+        return "passed" if self.passed else "failed"
 
     def summary(self) -> dict:
         """Plain-python summary: P(stable), 5 %/50 % quantiles, worst plant, pass/fail."""
@@ -166,6 +172,7 @@ class RobustReport:
         out["requirements"] = {"gm_db": self.gm_req_db, "pm_deg": self.pm_req_deg,
                                "p_stable": self.p_stable_required}  # fmt: skip
         out["passed"] = self.passed
+        out["reasons"] = self.reasons()
         return out
 
     def rows(self) -> list[dict]:
@@ -266,11 +273,11 @@ def controller_response(controller, omega):
     if isinstance(controller, tuple) and len(controller) == 2:
         model, g = controller
         if not isinstance(model, ImpedanceModel) or not isinstance(g, Compensator):
-            raise ValueError(
-                "controller must be (nominal ImpedanceModel, Compensator) or G (N, n, n)"
-            )
-        G = inverse_model_response(model, g, omega)
-        return G, int(controller_unstable_poles(model, g))
+            raise ValueError("controller must be (nominal ImpedanceModel, Compensator) or G (N, n, n)")
+        from ..pipeline import controller as make_controller
+
+        ctrl = make_controller(model, g)  # continuous inverse-model controller (hapid.pipeline)
+        return ctrl.response(omega), int(ctrl.p_rhp)
     G = jnp.asarray(controller, dtype=jnp.complex128)
     if G.ndim != 3 or G.shape[0] != omega.shape[0] or G.shape[1] != G.shape[2]:
         raise ValueError(f"G must be ({omega.shape[0]}, n, n), got shape {G.shape}")
@@ -330,14 +337,11 @@ def robust_check(
             idx = np.random.default_rng(seed).choice(theta.shape[0], max_samples, replace=False)
             theta = theta[np.sort(idx)]
         S = theta.shape[0]
-        get = (
-            lambda i, j: tuple(  # noqa: E731
-                a[: j - i]
-                for a in _model_plants(
-                    _pad(jnp.asarray(theta[i:j]), min(chunk, S)), plants.scale, om
-                )
-            )
-        )
+
+        def get(i, j):
+            th = _pad(jnp.asarray(theta[i:j]), min(chunk, S))
+            return tuple(a[: j - i] for a in _model_plants(th, plants.scale, om))
+
     elif isinstance(plants, ImpedanceModel):
         if np.ndim(plants.hand.M) != 3:
             raise ValueError("robust_check: a batched ImpedanceModel (S, n, n) is required")

@@ -5,14 +5,14 @@
   :class:`~hapid.fit.NLSResult` (θ only, no model-error parameters).
 - :func:`laplace_posterior` — MAP of a :class:`LogPosterior` (BFGS from the NLS optimum)
   and the inverse Hessian there: the Gaussian that :func:`sample_posterior` draws its
-  walkers from (full draws need no burn-in, DESIGN.md "emcee in ~90 dimensions").
+  walkers from (full draws need no burn-in, docs/conventions.md "emcee in ~90 dimensions").
 - :func:`sample_posterior` — ``emcee.EnsembleSampler`` with ``vectorize=True`` on the
   jitted, vmapped log-posterior; optional HDF5 backend, tqdm progress bar, autocorrelation
   time, effective sample size, and a :class:`ShortChainWarning` below 50 τ.
 
 Move default: ``DEMove()``. Measured with ``benchmarks/bench_uncertainty.py`` (see its
 header): DE beats the stretch move by a wide margin in ESS per second at d ≈ 20–92 (and
-DESIGN.md measured ≈ 8× at d = 90). ``DESnookerMove`` (wrong target in emcee 3.1.6) and
+docs/conventions.md measured ≈ 8× at d = 90). ``DESnookerMove`` (wrong target in emcee 3.1.6) and
 ``KDEMove`` (fails at this dimension) are not offered.
 """
 
@@ -71,7 +71,9 @@ class LaplaceIndependenceMove(emcee.moves.MHMove):
         cov = np.asarray(cov, dtype=np.float64) * inflate**2
         lam, V = np.linalg.eigh(0.5 * (cov + cov.T))
         if not (np.all(np.isfinite(lam)) and lam.min() > 0):
-            raise ValueError("LaplaceIndependenceMove: the covariance must be finite and positive definite")
+            raise ValueError(
+                "LaplaceIndependenceMove: the covariance must be finite and positive definite"
+            )
         root = V * np.sqrt(lam)
         whiten = V / np.sqrt(lam)  # x ↦ (x − mean) @ whiten gives standard coordinates
         d = mean.shape[0]
@@ -110,7 +112,10 @@ class PosteriorSamples:
     """Posterior draws of the PD-parameterized model.
 
     - ``samples``: ``(S, d)`` — folded θ (``d ≥ p = 6·n(n+1)/2``, diagonals ≥ 0, in ``scale``
-      units) followed by any model-error coordinates (``log_tau_H``, ``log_tau_M``).
+      units) followed by any model-error coordinates (``log_tau_H``, ``log_tau_M``, and for
+      the GP model error ``log_ell_H``, ``log_ell_M``, ``beta_H``, ``beta_M``).
+    - ``predictive``: the fit data the model-error term is conditioned on
+      (:meth:`LogPosterior.predictive_data`), or None (Laplace-NLS draws, old files).
     - ``log_prob``: ``(S,)`` log-posterior of each draw (NaN for Laplace draws).
     - ``scale``: the :class:`~hapid.fit.Scale` θ is expressed in.
     - ``n``: rods. ``names``: the ``d`` coordinate names.
@@ -123,11 +128,12 @@ class PosteriorSamples:
     n: int
     names: tuple[str, ...]
     diagnostics: dict = dataclasses.field(default_factory=dict)
+    predictive: dict | None = None  # LogPosterior.predictive_data(): fit data for predictions
 
     def __post_init__(self):
         s = np.asarray(self.samples)
         p = n_params(self.n)
-        if s.ndim != 2 or s.shape[1] < p or s.shape[1] > p + 2:
+        if s.ndim != 2 or s.shape[1] not in (p, p + 2, p + 6):
             raise ValueError(
                 f"PosteriorSamples: samples must be (S, {p}) or (S, {p}+model-error) for n = "
                 f"{self.n}, got shape {s.shape}"
@@ -153,8 +159,19 @@ class PosteriorSamples:
     @property
     def tau(self) -> np.ndarray | None:
         """``(S, 2)`` relative model-error scales τ_H, τ_M (None without model error)."""
-        extra = self.samples[:, self.n_theta :]
+        extra = self.samples[:, self.n_theta : self.n_theta + 2]
         return np.exp(extra) if extra.shape[1] else None
+
+    @property
+    def ell(self) -> np.ndarray | None:
+        """``(S, 2)`` GP length scales ℓ_H, ℓ_M (log-frequency units; None unless gp)."""
+        extra = self.samples[:, self.n_theta + 2 : self.n_theta + 4]
+        return np.exp(extra) if extra.shape[1] else None
+
+    @property
+    def error_kind(self) -> str:
+        """``"none"``, ``"white"`` or ``"gp"`` (from the number of model-error columns)."""
+        return {0: "none", 2: "white", 6: "gp"}[self.samples.shape[1] - self.n_theta]
 
     def models(self, idx=None) -> ImpedanceModel:
         """Batched :class:`ImpedanceModel` (arrays ``(S, n, n)``; physical units)."""
@@ -166,7 +183,24 @@ class PosteriorSamples:
         m = self.models()
         h, mech = m.hand, m.mechanism
         vals = (h.M, h.B, h.K, mech.M, mech.B, mech.K)
-        return {k: np.asarray(v) for k, v in zip(("M_H", "B_H", "K_H", "M_M", "B_M", "K_M"), vals, strict=True)}
+        return {
+            k: np.asarray(v)
+            for k, v in zip(("M_H", "B_H", "K_H", "M_M", "B_M", "K_M"), vals, strict=True)
+        }
+
+    @property
+    def ok(self) -> bool:
+        """Every draw finite, and the sampler's own convergence check passed where it made one
+        (emcee: chain ≥ 50 τ; Laplace: the mode search converged)."""
+        d = self.diagnostics
+        lap = d.get("laplace") if isinstance(d.get("laplace"), dict) else {}
+        conv = d.get("converged_50tau", lap.get("converged", d.get("converged", True)))
+        return bool(np.all(np.isfinite(np.asarray(self.samples)))) and bool(conv)
+
+    @property
+    def status(self) -> str:
+        """``"converged"`` or ``"not converged"`` (see :attr:`ok`)."""
+        return "converged" if self.ok else "not converged"
 
     def summary(self) -> str:
         d = self.diagnostics
@@ -221,7 +255,9 @@ def laplace_samples(nls_result: NLSResult, n_samples: int, key=0) -> PosteriorSa
         raise ValueError("laplace_samples: an unbatched NLSResult is required")
     if not (isinstance(n_samples, int | np.integer) and n_samples > 0):
         raise ValueError(f"n_samples must be a positive int, got {n_samples!r}")
-    theta, cov = _canonical_with_cov(np.asarray(nls_result.theta), np.asarray(nls_result.covariance))
+    theta, cov = _canonical_with_cov(
+        np.asarray(nls_result.theta), np.asarray(nls_result.covariance)
+    )
     if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(cov))):
         raise ValueError("laplace_samples: the NLS result has a non-finite θ or covariance")
     n = n_from_params(theta.shape[0])
@@ -289,7 +325,11 @@ def posterior_laplace_samples(post: LogPosterior, n_samples: int, init, key=0) -
     """
     if not (isinstance(n_samples, int | np.integer) and n_samples > 0):
         raise ValueError(f"n_samples must be a positive int, got {n_samples!r}")
-    x0 = initial_point(post, init) if isinstance(init, NLSResult) else np.asarray(init, dtype=np.float64)
+    x0 = (
+        initial_point(post, init)
+        if isinstance(init, NLSResult)
+        else np.asarray(init, dtype=np.float64)
+    )
     mean, cov, info = laplace_posterior(post, x0)
     draws = post.project(_mvn(_check_key(key), mean, cov, n_samples))
     theta, extra = post.split(draws)
@@ -298,8 +338,9 @@ def posterior_laplace_samples(post: LogPosterior, n_samples: int, init, key=0) -
         log_prob=np.asarray(post.log_prob_numpy(draws)),
         scale=post.scale,
         n=post.n,
-        names=tuple(param_names(post.n, post.model_error)),
+        names=tuple(param_names(post.n, post.kind if post.model_error else "none")),
         diagnostics={"method": f"laplace_{post.parameterization}", "laplace": info},
+        predictive=post.predictive_data(),
     )
 
 
@@ -323,14 +364,16 @@ def initial_point(post: LogPosterior, nls_result: NLSResult | None = None) -> np
             f"the NLS result has θ of length {th.shape[-1]} (n = {n_from_params(th.shape[-1])}), "
             f"the posterior expects {post.n_theta} (n = {post.n})"
         )
-    if not np.allclose(np.asarray(nls_result.scale.z_ref), np.asarray(post.scale.z_ref)) or not np.allclose(
-        np.asarray(nls_result.scale.omega_ref), np.asarray(post.scale.omega_ref)
-    ):
-        raise ValueError("the NLS result's scale differs from the posterior's: build it with scale=nls.scale")
+    if not np.allclose(
+        np.asarray(nls_result.scale.z_ref), np.asarray(post.scale.z_ref)
+    ) or not np.allclose(np.asarray(nls_result.scale.omega_ref), np.asarray(post.scale.omega_ref)):
+        raise ValueError(
+            "the NLS result's scale differs from the posterior's: build it with scale=nls.scale"
+        )
     th, _ = _canonical_with_cov(th, np.eye(th.shape[0]))
     if post.parameterization == "matrix":
         th = theta_to_matrix(th, post.n)
-    x0 = np.concatenate([post.free_part(th), np.full(post.n_tau, post.log_tau_mean)])
+    x0 = np.concatenate([post.free_part(th), post.hyper_mean()])
     if post.parameterization == "matrix":
         x0 = post.project(x0)  # a boundary matrix's −1e-17 eigenvalue is outside the cone
     return x0
@@ -354,7 +397,8 @@ def check_initial_state(post: LogPosterior, x0: np.ndarray, log_prob_fn=None) ->
         )
     if not np.all(np.isfinite(x0)):
         bad = np.argwhere(~np.isfinite(x0))[0]
-        raise ValueError(f"initial state contains NaN or inf (walker {bad[0]}, parameter {bad[1]})")
+        w, k = int(bad[0]), int(bad[1])
+        raise ValueError(f"initial state contains NaN or inf (walker {w}, parameter {k})")
     lp = (post.log_prob_numpy if log_prob_fn is None else log_prob_fn)(x0)
     if not np.all(np.isfinite(lp)):
         k = int(np.flatnonzero(~np.isfinite(lp))[0])
@@ -399,6 +443,27 @@ def _diagnostics(sampler, discard, thin_by, n_walkers, wall_s, method_name, tau_
         "converged_50tau": bool(steps >= tau_multiple * tau_max),
     }
     return out
+
+
+def _adaptive_bar(progress, max_steps: int):
+    """One tqdm bar for an adaptive (chunked) run: total = ``max_steps``, the run's upper bound
+    (it usually stops earlier, at 50 τ); ``None`` without ``progress``."""
+    if not progress:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=int(max_steps), desc="emcee (to 50 τ)", unit="step")
+
+
+def _run_chunk(sampler, state, n: int, thin_by: int, bar):
+    """``sampler.run_mcmc(state, n, thin_by)`` advancing ``bar`` (steps) instead of emcee's
+    own per-call bar."""
+    if bar is None:
+        return sampler.run_mcmc(state, n, thin_by=thin_by, progress=False)
+    last = state
+    for last in sampler.sample(state, iterations=n, thin_by=thin_by):  # noqa: B007
+        bar.update(thin_by)
+    return last
 
 
 def sample_posterior(
@@ -461,7 +526,9 @@ def sample_posterior(
     if isinstance(init, tuple):
         mean, cov = (np.asarray(a, dtype=np.float64) for a in init)
         if mean.shape != (d,) or cov.shape != (d, d):
-            raise ValueError(f"init (mean, cov) must be ({d},) and ({d}, {d}), got {mean.shape}, {cov.shape}")
+            raise ValueError(
+                f"init (mean, cov) must be ({d},) and ({d}, {d}), got {mean.shape}, {cov.shape}"
+            )
         if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
             raise ValueError("init: the Gaussian's mean or covariance contains NaN or inf")
         x0 = post.project(_mvn(jax.random.PRNGKey(int(rng.integers(2**31))), mean, cov, W))
@@ -470,7 +537,9 @@ def sample_posterior(
             bad = ~np.isfinite(lp)
             if not bad.any():
                 break
-            x0[bad] = post.project(_mvn(jax.random.PRNGKey(int(rng.integers(2**31))), mean, cov, int(bad.sum())))
+            x0[bad] = post.project(
+                _mvn(jax.random.PRNGKey(int(rng.integers(2**31))), mean, cov, int(bad.sum()))
+            )
             lp = lp_fn(x0)
     else:
         x0 = np.asarray(init, dtype=np.float64)
@@ -478,7 +547,9 @@ def sample_posterior(
             raise ValueError(f"init has {x0.shape[0]} walkers but n_walkers = {W}")
         W = x0.shape[0] if x0.ndim == 2 else W
     lp0 = check_initial_state(post, x0, lp_fn)
-    move_list = _moves(moves, (mean, cov) if moves == "laplace_de" and isinstance(init, tuple) else None)
+    move_list = _moves(
+        moves, (mean, cov) if moves == "laplace_de" and isinstance(init, tuple) else None
+    )
 
     total = max_steps if n_steps is None else int(n_steps)
     if total < 1:
@@ -500,14 +571,18 @@ def sample_posterior(
     else:
         chunk = max(1, check_every // thin_by)
         old_tau = np.inf
+        bar = _adaptive_bar(progress, max_steps)  # ONE bar over all chunks (total: max_steps)
         while sampler.iteration * thin_by < max_steps:
-            state = sampler.run_mcmc(state, chunk, thin_by=thin_by, progress=progress)
+            state = _run_chunk(sampler, state, chunk, thin_by, bar)
             it = sampler.iteration
             tau = np.nanmax(_autocorr(sampler, int(discard * it))) * thin_by
             kept = (it - int(discard * it)) * thin_by
             if np.isfinite(tau) and kept >= tau_multiple * tau and abs(old_tau - tau) < 0.05 * tau:
                 break
             old_tau = tau
+        if bar is not None:
+            bar.total = bar.n  # stopped at 50 τ: the bar ends full
+            bar.close()
     wall = time.perf_counter() - t0
     disc = int(discard * sampler.iteration)
     diag = _diagnostics(sampler, disc, thin_by, W, wall, moves, tau_multiple)
@@ -531,8 +606,9 @@ def sample_posterior(
         log_prob=np.asarray(lps),
         scale=post.scale,
         n=post.n,
-        names=tuple(param_names(post.n, post.model_error)),
+        names=tuple(param_names(post.n, post.kind if post.model_error else "none")),
         diagnostics=diag,
+        predictive=post.predictive_data(),
     )
 
 
@@ -540,26 +616,11 @@ def sample_posterior(
 
 
 def save_samples(path, ps: PosteriorSamples) -> Path:
-    """Write samples to ``.npz``: ``samples (S, d)``, ``log_prob (S,)``, ``n``, ``names``,
-    ``omega_ref``, ``z_ref``, ``method`` and the scalar diagnostics."""
-    path = Path(path)
-    scal = {
-        f"diag_{k}": np.asarray(v)
-        for k, v in ps.diagnostics.items()
-        if isinstance(v, int | float | bool | np.ndarray) and not isinstance(v, dict)
-    }
-    np.savez(
-        path,
-        samples=np.asarray(ps.samples, dtype=np.float64),
-        log_prob=np.asarray(ps.log_prob, dtype=np.float64),
-        n=np.int64(ps.n),
-        names=np.asarray(ps.names),
-        omega_ref=np.float64(ps.scale.omega_ref),
-        z_ref=np.float64(ps.scale.z_ref),
-        method=np.asarray(str(ps.diagnostics.get("method", ""))),
-        **scal,
-    )
-    return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
+    """Write samples to ``.npz`` (:func:`hapid.io.save_samples`: ``samples (S, d)``,
+    ``log_prob (S,)``, ``n``, ``names``, ``omega_ref``, ``z_ref``, ``method``, diagnostics)."""
+    from ..io import save_samples as _save
+
+    return _save(path, ps)
 
 
 def load_samples(path, n: int | None = None) -> PosteriorSamples:
@@ -569,32 +630,59 @@ def load_samples(path, n: int | None = None) -> PosteriorSamples:
     path = Path(path)
     if not path.exists():
         raise ValueError(f"samples file {path} does not exist")
-    with np.load(path, allow_pickle=False) as f:
-        missing = [k for k in ("samples", "log_prob", "n", "omega_ref", "z_ref", "names") if k not in f]
-        if missing:
-            raise ValueError(f"{path}: not a posterior-samples file (missing {missing})")
-        d = {k: f[k] for k in f.files}
-    file_n = int(d["n"])
-    s = d["samples"]
+    from ..io import _numeric, _read_arrays, _scalar
+
+    d = _read_arrays(path, "a posterior-samples file (hapid posterior)")
+    missing = [k for k in ("samples", "log_prob", "n", "omega_ref", "z_ref", "names") if k not in d]
+    if missing:
+        raise ValueError(f"{path}: not a posterior-samples file (missing {missing})")
+    file_n = _scalar(d, "n", path, integer=True)
+    if file_n < 1:
+        raise ValueError(f"{path}: n = {file_n} rods; expected n ≥ 1")
+    s = _numeric(d, "samples", path)
+    log_prob = _numeric(d, "log_prob", path)
+    omega_ref, z_ref = _scalar(d, "omega_ref", path), _scalar(d, "z_ref", path)
     if n is not None and file_n != int(n):
         raise ValueError(
             f"{path}: samples are for an n = {file_n} rod device, but n = {n} was expected"
         )
     p = n_params(file_n)
-    if s.ndim != 2 or not (p <= s.shape[1] <= p + 2):
+    if s.ndim != 2 or s.shape[1] not in (p, p + 2, p + 6):
         raise ValueError(
             f"{path}: samples have shape {s.shape}, which does not fit n = {file_n} "
-            f"(expected (S, {p}) or (S, {p + 2}))"
+            f"(expected (S, {p}), (S, {p + 2}) or (S, {p + 6}))"
         )
     if not np.all(np.isfinite(s)):
         raise ValueError(f"{path}: samples contain NaN or inf")
+    if s.shape[0] == 0 or log_prob.shape != (s.shape[0],):
+        raise ValueError(
+            f"{path}: {s.shape[0]} samples with log_prob of shape {log_prob.shape}; expected "
+            f"≥ 1 sample and log_prob of shape ({s.shape[0]},)"
+        )
+    if not np.all(np.isfinite(log_prob)):
+        raise ValueError(f"{path}: log_prob contains NaN or inf (every draw has a finite density)")
+    if not (np.isfinite(omega_ref) and omega_ref > 0 and np.isfinite(z_ref) and z_ref > 0):
+        raise ValueError(f"{path}: omega_ref = {omega_ref:g}, z_ref = {z_ref:g}; expected both > 0")
     diag = {k[5:]: (v.item() if v.ndim == 0 else v) for k, v in d.items() if k.startswith("diag_")}
     diag["method"] = str(d["method"]) if "method" in d else ""
     return PosteriorSamples(
         samples=s,
-        log_prob=d["log_prob"],
-        scale=Scale(jnp.asarray(float(d["omega_ref"])), jnp.asarray(float(d["z_ref"]))),
+        log_prob=log_prob,
+        scale=Scale(jnp.asarray(omega_ref), jnp.asarray(z_ref)),
         n=file_n,
         names=tuple(str(x) for x in d["names"]),
         diagnostics=diag,
+        predictive=_load_predictive(d, path, file_n) if "pred_kind" in d else None,
     )
+
+
+def _load_predictive(d: dict, path, n: int) -> dict:
+    out = {k[5:]: v for k, v in d.items() if k.startswith("pred_")}
+    out["kind"] = str(out["kind"])
+    N = np.shape(out.get("omega", ()))
+    for k in ("Z_H", "Z_T", "var_H", "var_T"):
+        if k not in out or np.shape(out[k]) != N + (n, n) or not np.all(np.isfinite(out[k])):
+            raise ValueError(
+                f"{path}: predictive data {k!r} missing or not finite ({N[0] if N else 0}, {n}, {n})"
+            )
+    return out

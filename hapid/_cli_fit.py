@@ -1,0 +1,358 @@
+"""The ``hapid fit`` command and the lab-data branch of ``hapid frf`` (the CLI shell only:
+parse results in, library calls, one report out).
+
+``hapid fit`` dispatches on the file kind (the arrays the file holds):
+
+- an FRF file with ``Z_H``, ``Z_T`` — the haptic hand/total pair → an ``ImpedanceModel``;
+- an impedance FRF with ``Z`` — a single measured impedance → one ``M, B, K``.
+
+and on ``--method`` through :data:`PAIR_METHODS` / :data:`SINGLE_METHODS` (name → function
+``(data, args, band_hz) -> Fitted``; ``data`` already restricted to the band): adding a method
+is one function and one table entry. Every
+method sees the same band (``--f-min-hz``/``--f-max-hz``; default every frequency in the
+file), selected before the fit and echoed in the report; every fit gets a
+:class:`hapid.fit.FitQuality` over that band, printed and stored in the model file. Extra
+report lines (a Cramér–Rao band, an error against a known true plant) go through
+``FitQuality.with_line`` in the method function or in :func:`extra_quality_lines`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import numpy as np
+
+from ._constants import TWO_PI
+
+
+class FitCommandError(ValueError):
+    """A fit the CLI refuses to write (one line, exit code 2)."""
+
+
+@dataclasses.dataclass
+class Fitted:
+    """What a method function returns: the model, its file metadata, a status text, and the
+    quality (``None``: the dispatcher computes it on the band); ``before`` is the model a
+    positized fit started from (for the "positizing made it worse" warning)."""
+
+    model: object
+    meta: dict
+    status: str
+    quality: object = None
+    before: object = None
+    notes: tuple[str, ...] = ()
+
+
+def _nls_refuse(res, a):
+    if not bool(res.ok) and not a.allow_unconverged:
+        raise FitCommandError(
+            f"NLS fit did not converge (status {res.status} after {int(res.n_steps)} steps); "
+            "no model written (use --allow-unconverged to write it anyway)"
+        )
+
+
+# ---- the haptic hand/total pair ---------------------------------------------------------------
+def _pair_wls(frf, a, band) -> Fitted:
+    from .fit import positize, wls
+
+    raw = wls(frf, omega_c=TWO_PI * a.omega_c_hz)
+    if a.positize:
+        return Fitted(positize(raw), {"method": "wls+positize"}, "closed form", before=raw)
+    return Fitted(raw, {"method": "wls"}, "closed form")
+
+
+def _pair_nls(frf, a, band) -> Fitted:
+    from .fit import fit_nls
+
+    res = fit_nls(frf, weight=a.weight, solver=a.solver, f_max_hz=None,
+                  omega_c=TWO_PI * a.omega_c_hz, max_steps=a.max_steps)  # fmt: skip
+    _nls_refuse(res, a)
+    meta = dict(method="nls", status=res.status, cost=float(res.cost), steps=int(res.n_steps),
+                weight=a.weight, solver=a.solver, covariance=np.asarray(res.covariance),
+                theta=np.asarray(res.theta))  # fmt: skip
+    notes = (f"at the PSD boundary: {', '.join(res.boundary)}",) if res.boundary else ()
+    status = f"{res.status} after {int(res.n_steps)} steps, cost {float(res.cost):.4g}"
+    return Fitted(res.model, meta, status, notes=notes)
+
+
+def _pair_ml(frf, a, band=None) -> Fitted:
+    """Sample maximum likelihood on the run's spectra (``hapid.fit.fit_ml``); the run is the
+    file read by :func:`run_fit` (``a.ml_run``), ``frf`` its banded FRF (for the report)."""
+    from .fit import crb_band_db, fit_ml
+
+    run = getattr(a, "ml_run", None)
+    if run is None:  # pragma: no cover - run_fit always sets it for --method ml
+        raise FitCommandError("--method ml needs the run file")
+    solver = a.solver if a.solver in ("lm", "dogleg", "gauss_newton", "bfgs", "nonlinear_cg") else "lm"  # fmt: skip
+    f = np.asarray(frf.freq_hz)
+    res = fit_ml(run, f_min_hz=float(f.min()), f_max_hz=float(f.max()),
+                 model_floor=a.model_floor, solver=solver, max_steps=a.max_steps)  # fmt: skip
+    if not bool(res.ok) and not a.allow_unconverged:
+        raise FitCommandError(
+            f"ML fit did not converge (status {res.status} after {int(res.n_steps)} steps); "
+            "no model written (use --allow-unconverged to write it anyway)"
+        )
+    meta = dict(method="ml", status=res.status, cost=float(res.cost), steps=int(res.n_steps),
+                weight="ml", solver=solver, model_floor=float(a.model_floor),
+                sigma2=float(res.sigma2), covariance=np.asarray(res.covariance),
+                crb=np.asarray(res.crb), theta=np.asarray(res.theta))  # fmt: skip
+    notes = (f"at the PSD boundary: {', '.join(res.boundary)}",) if res.boundary else ()
+    clo, chi = crb_band_db(res.model, res.crb, res.scale, frf.omega, f_max_hz=a.band_hz)
+    notes += (f"Cramér–Rao limit of the P·P̂⁻¹ band to {a.band_hz:g} Hz (median over "
+              f"N(θ̂, CRB)): {clo:+.1f} / {chi:+.1f} dB",)  # fmt: skip
+    status = (f"{res.status} after {int(res.n_steps)} steps, cost {float(res.cost):.4g}, "
+              f"σ̂² {float(res.sigma2):.3g} (≈1: noise explains the misfit; ≫1: model error)")  # fmt: skip
+    return Fitted(res.model, meta, status, notes=notes)
+
+
+# ---- a single impedance ----------------------------------------------------------------------
+def _single(method: str):
+    def run(zfrf, a, band) -> Fitted:
+        from .fit import fit_impedance
+
+        if a.weight not in ("relative", "noise"):
+            raise FitCommandError(
+                f"--weight {a.weight} is for the haptic pair; a single impedance takes "
+                "relative or noise"
+            )
+        res = fit_impedance(zfrf, method=method, positize=a.positize and method == "wls",
+                            weight=a.weight, max_steps=a.max_steps, f_min_hz=band[0],
+                            f_max_hz=band[1])  # fmt: skip
+        if method == "nls" and not res.ok and not a.allow_unconverged:
+            raise FitCommandError(
+                f"NLS fit did not converge (status {res.status} after {res.n_steps} steps); "
+                "no model written (use --allow-unconverged to write it anyway)"
+            )
+        status = res.status
+        if method == "nls":
+            status += f" after {res.n_steps} steps, cost {res.cost:.4g}"
+        notes = (f"at the PSD boundary: {', '.join(res.boundary)}",) if res.boundary else ()
+        return Fitted(res.model, res.metadata(), status, quality=res.quality, notes=notes)
+
+    return run
+
+
+PAIR_METHODS: dict[str, Callable] = {"wls": _pair_wls, "nls": _pair_nls, "ml": _pair_ml}
+SINGLE_METHODS: dict[str, Callable] = {"wls": _single("wls"), "nls": _single("nls")}
+#: every method name ``hapid fit --method`` accepts (the parser's choices)
+METHODS = tuple(dict.fromkeys([*PAIR_METHODS, *SINGLE_METHODS]))
+
+
+def extra_quality_lines(quality, fitted: Fitted, data, a):
+    """Hook for report lines that need more than the fit: the band against a known true
+    plant (``--true-device``, haptic pair only)."""
+    name = getattr(a, "true_device", None)
+    if not name or not hasattr(data, "Z_T"):
+        return quality
+    from .device import preset
+    from .fit import pphat_band_db
+
+    dev = preset(name)
+    if dev.n != data.n:
+        raise FitCommandError(f"--true-device {name} has n = {dev.n} rods but the data n = {data.n}")
+    P = np.asarray(dev.sampled_P(np.asarray(data.omega)))
+    lo, hi = pphat_band_db(P, fitted.model, data.omega, a.band_hz)
+    return quality.with_line(
+        "vs_true",
+        f"P·P̂⁻¹ band to {a.band_hz:g} Hz against the TRUE sampled plant of {name}: "
+        f"{float(lo):+.1f} / {float(hi):+.1f} dB",
+    )
+
+
+def _band(a, f_all_hz: np.ndarray) -> tuple[float, float]:
+    lo = 0.0 if a.f_min_hz is None else float(a.f_min_hz)
+    hi = np.inf if a.f_max_hz is None else float(a.f_max_hz)
+    if lo < 0 or not lo < hi:
+        raise FitCommandError(f"empty band: --f-min-hz {lo:g} must be ≥ 0 and < --f-max-hz {hi:g}")
+    n_in = int(np.sum((f_all_hz >= lo) & (f_all_hz <= hi)))
+    if n_in < 3:
+        raise FitCommandError(
+            f"only {n_in} of the file's {f_all_hz.size} frequencies "
+            f"({f_all_hz.min():g}–{f_all_hz.max():g} Hz) lie in the band {lo:g}–{hi:g} Hz; "
+            "a second-order fit needs at least 3"
+        )
+    return lo, hi
+
+
+def run_fit(a) -> None:
+    """``hapid fit``: read, dispatch on file kind and method, report, write (all or nothing)."""
+    from . import io
+    from .fit import crhp_report, pair_quality, pphat_band_db
+    from .impedance_frf import model_units
+
+    kind = io.file_kind(a.frf, "an FRF file (freq_hz with Z_H, Z_T or Z)")
+    if a.method == "ml":
+        if kind != "run":
+            raise FitCommandError(
+                f"{a.frf}: holds a {kind} file; --method ml needs the run file (per-experiment, "
+                "per-period R_A, R_I, L: an FRF has lost the noise covariances), e.g. "
+                "hapid simulate --out run.npz; hapid fit run.npz --method ml"
+            )
+        from .experiment import estimate_frf
+
+        a.ml_run = io.load_run(a.frf)
+        kind = "frf"
+    elif kind not in ("frf", "impedance_frf"):
+        what = "arrays hapid does not know" if kind == "unknown" else f"a {kind} file"
+        raise FitCommandError(
+            f"{a.frf}: holds {what}, not an FRF; hapid fit takes an FRF with freq_hz, Z_H, Z_T "
+            "(hapid frf on a run file; CSV header freq_hz,Z_H_re_0_0,…) or an impedance FRF "
+            "with freq_hz, Z (hapid frf on a time series; CSV header freq_hz,Z_re_0_0,…)"
+        )
+    single = kind == "impedance_frf"
+    if a.method == "ml":
+        data = estimate_frf(a.ml_run)
+    else:
+        data = io.load_impedance_frf(a.frf) if single else io.load_frf(a.frf)
+    table = SINGLE_METHODS if single else PAIR_METHODS
+    if a.method not in table:
+        raise FitCommandError(
+            f"--method {a.method} is not available for "
+            f"{'a single impedance' if single else 'the haptic pair'} (choose from {', '.join(table)})"
+        )
+    lo, hi = _band(a, np.asarray(data.freq_hz))
+    sel = data.band(lo, hi)
+    unit = data.unit if single else "N/m"
+    units = model_units(unit)
+    what = (f"single impedance Z ({unit})" if single
+            else "haptic hand/total pair Z_H, Z_T (N/m)")  # fmt: skip
+    f = np.asarray(sel.freq_hz)
+    print(f"data: {what}, n = {data.n}, from {a.frf}")
+    how = ("every frequency in the file; narrow it with --f-min-hz/--f-max-hz"
+           if a.f_min_hz is None and a.f_max_hz is None
+           else f"--f-min-hz {lo:g} --f-max-hz {hi:g}")  # fmt: skip
+    print(f"band: {f.min():g}–{f.max():g} Hz, {f.size} of {np.size(data.freq_hz)} frequencies "
+          f"({how}; the same band for every method)")  # fmt: skip
+    if not single and a.method == "nls" and a.f_max_hz is None and f.max() > 40:
+        print("note: every frequency is fitted; for a haptic device the NLS fit is usually "
+              "best with --f-max-hz 40 (the paper scene's band)")  # fmt: skip
+    fitted = table[a.method](sel, a, (lo, hi))
+    q = fitted.quality
+    if q is None:
+        band = (lo, hi)
+        before = None
+        if fitted.before is not None:
+            before = pair_quality(sel, fitted.before, method="wls", band_hz=band)
+        q = pair_quality(sel, fitted.model, method=fitted.meta.get("method", a.method),
+                         band_hz=band, before=before)  # fmt: skip
+    q = extra_quality_lines(q, fitted, sel, a)
+    meta = {**fitted.meta, **q.to_arrays()}
+    if single:
+        out = io.save_impedance_model(a.out, fitted.model, **meta)
+    else:
+        out = io.save_model(a.out, fitted.model, **meta)
+    print(f"{fitted.meta.get('method', a.method)}: {fitted.status}")
+    for note in fitted.notes:
+        print(f"note: {note}")
+    if single:
+        m = fitted.model
+        n_crhp = int(m.n_crhp_roots())
+        print(f"model M [{units['M']}], B [{units['B']}], K [{units['K']}]; closed-RHP roots "
+              f"of det Ẑ: {n_crhp} of {2 * m.n}")  # fmt: skip
+    else:
+        after = crhp_report(fitted.model)
+        print(f"CRHP roots of det Ẑ_H, det Ẑ_T: {int(after.hand)}, {int(after.total)} (of "
+              f"{2 * data.n} each)")  # fmt: skip
+        if np.all(np.asarray(data.Z_H) == np.asarray(data.Z_T)) or not np.any(np.asarray(data.Z_H)):
+            print("P·P̂⁻¹ band: not reported (Z_H = Z_T or Z_H = 0: a single impedance in the "
+                  "pair; store it as Z for the single-impedance path)")  # fmt: skip
+        else:
+            plo, phi = pphat_band_db(data.P, fitted.model, data.omega, a.band_hz)
+            print(f"P·P̂⁻¹ band to {a.band_hz:g} Hz (measured P): {float(plo):+.1f} / "
+                  f"{float(phi):+.1f} dB")  # fmt: skip
+    for line in q.report():
+        print(line)
+    print(f"model → {out}")
+
+
+def run_frf_lab(a) -> None:
+    """``hapid frf`` on lab records: H1 over Welch segments → impedance FRF file."""
+    from . import io
+    from .experiment import estimate_impedance_h1
+
+    ts = io.load_timeseries([a.run, *(a.add or [])], fs_hz=a.fs_hz, force_key=a.force_key,
+                            response_key=a.response_key, force_unit=a.force_unit,
+                            length_unit=a.length_unit)  # fmt: skip
+    if a.nperseg > ts.force.shape[1]:
+        raise FitCommandError(
+            f"--nperseg {a.nperseg} is longer than the records ({ts.force.shape[1]} samples)"
+        )
+    z = estimate_impedance_h1(ts, nperseg=a.nperseg, response=a.response,
+                              sign=-1.0 if a.sign == "-" else 1.0,
+                              f_min_hz=a.f_min_hz, f_max_hz=a.f_max_hz,
+                              window=a.window)  # fmt: skip
+    out = io.save_impedance_frf(a.out, z)
+    E, T, n = ts.force.shape
+    seg = E * ((T - a.nperseg) // (a.nperseg if a.window == "boxcar" else a.nperseg // 2) + 1)
+    rel = np.asarray(z.Z_std) / np.maximum(np.abs(np.asarray(z.Z)), 1e-300)
+    conv = {"displacement": "Z = F/x", "velocity": "Z = jω·F/v", "acceleration": "Z = (jω)²·F/a"}
+    f = np.asarray(z.freq_hz)
+    print(f"impedance FRF (single impedance, {'+' if a.sign != '-' else '−'}{conv[a.response]}, "
+          f"unit {z.unit}): H1 over {seg} Welch segments of {a.nperseg} samples "
+          f"({E} experiment{'s' if E > 1 else ''} × {T} samples at {ts.fs_hz:g} Hz, n = {n}); "
+          f"{f.size} frequencies {f.min():g}–{f.max():g} Hz; median relative std of Z "
+          f"{np.median(rel):.2e} → {out}")  # fmt: skip
+
+
+def register_lab_frf_args(f) -> None:
+    """``hapid frf`` options for non-periodic records and lab time series."""
+    lab = f.add_argument_group("non-periodic records and lab time series (H1 over Welch segments)")
+    lab.add_argument("--h1", action="store_true",
+                     help="H1 estimate over Welch segments (implied for a time series)")  # fmt: skip
+    lab.add_argument("--nperseg", type=int, default=2048,
+                     help="samples per Welch segment (default 2048)")  # fmt: skip
+    lab.add_argument("--window", choices=["hann", "boxcar"], default="hann",
+                     help="segment window: hann (default) or boxcar (periodic excitation whose "
+                     "period divides --nperseg: leakage-free)")  # fmt: skip
+    lab.add_argument("--response", choices=["displacement", "velocity", "acceleration"],
+                     default="displacement", help="what the response channels measure; Z = F/x "
+                     "is formed in the frequency domain (default displacement)")  # fmt: skip
+    lab.add_argument("--sign", choices=["+", "-"], default="+", help="+: Z = +F/x (force on the "
+                     "structure, displacement the same way; default); -: reaction force, Z = -F/x")  # fmt: skip
+    lab.add_argument("--fs-hz", type=float, help="sampling rate in Hz, if the file has no fs_hz")
+    lab.add_argument("--force-key", default="force",
+                     help="array holding the forces (default force)")  # fmt: skip
+    lab.add_argument("--response-key", default="response",
+                     help="array holding the responses (default response)")  # fmt: skip
+    lab.add_argument("--add", action="append", metavar="FILE", help="another record file: more "
+                     "experiments (same length and channels); repeat as needed")  # fmt: skip
+    lab.add_argument("--force-unit", help="unit of the forces (default: the file's, else N)")
+    lab.add_argument("--length-unit", help="unit of the displacement (default: the file's, else m)")
+    lab.add_argument("--f-min-hz", type=float, help="lowest frequency kept (Hz; default above DC)")
+    lab.add_argument("--f-max-hz", type=float, help="highest frequency kept (Hz; default fs/2)")
+
+
+def register_fit(sub, func) -> None:
+    """The ``hapid fit`` parser (method choices from :data:`METHODS`)."""
+    f = sub.add_parser("fit", help="fit M, B, K to an FRF: the haptic pair or a single impedance",
+                       description="Fit M s² + B s + K to an FRF file. The file kind decides: "
+                       "Z_H, Z_T (the haptic pair, from hapid frf on a run) → hand and total "
+                       "models; Z (a single impedance, from hapid frf on a time series) → one "
+                       "M, B, K. Methods: weighted least squares (optionally positized) or "
+                       "hapid's nonlinear fit with positive-semidefinite M, B, K. One band for "
+                       "every method; the data-fit error over it is printed and stored.",
+                       epilog="example: hapid fit z.npz --method nls --f-min-hz 5 --f-max-hz 50 "
+                       "--out model.npz")  # fmt: skip
+    f.add_argument("frf", help="FRF file (.npz, .csv, .mat) holding Z_H, Z_T or Z")
+    f.add_argument("--method", choices=list(METHODS), default="nls",
+                   help="wls, nls (FRF file) or ml (sample maximum likelihood: the RUN file)")  # fmt: skip
+    f.add_argument("--model-floor", type=float, default=0.3,
+                   help="ml: relative equation-error floor φ for unmodeled dynamics (0 = pure ML)")  # fmt: skip
+    f.add_argument("--true-device", help="simulated data: also report the P·P̂⁻¹ band against "
+                   "this preset's true sampled plant (cu5, tripod3, hexapod6)")  # fmt: skip
+    f.add_argument("--positize", action="store_true", help="positize the WLS model (paper 5.1)")
+    f.add_argument("--weight", choices=["relative", "paper", "noise", "blend"], default="relative")
+    f.add_argument("--solver", default="lm", help="lm (default), dogleg, gauss_newton, bfgs, "
+                   "nonlinear_cg, jaxopt_lm")  # fmt: skip
+    f.add_argument("--f-min-hz", type=float,
+                   help="fit band lower edge (Hz), every method; default: the file's lowest")  # fmt: skip
+    f.add_argument("--f-max-hz", type=float,
+                   help="fit band upper edge (Hz), every method; default: the file's highest")  # fmt: skip
+    f.add_argument("--omega-c-hz", type=float, default=7.0, help="paper weight corner (Hz)")
+    f.add_argument("--max-steps", type=int, default=500)
+    f.add_argument("--band-hz", type=float, default=30.0,
+                   help="report the P·P̂⁻¹ band to here (haptic pair)")  # fmt: skip
+    f.add_argument("--allow-unconverged", action="store_true")
+    f.add_argument("--out", required=True, help="model file (.npz)")
+    f.set_defaults(func=func)

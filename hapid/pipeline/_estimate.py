@@ -1,0 +1,150 @@
+"""Stage ``frf → model``: any estimator by name with its options.
+
+``fit(frf, "nls", f_max_hz=30.0, rtol=1e-9)`` → :class:`Fit`. Estimators live in
+:data:`ESTIMATORS` (``wls``, ``wls+positize``, ``nls``, ``ml``); another module adds one with a
+single line, as ``ml`` is added here::
+
+    ESTIMATORS["name"] = lambda frf, **o: Fit.from_nls(my_fit(frf, **o), "name")
+
+``ml`` (sample maximum likelihood) works on the periodic run, not on an FRF.
+
+Options use the scene's units (Hz): ``omega_c_hz`` (paper weight corner) and ``f_max_hz``
+(fit band) for every estimator; the NLS ones are those of :func:`hapid.fit.fit_nls`
+(``weight``, ``solver``, ``max_steps``, ``rtol``, ``atol``, ``ftol``, ``patience``,
+``blend_floor``, ``p_weight``, ``pd_eps``, ``init_floor``, ``linear_solver``,
+``use_P_residual``, ``boundary_rtol``). Numeric options may be traced scalars (one compile
+serves a sweep over them); ``max_steps`` is static (a python int).
+Every estimator is jittable and vmappable.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Int
+
+from .. import _config  # noqa: F401  (float64)
+from .._constants import TWO_PI
+
+
+class Fit(eqx.Module):
+    """Result of the ``frf → model`` stage.
+
+    ``model`` (:class:`hapid.impedance.ImpedanceModel`); ``ok`` (bool: converged / closed
+    form); ``crhp_hand``, ``crhp_total`` (closed-RHP roots of det Ẑ_H, det Ẑ_T of ``model``;
+    roots of det Ẑ_H are poles of the inverse-model controller); ``crhp_hand_raw``,
+    ``crhp_total_raw`` (before positizing, WLS only; else equal); ``result`` (the full
+    :class:`hapid.fit.NLSResult` for iterative fits, else ``None``); ``estimator`` (name).
+    """
+
+    model: object
+    ok: Bool[Array, ""]
+    crhp_hand: Int[Array, ""]
+    crhp_total: Int[Array, ""]
+    crhp_hand_raw: Int[Array, ""]
+    crhp_total_raw: Int[Array, ""]
+    result: object = None
+    estimator: str = eqx.field(static=True, default="")
+
+    @property
+    def status(self) -> str:
+        """``"closed form"`` or the NLS status name (outside ``jit``)."""
+        return "closed form" if self.result is None else self.result.status
+
+    @classmethod
+    def closed_form(cls, model, raw=None, estimator: str = "") -> Fit:
+        from ..fit import crhp_report
+
+        after = crhp_report(model)
+        before = after if raw is None else crhp_report(raw)
+        return cls(model, jnp.asarray(True), after.hand, after.total, before.hand, before.total,
+                   None, estimator)  # fmt: skip
+
+    @classmethod
+    def from_nls(cls, res, estimator: str = "nls") -> Fit:
+        from ..fit import crhp_report
+
+        r = crhp_report(res.model)
+        return cls(res.model, res.ok, r.hand, r.total, r.hand, r.total, res, estimator)
+
+
+ESTIMATORS: dict[str, Callable[..., Fit]] = {}
+
+
+def register(name: str):
+    """Decorator: ``@register("name")`` on ``fn(frf, **options) -> Fit``."""
+
+    def deco(fn):
+        ESTIMATORS[name] = fn
+        return fn
+
+    return deco
+
+
+def _omega_c(o):
+    return TWO_PI * jnp.asarray(o.pop("omega_c_hz", 7.0), dtype=jnp.float64)
+
+
+@register("wls")
+def _wls(frf, **o) -> Fit:
+    from ..fit import wls
+
+    omega_c = _omega_c(o)
+    f_max = o.pop("f_max_hz", None)
+    _no_more(o, "wls")
+    return Fit.closed_form(wls(frf, omega_c=omega_c, f_max_hz=f_max), estimator="wls")
+
+
+@register("wls+positize")
+def _wls_positize(frf, **o) -> Fit:
+    from ..fit import positize, wls
+
+    omega_c = _omega_c(o)
+    f_max = o.pop("f_max_hz", None)
+    mode = o.pop("mode", "modulus")
+    _no_more(o, "wls+positize")
+    raw = wls(frf, omega_c=omega_c, f_max_hz=f_max)
+    return Fit.closed_form(positize(raw, mode=mode), raw, estimator="wls+positize")
+
+
+@register("nls")
+def _nls(frf, **o) -> Fit:
+    from ..fit import fit_nls
+
+    o = dict(o)
+    omega_c = _omega_c(o)
+    if "max_steps" in o:
+        o["max_steps"] = int(o["max_steps"])
+    return Fit.from_nls(fit_nls(frf, omega_c=omega_c, **o))
+
+
+@register("ml")
+def _ml(run, **o) -> Fit:
+    """Sample maximum likelihood (:func:`hapid.fit.fit_ml`): needs the periodic *run* (the
+    experiment stage's output), not an FRF; ``omega_c_hz`` is ignored."""
+    from ..fit import fit_ml
+
+    o = dict(o)
+    o.pop("omega_c_hz", None)
+    if "max_steps" in o:
+        o["max_steps"] = int(o["max_steps"])
+    return Fit.from_nls(fit_ml(run, **o), estimator="ml")
+
+
+def _no_more(o, name):
+    if o:
+        raise ValueError(f"estimator {name!r} has no option(s) {sorted(o)}")
+
+
+def fit(frf, estimator: str = "nls", **options) -> Fit:
+    """Fit ``frf`` with the named estimator (module docstring; ``"ml"`` takes the periodic
+    run instead of the FRF). ``ValueError`` names the known estimators for an unknown one."""
+    try:
+        fn = ESTIMATORS[estimator]
+    except KeyError:
+        raise ValueError(
+            f"unknown estimator {estimator!r}; known: {', '.join(sorted(ESTIMATORS))}"
+        ) from None
+    return fn(frf, **dict(options))

@@ -1,0 +1,152 @@
+# ruff: noqa: F722  (jaxtyping shape strings in annotations)
+"""Stage ``controller + plant → loop metrics``, with the stability verdict rule.
+
+:class:`Plant` is a plant response on a grid plus what the Nyquist count needs to know
+about it: its own open-loop right-half-plane poles (``p_rhp``) and whether it is sampled
+(``ts`` seconds; the contour then ends at the Nyquist frequency π/ts) or continuous
+(``ts=None``).
+
+:func:`loop` closes ``L = P G`` and returns the loop metrics. The verdict rule lives here,
+once (:func:`verdict`): the loop is stable iff the Nyquist count was resolved (per
+determinant *and* per characteristic locus), ``I + L`` is nonsingular on the grid, and the
+number of clockwise encirclements equals ``−(p_rhp of the plant + p_rhp of the controller)``
+— the controller's own RHP poles included (positizing can leave roots of det Ẑ_H in the
+right half plane, which are poles of ``G = g Ẑ_T Ẑ_H⁻¹``).
+
+The numerics go through ONE adapter, :func:`_backend` (today the LAPACK reference
+:func:`hapid.control.analyze_loop`); switching every caller to another kernel is a one-line
+change there.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Complex, Float, Int
+
+from .. import _config  # noqa: F401  (float64)
+from .._constants import TWO_PI
+
+try:  # hapid.control's spec once loop_metrics is on main (the same fields and meaning)
+    from ..control import MetricsSpec  # type: ignore[attr-defined]
+except ImportError:
+
+    @dataclasses.dataclass(frozen=True)
+    class MetricsSpec:
+        """What a caller wants besides the verdict (static, hashable).
+
+        ``bandwidth`` (isotropic bandwidth), ``margins`` (loci GM/PM), ``t_peak`` (peak of
+        σ̄(T)), ``disk`` (disk margin), ``arrays`` (σ(T − I), loci, … for figures). The verdict
+        is always computed. The LAPACK backend computes everything regardless; the spec is
+        forwarded to :func:`hapid.control.loop_metrics` once that backend is used.
+        """
+
+        bandwidth: bool = True
+        margins: bool = True
+        t_peak: bool = True
+        disk: bool = True
+        arrays: bool = False
+
+
+class Plant(eqx.Module):
+    """A plant response on a grid: ``omega (N,)`` rad/s increasing, ``P (N, n, n)`` complex,
+    ``p_rhp ()`` its open-loop unstable poles (open RHP; outside the unit circle when
+    sampled), ``ts`` the sampling period in s (``None``: continuous)."""
+
+    omega: Float[Array, " N"]
+    P: Complex[Array, "N n n"]
+    p_rhp: Int[Array, ""]
+    ts: float | None = eqx.field(static=True, default=None)
+
+    @property
+    def n(self) -> int:
+        return int(np.shape(self.P)[-1])
+
+
+def device_plant(device, omega, *, continuous: bool = False) -> Plant:
+    """The simulated device's true plant on ``omega`` (rad/s): the sampled plant
+    ``P(e^{jω t_s})`` (ZOH, delay), or with ``continuous=True`` the continuous ``P(jω)``
+    (with the actuator delay). Passive mechanics: ``p_rhp = 0``."""
+    omega = jnp.asarray(omega, dtype=jnp.float64)
+    if continuous:
+        return Plant(omega, device.P(1j * omega), jnp.asarray(0), None)
+    return Plant(omega, device.sampled_P(omega), jnp.asarray(0), float(device.ts))
+
+
+def model_plant(model, omega) -> Plant:
+    """A model's continuous plant ``P̂ = Ẑ_H Ẑ_T⁻¹`` on ``omega`` (rad/s); its unstable poles are
+    the roots of det Ẑ_T with ``Re > 0`` (non-finite roots — singular M̂_T — count too)."""
+    omega = jnp.asarray(omega, dtype=jnp.float64)
+    r = model.total.roots()
+    p = jnp.sum(jnp.real(r) > 0) + jnp.sum(~jnp.isfinite(r))
+    return Plant(omega, model.P(1j * omega), p, None)
+
+
+def frf_plant(frf, ts: float | None = None) -> Plant:
+    """A measured plant ``P = Z_H Z_T⁻¹`` on the FRF's grid (assumed open-loop stable: it was
+    measured open loop). ``ts``: the sampling period of the controller it will meet."""
+    return Plant(jnp.asarray(frf.omega), jnp.asarray(frf.P), jnp.asarray(0), ts)
+
+
+def verdict(n_encirclements, p_ol, resolved, singular):
+    """THE stability rule: ``resolved & ~singular & (n_encirclements == −p_ol)``.
+
+    ``n_encirclements``: clockwise encirclements of 0 by det(I + L) over the full contour;
+    ``p_ol``: open-loop unstable poles of plant and controller together; ``resolved``: the
+    grid resolved the phase of det(I + L) and of every locus 1 + λᵢ; ``singular``: I + L
+    numerically singular at a grid frequency. Jittable (arrays in, bool array out)."""
+    return (
+        jnp.asarray(resolved)
+        & ~jnp.asarray(singular)
+        & (jnp.asarray(n_encirclements) == -jnp.asarray(p_ol))
+    )
+
+
+def _backend(P, G, omega, p_ol, spec: MetricsSpec):
+    """The ONE call into the loop-analysis numerics (switch kernels here: once
+    ``hapid.control.loop_metrics`` is on main this becomes
+    ``return loop_metrics(P, G, omega, p_ol=p_ol, spec=spec)``)."""
+    from ..control import analyze_loop
+
+    del spec  # the LAPACK reference computes everything
+    return analyze_loop(P, G, omega, P_ol_rhp=p_ol)
+
+
+def check_nyquist(controller, plant: Plant) -> None:
+    """Raise a clear error when a sampled loop's grid goes beyond fs/2 (outside ``jit``)."""
+    ts = controller.ts if controller.ts is not None else plant.ts
+    try:
+        w_max = float(np.max(np.asarray(plant.omega)))
+    except Exception:  # noqa: BLE001  (traced grid: checked by the caller)
+        return
+    if ts is not None and w_max > np.pi / ts * (1 + 1e-9):
+        raise ValueError(
+            f"the frequency grid reaches {w_max / TWO_PI:g} Hz, beyond the sampled loop's Nyquist "
+            f"frequency fs/2 = {0.5 / ts:g} Hz (fs = {1 / ts:g} Hz): a sampled controller's "
+            "response is periodic there; use a grid ending at fs/2, a higher fs, or --continuous"
+        )
+    if (controller.ts is None) != (plant.ts is None):
+        raise ValueError(
+            "a sampled controller must close the loop with a sampled plant, a continuous one "
+            "with a continuous plant"
+        )
+
+
+def loop(controller, plant: Plant, spec: MetricsSpec = MetricsSpec()):
+    """Loop metrics of ``controller`` (a :class:`hapid.pipeline.Controller`) on ``plant``.
+
+    Returns the backend's report (:class:`hapid.control.LoopReport` today) whose ``stable``
+    is :func:`verdict` with ``p_ol = plant.p_rhp + controller.p_rhp``. Jittable and
+    vmappable (the fs/2 check runs only on concrete grids).
+    """
+    if controller.n != plant.n:
+        raise ValueError(f"controller has n = {controller.n} rods but the plant has {plant.n}")
+    check_nyquist(controller, plant)
+    G = controller.response(plant.omega)
+    p_ol = jnp.asarray(plant.p_rhp) + jnp.asarray(controller.p_rhp)
+    rep = _backend(plant.P, G, plant.omega, p_ol, spec)
+    stable = verdict(rep.n_encirclements, p_ol, rep.nyquist_resolved, rep.singular)
+    return eqx.tree_at(lambda r: r.stable, rep, stable)
