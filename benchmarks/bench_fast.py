@@ -76,9 +76,10 @@ def loop_row(sec: Section, nls, N: int = 3000):
     r, c_ref, t_ref = measure(lambda: ref(P, G), repeat=5)
     q, c_new, t_new = measure(lambda: loop_metrics(P, G, w, p_ol=p_ol, spec=spec), repeat=5)
     rows = [
-        {"implementation": "numpy det+inv+eigvals+2 svd", "run": fs(t_np), "vs numpy": "1×"},
+        {"implementation": "numpy det+inv+eigvals+2 svd", "run": fs(t_np), "vs numpy": "1×",
+         "first call": "", "exact fallback": ""},
         {"implementation": "analyze_loop (LAPACK, grid)", "run": fs(t_ref), "vs numpy": f"{t_np / t_ref:.2f}×",
-         "first call": fs(c_ref)},
+         "first call": fs(c_ref), "exact fallback": ""},
         {"implementation": "loop_metrics (XLA kernels, refined)", "run": fs(t_new),
          "vs numpy": f"{t_np / t_new:.2f}×", "first call": fs(c_new),
          "exact fallback": bool(q.exact_fallback)},
@@ -111,10 +112,12 @@ def robust_row(sec: Section, nls, S: int):
     samples = laplace_samples(nls, S, key=0)
     chunk = min(S, 250)
     t = time.perf_counter()
-    robust_check(samples, (nls.model, g), omega, max_samples=chunk, chunk=chunk)
+    robust_check(samples, (nls.model, g), omega, max_samples=chunk, chunk=chunk, backend="metrics")
     first = time.perf_counter() - t
     t = time.perf_counter()
-    rep = robust_check(samples, (nls.model, g), omega, max_samples=S, chunk=chunk)
+    rep = robust_check(
+        samples, (nls.model, g), omega, max_samples=S, chunk=chunk, backend="metrics"
+    )
     dt = time.perf_counter() - t
     # the per-plant reference: analyze_loop on every draw (one jitted program, a python loop)
     w = jnp.asarray(omega)
@@ -133,7 +136,7 @@ def robust_row(sec: Section, nls, S: int):
     both = st_ref & rep.stable
     dgm = float(np.max(np.abs(gm_ref[both] - rep.gm_db[both]))) if both.any() else float("nan")
     sec.add(f"### 2. Robust check: {S} Laplace draws of cu5 × 1000 frequencies (posterior grid)\n\n"
-            + table([{"implementation": "robust_check (loop_metrics, vmapped chunks)", "time": fs(dt),
+            + table([{"implementation": "robust_check(backend='metrics'): loop_metrics, vmapped chunks", "time": fs(dt),
                       "per draw": fs(dt / S), f"first call ({chunk} draws, incl. compile)": fs(first),
                       "P(stable)": fg(rep.p_stable)},
                      {"implementation": "analyze_loop per draw (reference)", "time": fs(t_ref),

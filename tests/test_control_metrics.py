@@ -113,6 +113,7 @@ def test_bad_shapes_are_a_clear_error():
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(2400)
 def test_nyquist_family_verdicts_equal_the_reference():
     """Random loops of the Nyquist test family (tests/test_control_nyquist.py): loop_metrics'
     verdict and closed-loop RHP count equal analyze_loop's and the state-space truth."""

@@ -243,25 +243,28 @@ def test_robust_aggressive_vs_conservative(case):
             ((nls.model, _lowpass_g(0.5)), good),
         ):
             G = inverse_model_response(ctrl[0], ctrl[1], omega)
-            p_ol = controller_unstable_poles(*ctrl)
-            direct = analyze_loop(m.P(1j * omega), G, omega, p_ol)
+            direct = analyze_loop(m.P(1j * omega), G, omega, controller_unstable_poles(*ctrl))
             assert bool(direct.stable) == bool(rep.stable[k * 60])
-            # the robust check refines crossings (loop_metrics); the grid value is close
-            lm = loop_metrics(m.P(1j * omega), G, omega, p_ol=p_ol)
-            np.testing.assert_allclose(float(lm.gm_db), rep.gm_db[k * 60], rtol=1e-9)
-            assert abs(float(direct.gm_db) - rep.gm_db[k * 60]) < 0.05
+            np.testing.assert_allclose(float(direct.gm_db), rep.gm_db[k * 60], rtol=1e-9)
 
 
 @pytest.mark.slow
 def test_robust_vectorized_matches_loop(case):
-    """The vmapped path (default) gives the one-plant-per-call path's numbers."""
+    """backend="metrics" (loop_metrics vmapped over chunks) gives the reference's verdicts."""
     _, _, nls = case
     ps = laplace_samples(nls, 40, key=3)
     omega = robust_omega(300)
-    a = robust_check(ps, (nls.model, _lowpass_g(6.0)), omega, vectorize=False)
-    b = robust_check(ps, (nls.model, _lowpass_g(6.0)), omega, chunk=16)
-    np.testing.assert_array_equal(a.stable, b.stable)
-    np.testing.assert_allclose(a.gm_db, b.gm_db, rtol=1e-9)
+    a = robust_check(ps, (nls.model, _lowpass_g(6.0)), omega)
+    b = robust_check(ps, (nls.model, _lowpass_g(6.0)), omega, chunk=16, backend="metrics")
+    np.testing.assert_array_equal(a.stable, b.stable)  # same verdicts as the reference
+    # refined margins against loop_metrics on one plant and the reference's grid values
+    m = jax.tree.map(lambda x: x[5], ps.models(np.arange(40)))
+    ctrl = (nls.model, _lowpass_g(6.0))
+    G = inverse_model_response(*ctrl, omega)
+    lm = loop_metrics(m.P(1j * omega), G, omega, p_ol=controller_unstable_poles(*ctrl))
+    np.testing.assert_allclose(float(lm.pm_deg), b.pm_deg[5], rtol=1e-9)
+    both = a.stable & b.stable
+    assert np.all(np.abs(a.pm_deg[both] - b.pm_deg[both]) < 0.5)
 
 
 # --- predictive ------------------------------------------------------------------------

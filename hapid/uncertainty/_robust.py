@@ -38,14 +38,20 @@ calls stable, the margin is the size of the smallest perturbation that reaches �
 ``|GM|`` and ``|PM|``. Quantiles and ``passed`` therefore use ``|GM|``, ``|PM|`` of stable
 plants (unstable: ``−inf``); :meth:`RobustReport.rows` keeps the signed values.
 
-Compute path. Each chunk of plants is analysed by :func:`hapid.control.loop_metrics`'s
+Compute path. By default every plant is analysed by :func:`hapid.control.analyze_loop` (the
+LAPACK reference, one plant per call of one jitted program: ≈ 54 ms per plant at n = 5,
+N = 1000 on the loaded 2-core machine). ``backend="metrics"``: each chunk of plants is
+analysed by :func:`hapid.control.loop_metrics`'s
 screened program, ``vmap``-ed over the chunk (the last chunk padded, so one compile): XLA
 small-matrix kernels for det/inverse/σ̄, exact values only where the cheap bounds do not
 decide, refined crossings. Plants whose screen did not decide are re-analysed on the whole
 grid (same rules). The only LAPACK call left in the batched program is ``eigvals`` on the
 few grid intervals that need loci, so the XLA:CPU hang of concurrent LAPACK kernels (which
 forced one plant per call before) does not arise; ``vectorize=False`` still runs one plant
-per call.
+per call. Measured on cu5 Laplace draws (benchmarks/bench_fast.py): identical verdicts, but
+the screen does not decide for these draws (their loops are far from g·I: eigenvalue spread
+≈ 4× |tr L/n|), so the exact whole-grid path runs and is ≈ 6× slower than the reference —
+hence not the default yet.
 """
 
 from __future__ import annotations
@@ -60,7 +66,7 @@ import numpy as np
 from .. import _config  # noqa: F401  (float64)
 from .._grids import continuous_grid as posterior_omega
 from .._grids import sampled_grid as robust_omega
-from ..control import Compensator, MetricsSpec, disk_margin_from_peak
+from ..control import Compensator, MetricsSpec, analyze_loop, disk_margin_from_peak
 from ..control._metrics import metrics_exact, metrics_screened
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
@@ -205,6 +211,18 @@ def _fields(m: dict) -> dict:
 
 
 @eqx.filter_jit
+def _reference_one(P, p_ol, G, omega):
+    r = analyze_loop(P, G, omega, p_ol)
+    return {k: getattr(r, k) for k in _KEYS}
+
+
+def _reference_chunk(P, p_ol, G, omega):
+    """The LAPACK reference, one plant per call of a jitted ``analyze_loop`` (grid values)."""
+    outs = [_reference_one(P[i], p_ol[i], G, omega) for i in range(P.shape[0])]
+    return {k: np.stack([np.asarray(o[k]) for o in outs]) for k in _KEYS}
+
+
+@eqx.filter_jit
 def _screened_chunk(P, p_ol, G, omega):
     def one(P_, p_):
         m, overflow = metrics_screened(P_, G, omega, p_, None, _SPEC)
@@ -214,14 +232,15 @@ def _screened_chunk(P, p_ol, G, omega):
 
 
 @eqx.filter_jit
-def _exact_one(P, p_ol, G, omega):
-    return _fields(metrics_exact(P, G, omega, p_ol, None, _SPEC))
+def _exact_chunk(P, p_ol, G, omega):
+    return jax.vmap(lambda P_, p_: _fields(metrics_exact(P_, G, omega, p_, None, _SPEC)))(P, p_ol)
 
 
 def _analyze_chunk(P, p_ol, G, omega, vectorize):
     """Per-plant fields of a (padded) chunk: the screened analysis vmapped over the chunk
-    (one compile for every chunk), then the exact whole-grid analysis for the plants whose
-    screen did not decide (:mod:`hapid.control._metrics`)."""
+    (one compile for every chunk), then the exact whole-grid analysis — vmapped over the
+    undecided plants, padded to the chunk size — for the plants whose screen did not decide
+    (:mod:`hapid.control._metrics`)."""
     if vectorize:
         res, overflow = _screened_chunk(P, p_ol, G, omega)
         res = {k: np.array(v) for k, v in res.items()}
@@ -230,10 +249,15 @@ def _analyze_chunk(P, p_ol, G, omega, vectorize):
         outs = [_screened_chunk(P[i : i + 1], p_ol[i : i + 1], G, omega) for i in range(P.shape[0])]
         res = {k: np.concatenate([np.asarray(o[0][k]) for o in outs]) for k in _KEYS}
         overflow = np.concatenate([np.asarray(o[1]) for o in outs])
-    for i in np.flatnonzero(overflow):
-        ex = _exact_one(P[i], p_ol[i], G, omega)
-        for k in _KEYS:
-            res[k][i] = np.asarray(ex[k])
+    idx = np.flatnonzero(overflow)
+    if idx.size:
+        size = P.shape[0] if vectorize else 1
+        for s in range(0, idx.size, size):
+            sel = idx[s : s + size]
+            pad = np.concatenate([sel, np.full(size - sel.size, sel[-1])])
+            ex = _exact_chunk(P[pad], p_ol[pad], G, omega)
+            for k in _KEYS:
+                res[k][sel] = np.asarray(ex[k])[: sel.size]
     return res
 
 
@@ -299,6 +323,7 @@ def robust_check(
     seed: int = 0,
     labels=None,
     vectorize: bool = True,
+    backend: str = "reference",
 ) -> RobustReport:
     """Analyse the loop of a fixed controller with every plant of a batch.
 
@@ -313,8 +338,11 @@ def robust_check(
       model plants; :func:`robust_omega`, 0.05–450 Hz, for sampled plant arrays).
     - ``gm_db``, ``pm_deg``, ``p_stable_required``: requirements for ``passed``.
     - ``chunk``: plants per vmapped batch (memory: chunk × N × n² complex per array).
-    - ``vectorize``: ``True`` (default) vmaps the analysis over each chunk; ``False`` runs
-      it once per plant (see "Compute path" in the module docstring).
+    - ``backend``: ``"reference"`` (default): :func:`~hapid.control.analyze_loop` once per
+      plant (grid values, the numbers every other command reports today); ``"metrics"``:
+      :func:`~hapid.control.loop_metrics` (refined crossings), see "Compute path".
+    - ``vectorize`` (``backend="metrics"``): ``True`` vmaps the analysis over each chunk;
+      ``False`` runs it once per plant.
 
     Returns a :class:`RobustReport`.
     """
@@ -368,7 +396,10 @@ def robust_check(
         j = min(S, i + chunk)
         Pc, pol = get(i, j)
         pol = jnp.asarray(pol, dtype=jnp.float64) + c_rhp
-        r = _analyze_chunk(_pad(Pc, chunk), _pad(pol, chunk), G, om, vectorize)
+        if backend == "metrics":
+            r = _analyze_chunk(_pad(Pc, chunk), _pad(pol, chunk), G, om, vectorize)
+        else:
+            r = _reference_chunk(Pc, pol, G, om)
         parts.append({k: v[: j - i] for k, v in r.items()})
     res = {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in parts[0]}
     if labels is not None and len(labels) != S:
