@@ -319,7 +319,7 @@ def run_ml_case(case, mult, dev, f_max_hz, repeat):
         perr = float(np.max(model_relative_errors(model, truth))) if truth is not None else np.nan
         c = crhp_report(model)
         if name.startswith("ML"):
-            crb = crb_band_db(out.theta, out.crb, out.scale, w)
+            crb = crb_band_db(out.model, out.crb, out.scale, w)
         rows.append(dict(case=case, noise=f"{mult:g}× protocol", estimator=name,
                          compile_s=max(first - runt, 0.0), run_s=runt,
                          steps=int(out.n_steps) if hasattr(out, "n_steps") else "",

@@ -182,6 +182,7 @@ COMMON: dict[str, tuple] = {
     "nperseg": int_ge(8),
     "response": one_of(["displacement", "velocity", "acceleration"]),
     "sign": one_of(["+", "-"]),
+    "window": one_of(["hann", "boxcar"]),
     "fs_hz": gt(0, " Hz"),
     "force_key": ANY,
     "response_key": ANY,
@@ -233,20 +234,29 @@ PER_COMMAND: dict[str, dict] = {
                 "design": _In("a design file from hapid tune", (".npz",))},
     "posterior": {"frf": _In("an FRF file", RUN_EXT), "out": _Out("a samples file", (".npz",)),
                   "model": _In("a model file", ARRAY_EXT), "samples": int_ge(1),
+                  "model_error": one_of(["white", "gp", "none"]),
                   "hdf5": _Out("an emcee HDF5 backend file", (".h5", ".hdf5"))},
     "robust": {"samples": _In("a posterior-samples file", (".npz",)),
                "model": _In("a model file", ARRAY_EXT), "out": _Out("a JSON report", (".json",))},
     "sweep": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder"),
-              "estimator": one_of(("wls", "wls+positize", "nls"))},
+              "estimator": ((lambda v: v in _estimators()),
+                            "a registered estimator (hapid.pipeline.ESTIMATORS: wls, wls+positize, nls, …)")},
     "tune": {"model": _In("a model file", ARRAY_EXT),
              "samples": _In("a posterior-samples file", (".npz",)),
              "out": _Out("a design file", (".npz",)), "report": _Out("a JSON report", (".json",))},
-    "predict": {"samples": _In("a posterior-samples file", (".npz",)),
-                "out": _Out("a plant-draws file", (".npz",))},
-    "plant": {"out": _Out("a true-plant FRF file", (".npz",))},
     "paper": {"out": _Out("an output folder"), "scene": _In("a scene TOML", (".toml",))},
+    "predict": {"samples": _In("a posterior-samples file", (".npz",)), "out": _Out("a draws file", (".npz",)),
+                "f_min_hz": gt(0, " Hz"), "n_freq": int_ge(2), "no_model_error": FLAG},
+    "plant": {"out": _Out("an FRF file", (".npz",)), "n_freq": int_ge(2), "delay": int_between(0, 1000),
+              "f_min_hz": gt(0, " Hz")},
     "run": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder")},
 }  # fmt: skip
+
+
+def _estimators():
+    from .pipeline import ESTIMATORS
+
+    return ESTIMATORS
 
 
 def _solvers():

@@ -76,7 +76,7 @@ def _pair_nls(frf, a, band) -> Fitted:
     return Fitted(res.model, meta, status, notes=notes)
 
 
-def _pair_ml(frf, a) -> Fitted:
+def _pair_ml(frf, a, band=None) -> Fitted:
     """Sample maximum likelihood on the run's spectra (``hapid.fit.fit_ml``); the run is the
     file read by :func:`run_fit` (``a.ml_run``), ``frf`` its banded FRF (for the report)."""
     from .fit import crb_band_db, fit_ml
@@ -98,7 +98,7 @@ def _pair_ml(frf, a) -> Fitted:
                 sigma2=float(res.sigma2), covariance=np.asarray(res.covariance),
                 crb=np.asarray(res.crb), theta=np.asarray(res.theta))  # fmt: skip
     notes = (f"at the PSD boundary: {', '.join(res.boundary)}",) if res.boundary else ()
-    clo, chi = crb_band_db(res.theta, res.crb, res.scale, frf.omega, f_max_hz=a.band_hz)
+    clo, chi = crb_band_db(res.model, res.crb, res.scale, frf.omega, f_max_hz=a.band_hz)
     notes += (f"Cramér–Rao limit of the P·P̂⁻¹ band to {a.band_hz:g} Hz (median over "
               f"N(θ̂, CRB)): {clo:+.1f} / {chi:+.1f} dB",)  # fmt: skip
     status = (f"{res.status} after {int(res.n_steps)} steps, cost {float(res.cost):.4g}, "
@@ -194,9 +194,11 @@ def run_fit(a) -> None:
         a.ml_run = io.load_run(a.frf)
         kind = "frf"
     elif kind not in ("frf", "impedance_frf"):
+        what = "arrays hapid does not know" if kind == "unknown" else f"a {kind} file"
         raise FitCommandError(
-            f"{a.frf}: holds a {kind} file, not an FRF; hapid fit takes an FRF with Z_H, Z_T "
-            "(hapid frf on a run file) or an impedance FRF with Z (hapid frf on a time series)"
+            f"{a.frf}: holds {what}, not an FRF; hapid fit takes an FRF with freq_hz, Z_H, Z_T "
+            "(hapid frf on a run file; CSV header freq_hz,Z_H_re_0_0,…) or an impedance FRF "
+            "with freq_hz, Z (hapid frf on a time series; CSV header freq_hz,Z_re_0_0,…)"
         )
     single = kind == "impedance_frf"
     if a.method == "ml":
@@ -278,10 +280,11 @@ def run_frf_lab(a) -> None:
         )
     z = estimate_impedance_h1(ts, nperseg=a.nperseg, response=a.response,
                               sign=-1.0 if a.sign == "-" else 1.0,
-                              f_min_hz=a.f_min_hz, f_max_hz=a.f_max_hz)  # fmt: skip
+                              f_min_hz=a.f_min_hz, f_max_hz=a.f_max_hz,
+                              window=a.window)  # fmt: skip
     out = io.save_impedance_frf(a.out, z)
     E, T, n = ts.force.shape
-    seg = E * ((T - a.nperseg) // (a.nperseg // 2) + 1)
+    seg = E * ((T - a.nperseg) // (a.nperseg if a.window == "boxcar" else a.nperseg // 2) + 1)
     rel = np.asarray(z.Z_std) / np.maximum(np.abs(np.asarray(z.Z)), 1e-300)
     conv = {"displacement": "Z = F/x", "velocity": "Z = jω·F/v", "acceleration": "Z = (jω)²·F/a"}
     f = np.asarray(z.freq_hz)
@@ -299,6 +302,9 @@ def register_lab_frf_args(f) -> None:
                      help="H1 estimate over Welch segments (implied for a time series)")  # fmt: skip
     lab.add_argument("--nperseg", type=int, default=2048,
                      help="samples per Welch segment (default 2048)")  # fmt: skip
+    lab.add_argument("--window", choices=["hann", "boxcar"], default="hann",
+                     help="segment window: hann (default) or boxcar (periodic excitation whose "
+                     "period divides --nperseg: leakage-free)")  # fmt: skip
     lab.add_argument("--response", choices=["displacement", "velocity", "acceleration"],
                      default="displacement", help="what the response channels measure; Z = F/x "
                      "is formed in the frequency domain (default displacement)")  # fmt: skip
