@@ -37,7 +37,9 @@ def between(lo, hi, unit="", lo_open=False, hi_open=False):
         return _num(v) and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)
 
     a, b = "(" if lo_open else "[", ")" if hi_open else "]"
-    return test, f"in {a}{lo:g}, {hi:g}{b}{unit}"
+    u = unit.strip()
+    sep = "" if u in ("°", "") else " "
+    return test, f"in {a}{lo:g}{sep}{u}, {hi:g}{sep}{u}{b}"
 
 
 def int_ge(lo):
@@ -112,7 +114,7 @@ def _check_out(opt, path, rule: _Out):
         raise ValueError(f"{opt} must be a path, got an empty string")
     if rule.ext is None:
         if p.exists() and not p.is_dir():
-            raise ValueError(f"{opt}: {p} is a file; expected {rule.what} (a folder)")
+            raise ValueError(f"{opt}: {p} is a file; expected {rule.what}")
     else:
         if p.is_dir():
             raise ValueError(f"{opt}: {p} is a folder; expected {rule.what}")
@@ -182,12 +184,19 @@ COMMON: dict[str, tuple] = {
     "nperseg": int_ge(8),
     "response": one_of(["displacement", "velocity", "acceleration"]),
     "sign": one_of(["+", "-"]),
+    "window": one_of(["hann", "boxcar"]),
     "fs_hz": gt(0, " Hz"),
     "force_key": ANY,
     "response_key": ANY,
     "force_unit": ANY,
     "length_unit": ANY,
     "continuous": FLAG,
+    "model_floor": ge(0),
+    "true_device": (lambda v: v in _presets(), "a preset device (cu5, hexapod6, tripod3)"),
+    "model_error": one_of(["white", "gp", "none"]),
+    "n_freq": int_between(2, 1_000_000),
+    "no_model_error": FLAG,
+    "delay": int_between(0, 1000),
     "omega_c_hz": gt(0, " Hz"),
     "max_steps": int_ge(1),
     "band_hz": gt(0, " Hz"),
@@ -227,17 +236,32 @@ PER_COMMAND: dict[str, dict] = {
                 "design": _In("a design file from hapid tune", (".npz",))},
     "posterior": {"frf": _In("an FRF file", RUN_EXT), "out": _Out("a samples file", (".npz",)),
                   "model": _In("a model file", ARRAY_EXT), "samples": int_ge(1),
+                  "model_error": one_of(["white", "gp", "none"]),
                   "hdf5": _Out("an emcee HDF5 backend file", (".h5", ".hdf5"))},
     "robust": {"samples": _In("a posterior-samples file", (".npz",)),
                "model": _In("a model file", ARRAY_EXT), "out": _Out("a JSON report", (".json",))},
     "sweep": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder"),
-              "estimator": one_of(("wls", "wls+positize", "nls"))},
+              "estimator": ((lambda v: v in _estimators()),
+                            "a registered estimator (hapid.pipeline.ESTIMATORS: wls, wls+positize, nls, …)")},
     "tune": {"model": _In("a model file", ARRAY_EXT),
              "samples": _In("a posterior-samples file", (".npz",)),
              "out": _Out("a design file", (".npz",)), "report": _Out("a JSON report", (".json",))},
+    "predict": {"samples": _In("a posterior-samples file", (".npz",)),
+                "out": _Out("a plant-draws file", (".npz",))},
+    "plant": {"out": _Out("a true-plant FRF file", (".npz",))},
     "paper": {"out": _Out("an output folder"), "scene": _In("a scene TOML", (".toml",))},
+    "predict": {"samples": _In("a posterior-samples file", (".npz",)), "out": _Out("a draws file", (".npz",)),
+                "f_min_hz": gt(0, " Hz"), "n_freq": int_ge(2), "no_model_error": FLAG},
+    "plant": {"out": _Out("an FRF file", (".npz",)), "n_freq": int_ge(2), "delay": int_between(0, 1000),
+              "f_min_hz": gt(0, " Hz")},
     "run": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder")},
 }  # fmt: skip
+
+
+def _estimators():
+    from .pipeline import ESTIMATORS
+
+    return ESTIMATORS
 
 
 def _solvers():
@@ -283,7 +307,7 @@ def options(parser, command: str):
     for act in sub._actions:
         if act.dest == "help":
             continue
-        flag = max(act.option_strings, key=len) if act.option_strings else act.dest.upper()
+        flag = max(act.option_strings, key=len) if act.option_strings else act.dest
         out.append((act.dest, flag))
     return out
 
@@ -311,7 +335,15 @@ def _protocol_cross(a):
         raise ValueError(f"--freqs/--fs/--period: {e}") from None
 
 
+def _band_cross(a):
+    lo, hi = getattr(a, "f_min_hz", None), getattr(a, "f_max_hz", None)
+    if lo is not None and hi is not None and lo >= hi:
+        raise ValueError(f"--f-min-hz ({lo:g}) must be < --f-max-hz ({hi:g})")
+
+
 def _analyze_cross(a):
+    if getattr(a, "design", None) is not None and a.k is not None:
+        raise ValueError("--k and --design are exclusive (the design file holds its own gain)")
     if a.frf is None and a.fs != 1000.0:
         raise ValueError(
             f"--fs is for --frf only (the --device preset has its own rate), got {a.fs:g}"
@@ -382,14 +414,18 @@ def _sweep_cross(a):
             from . import sweep as _sweep
 
             try:
-                _sweep.classify(key, load_scene_checked(a.scene), getattr(a, "estimator", "wls+positize"))
+                _sweep.classify(
+                    key, load_scene_checked(a.scene), getattr(a, "estimator", "wls+positize")
+                )
             except ValueError as e:
                 raise ValueError(f"--vary: {e}") from None
+            cfg = load_scene_checked(a.scene)
             for s in vals.split(","):
                 try:
-                    float(s)
+                    x = float(s)
                 except ValueError:
                     raise ValueError(f"--vary {key}: {s!r} is not a number") from None
+                _check_swept_value(cfg, key, s, x)
             continue
         test, allowed = SWEEP_KEYS[key]
         for s in vals.split(","):
@@ -402,9 +438,27 @@ def _sweep_cross(a):
                 raise ValueError(f"--vary {key} must be {allowed}, got {s}")
 
 
+def _check_swept_value(cfg: dict, key: str, text: str, x: float) -> None:
+    """A swept value of any scene option obeys that option's scene rule (an integer option
+    takes whole numbers only)."""
+    import copy
+
+    from . import sweep as _sweep
+
+    sec, k, i = _sweep._parse(key)
+    cur = cfg[sec][k] if i is None else None
+    if _int(cur):
+        if not (math.isfinite(x) and x == int(x)):
+            raise ValueError(f"--vary {key} must be an integer, got {text}")
+        x = int(x)
+    c = copy.deepcopy(cfg)
+    _sweep._set(c, key, x)
+    check_scene(c, f"--vary {key}={text}")
+
+
 _CROSS = {"simulate": _protocol_cross, "analyze": _analyze_cross, "tune": _tune_cross,
           "robust": _robust_cross, "run": _run_cross, "paper": _paper_cross,
-          "sweep": _sweep_cross}  # fmt: skip
+          "sweep": _sweep_cross, "fit": _band_cross, "frf": _band_cross}  # fmt: skip
 
 
 def _parse_value(val: str):
@@ -484,6 +538,9 @@ def _scene_rules() -> dict:
         "fit.omega_c_hz": gt(0, " Hz"), "fit.positize": FLAG,
         "fit.weight": one_of(["relative", "paper", "noise", "blend"]),
         "fit.f_max_hz": gt(0, " Hz"),
+        "fit.max_steps": int_ge(1), "fit.rtol": gt(0), "fit.atol": gt(0), "fit.ftol": gt(0),
+        "fit.patience": int_ge(1), "fit.blend_floor": gt(0), "fit.p_weight": ge(0),
+        "fit.pd_eps": ge(0), "fit.init_floor": ge(0),
         "fit.solver": (lambda v: v in _solvers(), f"one of {', '.join(_solvers())}"),
         "controller.k": gt(0), "controller.lag_zero_hz": between(0, nyq, " Hz", True, True),
         "controller.lag_pole_hz": between(0, nyq, " Hz", True, True),

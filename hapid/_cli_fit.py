@@ -7,7 +7,8 @@ parse results in, library calls, one report out).
 - an impedance FRF with ``Z`` — a single measured impedance → one ``M, B, K``.
 
 and on ``--method`` through :data:`PAIR_METHODS` / :data:`SINGLE_METHODS` (name → function
-``(data, args) -> Fitted``): adding a method is one function and one table entry. Every
+``(data, args, band_hz) -> Fitted``; ``data`` already restricted to the band): adding a method
+is one function and one table entry. Every
 method sees the same band (``--f-min-hz``/``--f-max-hz``; default every frequency in the
 file), selected before the fit and echoed in the report; every fit gets a
 :class:`hapid.fit.FitQuality` over that band, printed and stored in the model file. Extra
@@ -22,7 +23,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-TWO_PI = 2.0 * np.pi
+from ._constants import TWO_PI
 
 
 class FitCommandError(ValueError):
@@ -52,7 +53,7 @@ def _nls_refuse(res, a):
 
 
 # ---- the haptic hand/total pair ---------------------------------------------------------------
-def _pair_wls(frf, a) -> Fitted:
+def _pair_wls(frf, a, band) -> Fitted:
     from .fit import positize, wls
 
     raw = wls(frf, omega_c=TWO_PI * a.omega_c_hz)
@@ -61,7 +62,7 @@ def _pair_wls(frf, a) -> Fitted:
     return Fitted(raw, {"method": "wls"}, "closed form")
 
 
-def _pair_nls(frf, a) -> Fitted:
+def _pair_nls(frf, a, band) -> Fitted:
     from .fit import fit_nls
 
     res = fit_nls(frf, weight=a.weight, solver=a.solver, f_max_hz=None,
@@ -75,7 +76,7 @@ def _pair_nls(frf, a) -> Fitted:
     return Fitted(res.model, meta, status, notes=notes)
 
 
-def _pair_ml(frf, a) -> Fitted:
+def _pair_ml(frf, a, band=None) -> Fitted:
     """Sample maximum likelihood on the run's spectra (``hapid.fit.fit_ml``); the run is the
     file read by :func:`run_fit` (``a.ml_run``), ``frf`` its banded FRF (for the report)."""
     from .fit import crb_band_db, fit_ml
@@ -107,7 +108,7 @@ def _pair_ml(frf, a) -> Fitted:
 
 # ---- a single impedance ----------------------------------------------------------------------
 def _single(method: str):
-    def run(zfrf, a) -> Fitted:
+    def run(zfrf, a, band) -> Fitted:
         from .fit import fit_impedance
 
         if a.weight not in ("relative", "noise"):
@@ -116,7 +117,8 @@ def _single(method: str):
                 "relative or noise"
             )
         res = fit_impedance(zfrf, method=method, positize=a.positize and method == "wls",
-                            weight=a.weight, max_steps=a.max_steps)  # fmt: skip
+                            weight=a.weight, max_steps=a.max_steps, f_min_hz=band[0],
+                            f_max_hz=band[1])  # fmt: skip
         if method == "nls" and not res.ok and not a.allow_unconverged:
             raise FitCommandError(
                 f"NLS fit did not converge (status {res.status} after {res.n_steps} steps); "
@@ -192,9 +194,11 @@ def run_fit(a) -> None:
         a.ml_run = io.load_run(a.frf)
         kind = "frf"
     elif kind not in ("frf", "impedance_frf"):
+        what = "arrays hapid does not know" if kind == "unknown" else f"a {kind} file"
         raise FitCommandError(
-            f"{a.frf}: holds a {kind} file, not an FRF; hapid fit takes an FRF with Z_H, Z_T "
-            "(hapid frf on a run file) or an impedance FRF with Z (hapid frf on a time series)"
+            f"{a.frf}: holds {what}, not an FRF; hapid fit takes an FRF with freq_hz, Z_H, Z_T "
+            "(hapid frf on a run file; CSV header freq_hz,Z_H_re_0_0,…) or an impedance FRF "
+            "with freq_hz, Z (hapid frf on a time series; CSV header freq_hz,Z_re_0_0,…)"
         )
     single = kind == "impedance_frf"
     if a.method == "ml":
@@ -215,7 +219,7 @@ def run_fit(a) -> None:
             else "haptic hand/total pair Z_H, Z_T (N/m)")  # fmt: skip
     f = np.asarray(sel.freq_hz)
     print(f"data: {what}, n = {data.n}, from {a.frf}")
-    how = ("every frequency in the file (--f-min-hz/--f-max-hz to narrow)"
+    how = ("every frequency in the file; narrow it with --f-min-hz/--f-max-hz"
            if a.f_min_hz is None and a.f_max_hz is None
            else f"--f-min-hz {lo:g} --f-max-hz {hi:g}")  # fmt: skip
     print(f"band: {f.min():g}–{f.max():g} Hz, {f.size} of {np.size(data.freq_hz)} frequencies "
@@ -223,7 +227,7 @@ def run_fit(a) -> None:
     if not single and a.method == "nls" and a.f_max_hz is None and f.max() > 40:
         print("note: every frequency is fitted; for a haptic device the NLS fit is usually "
               "best with --f-max-hz 40 (the paper scene's band)")  # fmt: skip
-    fitted = table[a.method](sel, a)
+    fitted = table[a.method](sel, a, (lo, hi))
     q = fitted.quality
     if q is None:
         band = (lo, hi)
@@ -276,10 +280,11 @@ def run_frf_lab(a) -> None:
         )
     z = estimate_impedance_h1(ts, nperseg=a.nperseg, response=a.response,
                               sign=-1.0 if a.sign == "-" else 1.0,
-                              f_min_hz=a.f_min_hz, f_max_hz=a.f_max_hz)  # fmt: skip
+                              f_min_hz=a.f_min_hz, f_max_hz=a.f_max_hz,
+                              window=a.window)  # fmt: skip
     out = io.save_impedance_frf(a.out, z)
     E, T, n = ts.force.shape
-    seg = E * ((T - a.nperseg) // (a.nperseg // 2) + 1)
+    seg = E * ((T - a.nperseg) // (a.nperseg if a.window == "boxcar" else a.nperseg // 2) + 1)
     rel = np.asarray(z.Z_std) / np.maximum(np.abs(np.asarray(z.Z)), 1e-300)
     conv = {"displacement": "Z = F/x", "velocity": "Z = jω·F/v", "acceleration": "Z = (jω)²·F/a"}
     f = np.asarray(z.freq_hz)
@@ -297,6 +302,9 @@ def register_lab_frf_args(f) -> None:
                      help="H1 estimate over Welch segments (implied for a time series)")  # fmt: skip
     lab.add_argument("--nperseg", type=int, default=2048,
                      help="samples per Welch segment (default 2048)")  # fmt: skip
+    lab.add_argument("--window", choices=["hann", "boxcar"], default="hann",
+                     help="segment window: hann (default) or boxcar (periodic excitation whose "
+                     "period divides --nperseg: leakage-free)")  # fmt: skip
     lab.add_argument("--response", choices=["displacement", "velocity", "acceleration"],
                      default="displacement", help="what the response channels measure; Z = F/x "
                      "is formed in the frequency domain (default displacement)")  # fmt: skip

@@ -16,8 +16,11 @@ strictly increasing; arguments are in Hz. The named grids encode hapid's default
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
+from . import _config  # noqa: F401  (float64)
 from ._constants import BELOW_NYQUIST, TWO_PI
 
 SAMPLED_BAND_HZ = (0.05, 450.0)
@@ -28,34 +31,47 @@ NYQUIST_F_MIN_HZ = 1e-3
 NYQUIST_N = 1500
 
 
+def _traced(*xs) -> bool:
+    return any(isinstance(x, jax.core.Tracer) for x in xs)
+
+
 def log_grid_hz(f_min_hz: float, f_max_hz: float, n: int) -> np.ndarray:
-    """``n`` log-spaced frequencies from ``f_min_hz`` to ``f_max_hz`` (both included), in rad/s."""
-    f_min_hz, f_max_hz, n = float(f_min_hz), float(f_max_hz), int(n)
+    """``n`` log-spaced frequencies from ``f_min_hz`` to ``f_max_hz`` (both included), in rad/s.
+
+    Concrete bounds give a numpy array (checked: ``0 < f_min_hz < f_max_hz``); traced bounds
+    (inside ``jit``/``vmap``, e.g. a swept ``f_min_hz``) give the same grid as a JAX array."""
+    n = int(n)
+    if n < 2:
+        raise ValueError(f"frequency grid: need at least 2 points, got {n}")
+    if _traced(f_min_hz, f_max_hz):
+        return TWO_PI * 10.0 ** jnp.linspace(jnp.log10(f_min_hz), jnp.log10(f_max_hz), n)
+    f_min_hz, f_max_hz = float(f_min_hz), float(f_max_hz)
     if not (0.0 < f_min_hz < f_max_hz) or not np.isfinite(f_max_hz):
         raise ValueError(
             f"frequency grid: need 0 < f_min_hz < f_max_hz, got {f_min_hz:g}, {f_max_hz:g}"
         )
-    if n < 2:
-        raise ValueError(f"frequency grid: need at least 2 points, got {n}")
     return TWO_PI * np.geomspace(f_min_hz, f_max_hz, n)
 
 
-def sampled_grid(
-    n_freq: int = SAMPLED_N,
-    f_min_hz: float = SAMPLED_BAND_HZ[0],
-    f_max_hz: float = SAMPLED_BAND_HZ[1],
-) -> np.ndarray:
-    """Grid for sampled plants (rad/s): ``n_freq`` log-spaced points, 0.05–450 Hz by default."""
-    return log_grid_hz(f_min_hz, f_max_hz, n_freq)
+def _named_grid(n_default: int, band_hz: tuple[float, float], doc: str):
+    def grid(n_freq: int = n_default, f_min_hz: float = band_hz[0], f_max_hz: float = band_hz[1]):
+        return log_grid_hz(f_min_hz, f_max_hz, n_freq)
+
+    grid.__doc__ = doc
+    return grid
 
 
-def continuous_grid(
-    n_freq: int = CONTINUOUS_N,
-    f_min_hz: float = CONTINUOUS_BAND_HZ[0],
-    f_max_hz: float = CONTINUOUS_BAND_HZ[1],
-) -> np.ndarray:
-    """Grid for continuous model loops (rad/s): ``n_freq`` log-spaced points, 0.005 Hz–5 kHz."""
-    return log_grid_hz(f_min_hz, f_max_hz, n_freq)
+sampled_grid = _named_grid(
+    SAMPLED_N,
+    SAMPLED_BAND_HZ,
+    "Grid for sampled plants (rad/s): ``n_freq`` log-spaced points, 0.05–450 Hz by default.",
+)
+continuous_grid = _named_grid(
+    CONTINUOUS_N,
+    CONTINUOUS_BAND_HZ,
+    "Grid for continuous model loops (rad/s): ``n_freq`` log-spaced points, 0.005 Hz–5 kHz.",
+)
+sampled_grid.__name__, continuous_grid.__name__ = "sampled_grid", "continuous_grid"
 
 
 def nyquist_grid(
@@ -64,8 +80,8 @@ def nyquist_grid(
     """Grid for a loop sampled at ``fs_hz`` (rad/s): ``n_freq - 1`` log-spaced points from
     ``f_min_hz`` to just below ``fs_hz / 2``, plus ``fs_hz / 2`` itself (``n_freq`` in all)."""
     fs_hz = float(fs_hz)
-    f_max = BELOW_NYQUIST * fs_hz
-    return np.append(log_grid_hz(f_min_hz, f_max, int(n_freq) - 1), TWO_PI * 0.5 * fs_hz)
+    grid = log_grid_hz(f_min_hz, BELOW_NYQUIST * fs_hz, int(n_freq) - 1)
+    return (jnp if _traced(grid) else np).append(grid, TWO_PI * 0.5 * fs_hz)
 
 
 def below_nyquist_grid(

@@ -98,7 +98,8 @@ def cmd_frf(a):
     run = io.load_run(a.run)
     if a.h1:
         frf = estimate_frf_h1(run.fs_hz, run.R_A, run.R_I, run.L, nperseg=a.nperseg,
-                              f_band_hz=(a.f_min_hz or 0.0, a.f_max_hz or run.fs_hz / 2))  # fmt: skip
+                              f_band_hz=(a.f_min_hz or 0.0, a.f_max_hz or run.fs_hz / 2),
+                              window=a.window)  # fmt: skip
     else:
         frf = estimate_frf(run, cond_warn=a.cond_warn)
     out = io.save_frf(a.out, frf)
@@ -229,6 +230,7 @@ def cmd_run(a):
                                progress=lambda name: print(f"  … {name}", flush=True))  # fmt: skip
     print(f"computed: {', '.join(log['computed']) or '—'}; from cache: {', '.join(log['cached']) or '—'} "
           f"({time.perf_counter() - t0:.1f} s)")  # fmt: skip
+    print("per stage: " + ", ".join(f"{k} {v:.1f} s" for k, v in log["seconds"].items()))
     print(f"outputs in {a.out or cfg['outputs']['dir']}")
 
 
@@ -352,6 +354,7 @@ def cmd_posterior(a):
     ps = posterior_from_files(a.frf, a.out, method=a.method, n_samples=a.samples,
                               n_steps=a.steps, seed=a.seed, backend_path=a.hdf5,
                               fit_options={"f_max_hz": a.f_max_hz},
+                              posterior_options={"model_error": a.model_error},
                               sampler_options={"moves": a.moves} | ({"n_walkers": a.walkers} if a.walkers else {}),
                               fix_boundary=not a.free_boundary)  # fmt: skip
     print(ps.summary())
@@ -368,6 +371,9 @@ def cmd_robust(a):
         res = robust_from_files(a.samples, a.model[0], a.out, gm_db=a.gm_db, pm_deg=a.pm_deg,
                                 max_samples=a.max_samples, device=a.device, n_subjects=a.subjects)  # fmt: skip
         print(to_json(res)[:4000])
+        for batch in ("posterior", "device"):
+            if res.get(batch) is not None and not res[batch]["passed"]:
+                print(f"{batch}: NOT passed — " + "; ".join(res[batch]["reasons"]))
     else:
         res = {Path(m).stem: robust_from_files(a.samples, m, None, gm_db=a.gm_db, pm_deg=a.pm_deg,
                                                max_samples=a.max_samples, device=a.device,
@@ -420,6 +426,9 @@ def _register_stages(sub):
     po.add_argument("--steps", type=int, help="emcee steps (default: run to 50 τ)")
     po.add_argument("--samples", type=int, default=4000, help="Laplace draws")
     po.add_argument("--f-max-hz", type=float, default=40.0)
+    po.add_argument("--model-error", choices=["white", "gp", "none"], default="white",
+                    help="model-error term: white (independent per frequency, default), gp (smooth "
+                         "random function of log-frequency, marginalized), none")  # fmt: skip
     po.add_argument("--seed", type=int, default=0)
     po.add_argument("--hdf5", help="emcee HDF5 backend file")
     po.set_defaults(func=cmd_posterior)
@@ -503,17 +512,17 @@ def cmd_tune(a):
                           n_holdout=a.n_holdout, quantile=a.quantile, n_subjects=a.subjects,
                           seed=a.seed, max_steps=a.max_steps, keep_dc_gain=not a.free_dc)  # fmt: skip
     r = res["result"]
+    print(res.get("decision", ""))
     print(f"tuned in {r.wall_s:.1f} s: claimed robust bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, "
           f"smooth constraints {'met' if r.feasible else 'NOT met'} on the training scenarios")  # fmt: skip
     for p in r.parameters():
         print(f"  {p['name']:16s} {p['start']:10.4g} → {p['tuned']:10.4g}")
     tab = res.get("table", {})
     if tab:
+        from ._cli_predict import recheck_table
+
         print("non-smooth re-check (held-out samples / true plant / time domain):")
-        for k in tab["tuned"]:
-            if k == "validate_s":
-                continue
-            print(f"  {k:40s} {tab['start'][k]!s:>24.24s}  →  {tab['tuned'][k]!s:>24.24s}")
+        print(recheck_table(tab["start"], tab["tuned"]))
     if a.report:
         from .io import save_json
 
@@ -547,7 +556,13 @@ def _register_tune(sub):
     tu.set_defaults(func=cmd_tune)
 
 
-_EXTRA: list = [_register_scene, _register_stages, _register_sweep, _register_tune]  # later stages register their subcommands here
+def _register_predict(sub):
+    from ._cli_predict import register
+
+    register(sub)
+
+
+_EXTRA: list = [_register_scene, _register_stages, _register_sweep, _register_tune, _register_predict]  # later stages register their subcommands here
 
 
 def _one_line_errors(parser) -> None:

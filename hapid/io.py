@@ -194,6 +194,31 @@ def _scalar(d: dict, key: str, path, *, integer: bool = False):
     return v
 
 
+def _open_text(path):
+    """A CSV file as text (``io.StringIO``); a file that is not UTF-8 text is a
+    :class:`FileFormatError` naming it."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    if path.is_dir():
+        raise FileFormatError(f"{path}: is a folder; expected a CSV file")
+    raw = path.read_bytes()
+    try:
+        return _io.StringIO(raw.decode("utf-8-sig"), newline="")
+    except UnicodeDecodeError:
+        raise FileFormatError(
+            f"{path}: not UTF-8 text: it holds {_describe_head(raw[:128])}; expected a CSV file"
+        ) from None
+
+
+def _complex(re: np.ndarray, im: np.ndarray) -> np.ndarray:
+    """``re + j·im`` without arithmetic (``1j * inf`` warns and makes NaN; a non-finite entry
+    must reach the validator as itself)."""
+    z = np.empty(np.shape(re), dtype=np.complex128)
+    z.real, z.imag = re, im
+    return z
+
+
 def _need(d: dict, keys, path) -> None:
     missing = [k for k in keys if k not in d]
     if missing:
@@ -258,7 +283,7 @@ def _read_run_csv(path) -> dict:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
-    with open(path) as fh:
+    with _open_text(path) as fh:
         head = fh.readline()
         if not head.startswith("#"):
             raise FileFormatError(
@@ -269,8 +294,16 @@ def _read_run_csv(path) -> dict:
     try:
         header, data = rows[0], np.asarray(rows[1:], dtype=float)
         n = sum(h.startswith("R_A_") for h in header)
+        want = ["experiment", "sample"] + [f"{k}_{i}" for k in ("R_A", "R_I", "L") for i in range(n)]
+        if header != want:
+            raise ValueError(f"header {header[:8]}… is not {want[:8]}…")
         E = int(data[:, 0].max()) + 1
+        if not 1 <= E <= data.shape[0]:
+            raise ValueError(f"experiment column counts {E} experiments in {data.shape[0]} rows")
         T = data.shape[0] // E
+        idx = np.stack([np.repeat(np.arange(E), T), np.tile(np.arange(T), E)], axis=1)
+        if data.shape[0] != E * T or not np.array_equal(data[:, :2], idx):
+            raise ValueError("experiment/sample columns must count 0, 1, … (every experiment the same length)")
         arr = data[:, 2:].reshape(E, T, 3 * n)
         return {
             "fs_hz": float(meta["fs_hz"]),
@@ -280,7 +313,7 @@ def _read_run_csv(path) -> dict:
             "R_I": arr[..., n : 2 * n],
             "L": arr[..., 2 * n :],
         }
-    except (KeyError, ValueError, IndexError) as e:
+    except (KeyError, ValueError, IndexError, ZeroDivisionError, OverflowError) as e:
         raise FileFormatError(f"{path}: malformed run CSV ({e})") from None
 
 
@@ -301,6 +334,14 @@ def save_frf(path, frf: FRF) -> Path:
     as_frf(**{k: v for k, v in arrays.items()})  # validate
     if _fmt(path) == "csv":
         return _atomic_write(path, lambda fh: fh.write(_frf_csv(arrays).encode()))
+    return _write_arrays(path, arrays)
+
+
+def save_draws(path, freq_hz, draws: dict) -> Path:
+    """Write predictive plant draws (``hapid predict``): ``freq_hz (N,)`` and each of
+    ``draws`` (e.g. ``P``, ``Z_H``, ``Z_T``: ``(S, N, n, n)`` complex) to an ``.npz``."""
+    arrays = {"freq_hz": np.asarray(freq_hz, dtype=np.float64)}
+    arrays |= {k: np.asarray(v, dtype=np.complex128) for k, v in draws.items()}
     return _write_arrays(path, arrays)
 
 
@@ -362,7 +403,7 @@ def _read_frf_csv(path) -> dict:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
-    with open(path) as fh:
+    with _open_text(path) as fh:
         rows = list(csv.reader(fh))
     try:
         header, data = rows[0], np.asarray(rows[1:], dtype=float)
@@ -373,12 +414,12 @@ def _read_frf_csv(path) -> dict:
         for k in ("Z_H", "Z_T"):
             re = data[:, [col[f"{k}_re_{s}"] for s in idx]]
             im = data[:, [col[f"{k}_im_{s}"] for s in idx]]
-            out[k] = (re + 1j * im).reshape(-1, n, n)
+            out[k] = _complex(re, im).reshape(-1, n, n)
         for k in ("Z_H_std", "Z_T_std"):
             if f"{k}_0_0" in col:
                 out[k] = data[:, [col[f"{k}_{s}"] for s in idx]].reshape(-1, n, n)
         return out
-    except (KeyError, ValueError, IndexError) as e:
+    except (KeyError, ValueError, IndexError, ZeroDivisionError, OverflowError) as e:
         raise FileFormatError(f"{path}: malformed FRF CSV ({e})") from None
 
 
@@ -508,7 +549,7 @@ def file_kind(path, what: str = "a hapid .npz or .mat file") -> str:
     if _fmt(path) == "csv":
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such file")
-        with open(path) as fh:
+        with _open_text(path) as fh:
             head = fh.readline() + fh.readline()
         if "R_A_" in head:
             return "run"
@@ -617,7 +658,7 @@ def _read_timeseries_csv(path) -> dict:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
-    with open(path) as fh:
+    with _open_text(path) as fh:
         lines = fh.read().splitlines()
     meta = {}
     if lines and lines[0].startswith("#"):
@@ -748,7 +789,7 @@ def _read_impedance_csv(path) -> dict:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
-    with open(path) as fh:
+    with _open_text(path) as fh:
         lines = fh.read().splitlines()
     meta = {}
     if lines and lines[0].startswith("#"):
@@ -774,7 +815,7 @@ def _read_impedance_csv(path) -> dict:
         raise FileFormatError(f"{path}: no data rows matching the header; {IMPEDANCE_CSV_LAYOUT}")
     pick = lambda names: data[:, [col[k] for k in names]].reshape(-1, n, n)  # noqa: E731
     out = {"freq_hz": data[:, col["freq_hz"]],
-           "Z": pick([f"Z_re_{s}" for s in idx]) + 1j * pick([f"Z_im_{s}" for s in idx])}  # fmt: skip
+           "Z": _complex(pick([f"Z_re_{s}" for s in idx]), pick([f"Z_im_{s}" for s in idx]))}  # fmt: skip
     if f"Z_std_{idx[0]}" in col:
         out["Z_std"] = pick([f"Z_std_{s}" for s in idx])
     if "unit" in meta:

@@ -174,17 +174,35 @@ def grid(vary: dict[str, list]) -> tuple[tuple[str, ...], np.ndarray]:
     return keys, rows
 
 
+_INTEGER = {
+    "protocol.periods": 1,
+    "analysis.n_freq": 3,
+    "fit.max_steps": 1,
+    "fit.patience": 1,
+    "protocol.seed": 0,
+    "device.subject_seed": -1,
+}  # name → smallest allowed value
+_NONNEGATIVE = ("protocol.noise", "protocol.position_noise", "fit.pd_eps", "fit.blend_floor",
+                "controller.zeta_num")  # fmt: skip
+
+
 def _check_values(keys, rows):
+    """Every value in range before any work (``ValueError`` naming the option and value)."""
     for j, k in enumerate(keys):
         v = rows[:, j]
-        if k in ("protocol.periods", "analysis.n_freq", "fit.max_steps") and np.any(
-            v < 1 if k != "analysis.n_freq" else v < 3
-        ):
-            raise ValueError(f"{k} must be a positive integer (n_freq ≥ 3), got {v.min():g}")
-        if k in ("protocol.noise", "protocol.position_noise", "fit.pd_eps") and np.any(v < 0):
-            raise ValueError(f"{k} must be ≥ 0, got {v.min():g}")
-        if k.endswith("_hz") and not k.startswith("fit.f_max") and np.any(v <= 0):
-            raise ValueError(f"{k} must be a positive frequency in Hz, got {v.min():g}")
+        sec, name, _ = _parse(k)
+        if k in _INTEGER:
+            lo = _INTEGER[k]
+            if np.any(v != np.round(v)) or np.any(v < lo):
+                raise ValueError(
+                    f"{k} must be an integer ≥ {lo}, got {v[(v != np.round(v)) | (v < lo)][0]:g}"
+                )
+        elif k in _NONNEGATIVE:
+            if np.any(v < 0):
+                raise ValueError(f"{k} must be ≥ 0, got {v.min():g}")
+        elif sec in ("fit", "controller", "analysis") or k == "protocol.amplitude":
+            if np.any(v <= 0):
+                raise ValueError(f"{k} must be > 0, got {v.min():g}")
 
 
 def run_sweep(cfg: dict, vary: dict[str, list], *, chunk: int = 64, progress: bool = True,

@@ -27,17 +27,14 @@ def curves(samples: int = 200, seed: int = 7, cache=str(ROOT / ".hapid_cache" / 
         discretize_controller,
         inverse_model_response,
     )
-    from hapid.tune import paper_column, posterior_plants
+    from hapid.tune import posterior_plants
     from hapid.uncertainty import laplace_samples
 
-    res, _ = scene.run_scene(scene.merge({}), ["device", "nls", "plant"], cache_dir=cache,
+    # the tuned g is the paper scene's "tuned" stage (cached with the other stages)
+    res, _ = scene.run_scene(scene.merge({}), ["device", "nls", "plant", "tuned"], cache_dir=cache,
                              out_dir=str(ROOT / "out" / "paper"))  # fmt: skip
     dev, model, plant = res["device"], res["nls"]["model"], res["plant"]
-    tuned = paper_column(dev, model, plant["omega"])
-    designs = {"paper g": Compensator.paper(), "tuned g": None}
-    from hapid.tune import load_design
-
-    designs["tuned g"] = load_design(tuned["design_file"])[0]
+    designs = {"paper g": Compensator.paper(), "tuned g": res["tuned"]["g"]}
     ps = laplace_samples(res["nls"]["result"], samples, key=seed)
     omc = TWO_PI * np.geomspace(0.1, 200.0, 300)
     Ps, _ = posterior_plants(ps.models(), omc)

@@ -41,6 +41,8 @@ def write_valid_files(d: Path, n: int = N_RODS) -> dict[str, Path]:
     np.savez(d / "samples.npz", samples=rng.normal(size=(8, p)), log_prob=np.zeros(8), n=np.int64(n),
              names=np.asarray([f"t{i}" for i in range(p)]), omega_ref=1.0, z_ref=1.0,
              method=np.asarray("fake"))  # fmt: skip
+    hio.save_run(d / "run.csv", hio.load_run(d / "run.npz"))
+    hio.save_frf(d / "frf.csv", hio.load_frf(d / "frf.npz"))
     (d / "scene.toml").write_text('[controller]\nk = 0.6\n[outputs]\nwant = ["summary"]\n')
     return {k: d / f"{k}.{ext}" for k, ext in (("run", "npz"), ("frf", "npz"), ("model", "npz"),
                                                 ("samples", "npz"), ("scene", "toml"))}  # fmt: skip

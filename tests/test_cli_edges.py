@@ -64,6 +64,8 @@ def test_simulate_fs_zero_without_numpy_warnings(files):
          "--quantile must be in (0, 1], got 1.5"),
         (["sweep", "scene.toml", "--vary", "protocol.periods=0", "--out", "sw"],
          "--vary protocol.periods must be an integer ≥ 1, got 0"),
+        (["sweep", "scene.toml", "--vary", "controller.zeta_den=0.5,-1", "--out", "sw"],
+         "--vary controller.zeta_den=-1: controller.zeta_den must be > 0"),
         (["sweep", "scene.toml", "--vary", "controller.k=0.5", "--chunk", "0", "--out", "sw"],
          "--chunk must be an integer ≥ 1, got 0"),
         (["analyze", "--model", "model.npz", "--device", "cu5", "--k", "0", "--out", "a.json"],
@@ -209,3 +211,42 @@ def test_argparse_errors_are_one_line_too(files):
         ["simulate", "--fs", "abc", "--out", "r.npz"], files[0], "invalid float value"
     )
     assert_clean_error(["fit", "frf.npz"], files[0], "required")
+
+
+# ---- crashes the fuzz harness found ---------------------------------------------------------
+def test_samples_with_nan_log_prob_are_rejected(files, tmp_path):
+    d = dict(np.load(files[1]["samples"]))
+    d["log_prob"][0] = np.nan
+    np.savez(tmp_path / "s.npz", **d)
+    (tmp_path / "model.npz").write_bytes(files[1]["model"].read_bytes())
+    assert_clean_error(["robust", "--samples", "s.npz", "--model", "model.npz", "--out", "o.json"],
+                       tmp_path, "log_prob contains NaN")  # fmt: skip
+
+
+def test_design_with_nan_or_negative_frequency_names_the_file(tmp_path):
+    from hapid.control import Compensator
+    from hapid.tune import load_design, save_design
+
+    save_design(tmp_path / "g.npz", Compensator.paper())
+    d = dict(np.load(tmp_path / "g.npz"))
+    for field, bad in (("k", np.nan), ("lag_poles", -1.0)):
+        dd = dict(d, **{field: np.full(np.shape(d[field]), bad)})
+        np.savez(tmp_path / "bad.npz", **dd)
+        with pytest.raises(ValueError, match=f"bad.npz: {field}"):
+            load_design(tmp_path / "bad.npz")
+
+
+def test_console_script_error_is_one_stderr_line(tmp_path):
+    """The real process (interpreter warning filters, exit code, stderr) for the first item
+    of the issue: a 0-byte .npz."""
+    import subprocess
+    import sys
+
+    (tmp_path / "empty.npz").write_bytes(b"")
+    res = subprocess.run([sys.executable, "-W", "default", "-m", "hapid.cli", "frf", "empty.npz",
+                          "--out", "o.npz"], cwd=tmp_path, capture_output=True, text=True)  # fmt: skip
+    assert res.returncode == 2
+    lines = res.stderr.splitlines()
+    assert len(lines) == 1, res.stderr
+    assert lines[0].startswith("hapid: error: empty.npz: empty file (0 bytes); expected a run file")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.npz"]

@@ -22,9 +22,9 @@ from helpers_cli import assert_clean_error, write_valid_files
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-FAST = settings(max_examples=25, deadline=None, derandomize=True, database=None,
+FAST = settings(max_examples=80, deadline=None, derandomize=True, database=None,
                 suppress_health_check=list(HealthCheck))  # fmt: skip
-LONG = settings(max_examples=600, deadline=None, database=None,
+LONG = settings(max_examples=3000, deadline=None, database=None,
                 suppress_health_check=list(HealthCheck))  # fmt: skip
 
 COUNT: dict[str, int] = {}
@@ -36,8 +36,8 @@ def base(tmp_path_factory):
     write_valid_files(d)
     yield d
     total = sum(COUNT.values())
-    print(f"\nfuzz cases tried: {total} ({', '.join(f'{k} {v}' for k, v in sorted(COUNT.items()))}); "
-          "each ended in exit 2, one error line, no traceback, no warning, no file")  # fmt: skip
+    parts = ", ".join(f"{k} {v}" for k, v in sorted(COUNT.items()))
+    print(f"\nfuzz cases tried: {total} ({parts})")
 
 
 def _workdir(base: Path) -> Path:
@@ -65,6 +65,8 @@ READERS = {
               ["tune", "--model", "{f}", "--device", "tripod3", "--out", "o.npz"]],
     "samples": [["robust", "--samples", "{f}", "--model", "model.npz", "--out", "o.json"],
                 ["tune", "--model", "model.npz", "--samples", "{f}", "--out", "o.npz"]],
+    "design": [["analyze", "--model", "model.npz", "--device", "tripod3", "--design", "{f}",
+                "--out", "o.json"]],
     "scene": [["run", "{f}", "--out", "o"],
               ["sweep", "{f}", "--vary", "controller.k=0.5", "--out", "o"],
               ["paper", "--scene", "{f}", "--out", "o"]],
@@ -137,9 +139,51 @@ def _write_npz_dict(path: Path, d: dict) -> None:
     np.savez(path, **d)
 
 
+JUNK = ["abc", "", "nan", "inf", "-inf", "1e999", "0x1", "1,2"]
+
+
+@st.composite
+def csv_defect(draw, text: str, kind: str):
+    """A hapid CSV (run or FRF) with one defect that breaks its contract: a junk cell in a
+    data row, a renamed required column, a row missing a cell, or (run) a broken header line."""
+    lines = text.splitlines()
+    head = 1 if kind == "run" else 0  # the run CSV's '# fs_hz=…' line
+    how = draw(st.sampled_from(["cell", "cell", "column", "short", "meta"] if kind == "run"
+                               else ["cell", "cell", "column", "short"]))  # fmt: skip
+    if how == "meta":
+        key = draw(st.sampled_from(["fs_hz", "period_samples", "freq_hz"]))
+        meta = lines[0]
+        start = meta.index(key + "=") + len(key) + 1
+        end = meta.find(";", start)
+        end = len(meta) if end < 0 else end
+        lines[0] = meta[:start] + draw(st.sampled_from(["abc", "", "-1", "nan", "0"])) + meta[end:]
+        return "\n".join(lines) + "\n"
+    if how == "column":
+        cols = lines[head].split(",")
+        required = [i for i, c in enumerate(cols) if not c.startswith(("Z_H_std", "Z_T_std"))]
+        i = draw(st.sampled_from(required))
+        cols[i] = draw(st.sampled_from(["abc", "", cols[i] + "x"]))
+        lines[head] = ",".join(cols)
+        return "\n".join(lines) + "\n"
+    r = draw(st.integers(head + 1, len(lines) - 1))
+    cells = lines[r].split(",")
+    i = draw(st.integers(0, len(cells) - 1))
+    if how == "short":
+        del cells[i]
+    else:
+        cells[i] = draw(st.sampled_from(JUNK))
+    lines[r] = ",".join(cells)
+    return "\n".join(lines) + "\n"
+
+
 def _file_case(draw, base: Path, kind: str) -> tuple[str, bytes | dict]:
     """``(file name, content)``: bytes to write, or a dict to save as .npz/.mat."""
     valid_path = base / f"{kind}.npz"
+    if kind in ("run", "frf") and draw(st.integers(0, 2)) == 0:
+        text = (base / f"{kind}.csv").read_text()
+        if draw(st.integers(0, 4)) == 0:
+            return f"bad_{kind}.csv", draw(raw_bytes(text.encode()))
+        return f"bad_{kind}.csv", draw(csv_defect(text, kind)).encode()
     if draw(st.booleans()):
         return f"bad_{kind}.npz", draw(raw_bytes(valid_path.read_bytes()))
     d = dict(np.load(valid_path))
@@ -258,6 +302,7 @@ OPTION_BAD = {
     "--n-train": int_below(1), "--n-holdout": int_below(1), "--steps": int_below(1),
     "--samples": int_below(1), "--subjects": int_below(0),
     "--walkers": st.sampled_from(["1", "-1", "-100", "x"]),
+    "--nperseg": int_below(8), "--fs-hz": NOT_POS, "--f-min-hz": NEG,
     "--seed": st.integers(max_value=-1).map(str) | st.integers(min_value=2**32).map(str),
     "--quantile": st.sampled_from(["0", "1.5", "-0.1", "nan", "1.0000001"]) | st.floats(min_value=1, exclude_min=True, allow_infinity=False).map(repr),
     "--gm-db": st.sampled_from(["-1", "nan", "61", "inf"]),
@@ -269,7 +314,10 @@ OPTION_BAD = {
     "--vary": st.sampled_from(["controller.k=0", "controller.k=-1", "protocol.periods=0",
                                "protocol.periods=1.5", "device.dx=5", "protocol.noise=-1",
                                "fit.omega_c_hz=0", "nosuch.key=1", "controller.k", "controller.k=",
-                               "controller.k=a", "protocol.seed=-3", "device.subject_seed=0.5"]),
+                               "controller.k=a", "protocol.seed=-3", "device.subject_seed=0.5",
+                               "controller.zeta_den=-1", "analysis.n_freq=1", "device.dyaw=3",
+                               "controller.notch_hz[1]=900", "analysis.f_min_hz=0",
+                               "fit.max_steps=2.5", "controller.lowpass_hz[0]=-5"]),
     "--set": st.sampled_from(["controller.k=0", "nosuch.k=1", "protocol.periods=0", "k",
                               "device.preset=\"x\"", "fit.solver=\"newton\"", "analysis.n_freq=1"]),
     "--outputs": st.sampled_from(["fig11", "summary,nope", ""]),
@@ -315,6 +363,8 @@ def _file_property(base, data):
     try:
         if kind == "scene":
             name, content = "bad.toml", data.draw(bad_scene())
+        elif kind == "design":
+            name, content = "bad_design.npz", _design_content(data.draw)
         else:
             name, content = _file_case(data.draw, base, kind)
         p = _materialize(d, name, content)
@@ -335,28 +385,36 @@ def _option_property(base, data):
         shutil.rmtree(d, ignore_errors=True)
 
 
+def _design_content(draw):
+    """A broken design file: bytes that are no .npz, or a valid one with a field dropped or
+    replaced by strings, objects, complex, NaN or an empty array."""
+    from hapid.tune._params import _FIELDS
+
+    if draw(st.booleans()):
+        return draw(raw_bytes(b"PK\x03\x04" + b"\x00" * 40))
+    from hapid.control import Compensator
+
+    g = Compensator.paper()
+    d = {f: np.asarray(getattr(g, f), dtype=float) for f in _FIELDS}
+    k = draw(st.sampled_from(sorted(_FIELDS)))
+    if draw(st.booleans()):
+        del d[k]
+    else:
+        a = np.atleast_1d(d[k]) if d[k].size else np.array([1.0])
+        d[k] = draw(st.sampled_from([np.full(a.shape, "a"), np.array([None], dtype=object),
+                                     a + 1j, np.full(a.shape, np.nan), -np.abs(a) - 1,
+                                     np.full(a.shape, np.inf)]))  # fmt: skip
+    return d
+
+
 def _design_property(base, data):
-    """Design files have no CLI reader: ``load_design`` must raise ValueError naming the file."""
+    """``load_design`` (library level) raises ValueError naming the file for a broken design."""
     from hapid.tune import load_design
 
     d = _workdir(base)
     try:
-        from hapid.tune._params import _FIELDS
-
-        valid = {f: np.array([1.0]) for f in _FIELDS}
-        if data.draw(st.booleans()):
-            content = data.draw(raw_bytes(b"PK\x03\x04" + b"\x00" * 40))
-        else:
-            dd = dict(valid)
-            k = data.draw(st.sampled_from(sorted(_FIELDS)))
-            if data.draw(st.booleans()):
-                del dd[k]
-            else:
-                dd[k] = data.draw(st.sampled_from([np.array(["a"]), np.array([None], dtype=object),
-                                                   np.array([1j])]))  # fmt: skip
-            content = dd
-        p = _materialize(d, "bad_design.npz", content)
-        COUNT["design files"] = COUNT.get("design files", 0) + 1
+        p = _materialize(d, "bad_design.npz", _design_content(data.draw))
+        COUNT["design files (load_design)"] = COUNT.get("design files (load_design)", 0) + 1
         with pytest.raises(ValueError) as e:
             load_design(p)
         assert str(p) in str(e.value) and "\n" not in str(e.value)

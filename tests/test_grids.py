@@ -51,3 +51,22 @@ def test_named_grids_are_the_one_implementation():
 def test_bad_grid_is_a_clear_error(args):
     with pytest.raises(ValueError, match="frequency grid"):
         _grids.log_grid_hz(*args)
+
+
+def test_traced_bounds_give_the_same_grid():
+    """A swept f_min_hz is traced inside the sweep's jit/vmap: same grid as the numpy path."""
+    import jax
+
+    from hapid import pipeline
+
+    traced = jax.jit(lambda f: _grids.nyquist_grid(1000.0, 50, f))(0.02)
+    np.testing.assert_allclose(
+        np.asarray(traced), _grids.nyquist_grid(1000.0, 50, 0.02), rtol=1e-13
+    )
+    np.testing.assert_allclose(
+        np.asarray(
+            jax.vmap(lambda f: pipeline.analysis_grid(f, 30, f_max_hz=5e3))(np.array([0.01, 0.1]))
+        )[1],
+        _grids.log_grid_hz(0.1, 5e3, 30),
+        rtol=1e-13,
+    )

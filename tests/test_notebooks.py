@@ -136,3 +136,19 @@ def test_uncertainty_notebook_robust_verdicts_match_closed_loop_poles(kernel_env
     assert probe["rc"] == probe["ss"]
     assert probe["n_post"] == 40  # FAST: N_ROBUST posterior samples analysed
     assert probe["n_dev"] == 1 + 2 + 2  # nominal + two poses (±x) + two virtual subjects
+
+
+@pytest.mark.slow  # ~30 s on 2 shared cores: three compiled fits and an H1 on two datasets
+def test_lab_data_notebook_warns_on_real_data_and_recovers_the_truth(kernel_env, tmp_path):
+    probe, _ = run_notebook(
+        "05_lab_data",
+        tmp_path,
+        "{'full_med': float(fits[(7, 50, 'nls')].quality.median_db[0]), "
+        "'full_warn': len(fits[(7, 50, 'nls')].quality.warnings), "
+        "'mode_med': float(fits[(7, 11, 'wls')].quality.median_db[0]), "
+        "'z_max': float(np.max(np.abs(zscore))), 'ok': bool(r.ok)}",
+    )
+    assert probe["full_med"] > -6 and probe["full_warn"] >= 1  # one M, B, K: several modes
+    assert probe["mode_med"] < -15  # the first mode alone is second order
+    assert probe["ok"] and probe["z_max"] < 4.5  # known M, B, K within the Laplace std
+    assert (tmp_path / "05_lab_data" / "model.npz").exists()

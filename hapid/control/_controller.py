@@ -24,7 +24,7 @@ from jaxtyping import Array, Bool, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
 from ..impedance import ImpedanceModel
-from ..lti import StateSpace, series
+from ..lti import StateSpace, block_diag, series
 from ._compensator import Compensator
 from ._lapack import after
 from ._margins import _gain_crossings, _phase_crossings
@@ -57,14 +57,6 @@ def siso_response(
     return (c * _g_response(g, omega))[:, None, None] * jnp.eye(n)
 
 
-def _blockdiag_g(g: Compensator, n: int) -> StateSpace:
-    gs = g.state_space()
-    eye = jnp.eye(n)
-    return StateSpace(
-        jnp.kron(eye, gs.A), jnp.kron(eye, gs.B), jnp.kron(eye, gs.C), jnp.kron(eye, gs.D)
-    )
-
-
 def impedance_ratio_state_space(model: ImpedanceModel) -> StateSpace:
     """Realization of ``Ẑ_T(s) Ẑ_H(s)⁻¹`` (w → R_A) with state ``[y; ẏ]`` (``2n`` states).
 
@@ -89,7 +81,7 @@ def inverse_model_state_space(model: ImpedanceModel, g: Compensator) -> StateSpa
 
     States ``[x_g (n·order(g)); y (n); ẏ (n)]``; g is applied per channel (block diagonal).
     """
-    return series(_blockdiag_g(g, model.n), impedance_ratio_state_space(model))
+    return series(block_diag(g.state_space(), model.n), impedance_ratio_state_space(model))
 
 
 def controller_unstable_poles(

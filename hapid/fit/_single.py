@@ -116,7 +116,7 @@ def _theta0(model: SecondOrder, scale: Scale, floor: float):
 
 #: the frequency axis of an NLS fit is padded (zero-weight rows) to a multiple of this
 #: power-of-two bucket, so fits on different bands share one compiled solver
-PAD_MIN = 64
+PAD_MIN = 128
 
 
 def _padded(n_freq: int) -> int:
@@ -124,13 +124,14 @@ def _padded(n_freq: int) -> int:
 
 
 @eqx.filter_jit
-def _nls_core(omega, Z, W, scale: Scale, theta0, max_steps, rtol, atol, ftol, noise: bool):
-    """The jitted LM fit on padded arrays (rows with ``W = 0`` are padding)."""
+def _nls_core(omega, Z, W, scale: Scale, theta0, max_steps, rtol, atol, ftol):
+    """The jitted LM fit on padded arrays (rows with ``W = 0`` are padding). The covariance
+    and std are returned for σ̂² = 1; the caller scales them (one compile for every weight)."""
     prob = SingleProblem(s=1j * omega / scale.omega_ref, Z=Z / scale.z_ref, W=W, scale=scale)
     theta, n_steps, code = _run_solver(
         prob, theta0, "lm", rtol, atol, max_steps, "cholesky", ftol, 20
     )
-    cov, sigma2, cost = laplace_covariance(prob, theta, noise)
+    cov, sigma2, cost = laplace_covariance(prob, theta, True)
     code = jnp.where(jnp.all(jnp.isfinite(theta)) & jnp.isfinite(cost), code, 2)
     model = prob.model(theta)
     # delta-method std of every entry of M, B, K
@@ -157,15 +158,14 @@ def _nls(zfrf: ImpedanceFRF, weight: str, max_steps: int, rtol, atol, ftol):
         jnp.asarray(pad(np.asarray(zfrf.Z), 1.0 + 0j)),
         jnp.asarray(pad(np.asarray(W, dtype=np.float64), 0.0)),
         scale, theta0, jnp.asarray(max_steps), jnp.asarray(rtol), jnp.asarray(atol),
-        jnp.asarray(ftol), weight == "noise",
+        jnp.asarray(ftol),
     )  # fmt: skip
-    model, sd, theta, code, steps, cost, cov, sigma2 = out
-    if weight != "noise":  # σ̂² = 2·cost/(m − p) with m the real (unpadded) residuals
-        p = theta.shape[0]
-        m_pad, m = 2 * (N + P) * zfrf.n**2, 2 * N * zfrf.n**2
-        fix = (m_pad - p) / (m - p)
-        cov, sigma2 = cov * fix, sigma2 * fix
-        sd = SecondOrder(sd.M * np.sqrt(fix), sd.B * np.sqrt(fix), sd.K * np.sqrt(fix))
+    model, sd, theta, code, steps, cost, cov, _ = out
+    # σ̂² = 1 for noise weights, else 2·cost/(m − p) with m the real (unpadded) residuals
+    m, p = 2 * N * zfrf.n**2, int(theta.shape[0])
+    sigma2 = 1.0 if weight == "noise" else 2.0 * float(cost) / max(m - p, 1)
+    cov = cov * sigma2
+    sd = SecondOrder(*(a * np.sqrt(sigma2) for a in (sd.M, sd.B, sd.K)))
     return model, sd, theta, scale, code, steps, cost, cov, sigma2
 
 
@@ -233,7 +233,7 @@ def fit_impedance(
     max_steps: int = 500,
     rtol: float = 1e-10,
     atol: float = 1e-12,
-    ftol: float = 1e-12,
+    ftol: float = 1e-8,
 ) -> ImpedanceFit:
     """Fit ``M s² + B s + K`` to ``zfrf.Z`` over ``f_min_hz ≤ f ≤ f_max_hz`` (Hz).
 

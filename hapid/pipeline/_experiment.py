@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
-from .._constants import TWO_PI
+from .._grids import log_grid_hz, nyquist_grid
 
 MOVE_KEYS = ("dx", "dy", "dz", "dyaw", "dpitch", "droll")
 
@@ -104,24 +104,11 @@ def simulated_frf(dev, prot, seed, *, noise=None, position_noise=None, periods=N
 def analysis_grid(f_min_hz, n_freq: int, fs_hz: float | None = None, f_max_hz: float | None = None):
     """Analysis frequencies (rad/s, ``(n_freq,)``), log-spaced from ``f_min_hz``.
 
-    Sampled loop (``fs_hz`` given): :func:`hapid._grids.nyquist_grid` (to just below the
-    Nyquist frequency, plus fs/2 itself, where the discrete contour ends). Continuous loop:
-    :func:`hapid._grids.log_grid_hz` to ``f_max_hz``. A traced ``f_min_hz`` (a sweep over it)
-    gets the same points computed with ``jnp``."""
-    from .. import _grids
-    from .._constants import BELOW_NYQUIST
-
-    n_freq = int(n_freq)
-    if fs_hz is None and f_max_hz is None:
-        raise ValueError("analysis_grid: give fs_hz (sampled loop) or f_max_hz (continuous)")
-    try:
-        f0 = float(f_min_hz)
-    except (TypeError, jax.errors.ConcretizationTypeError):
-        lo = jnp.log10(jnp.asarray(f_min_hz, dtype=jnp.float64))
-        if fs_hz is not None:
-            f = 10.0 ** jnp.linspace(lo, np.log10(BELOW_NYQUIST * fs_hz), n_freq - 1)
-            return TWO_PI * jnp.append(f, 0.5 * fs_hz)
-        return TWO_PI * 10.0 ** jnp.linspace(lo, np.log10(f_max_hz), n_freq)
+    Sampled loop (``fs_hz`` given): to just below the Nyquist frequency, plus fs/2 itself
+    (the discrete contour ends there). Continuous loop: to ``f_max_hz``. ``f_min_hz`` may be
+    traced."""
     if fs_hz is not None:
-        return _grids.nyquist_grid(fs_hz, n_freq, f0)
-    return _grids.log_grid_hz(f0, f_max_hz, n_freq)
+        return nyquist_grid(fs_hz, n_freq, f_min_hz)
+    if f_max_hz is None:
+        raise ValueError("analysis_grid: give fs_hz (sampled loop) or f_max_hz (continuous)")
+    return log_grid_hz(f_min_hz, f_max_hz, n_freq)

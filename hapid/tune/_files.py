@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from ..control import Compensator
 from ._params import _FIELDS
 
@@ -33,7 +35,17 @@ def load_design(path) -> tuple[Compensator, dict]:
     missing = [f for f in _FIELDS if f not in z]
     if missing:
         raise ValueError(f"{path}: not a design file (missing {', '.join(missing)})")
-    g = Compensator(**{f: _numeric(z, f, path) for f in _FIELDS})
+    arrays = {f: _numeric(z, f, path) for f in _FIELDS}
+    for f, a in arrays.items():
+        positive = f in ("k", "lag_zeros", "lag_poles", "notch_omega", "notch_zeta_den", "lowpass")
+        if not np.all(np.isfinite(a)) or np.any(a <= 0 if positive else a < 0):
+            raise ValueError(
+                f"{path}: {f} = {a.tolist()}; expected finite values {'> 0' if positive else '≥ 0'}"
+            )
+    try:
+        g = Compensator(**arrays)
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from None
     try:
         info = json.loads(str(z["json"])) if "json" in z else {}
     except json.JSONDecodeError as e:

@@ -68,6 +68,32 @@ def _n_models(samples) -> int:
     )
 
 
+def _subset(samples, idx):
+    return dataclasses.replace(samples, samples=samples.samples[np.asarray(idx)],
+                               log_prob=np.asarray(samples.log_prob)[np.asarray(idx)])  # fmt: skip
+
+
+def _has_error_term(samples) -> bool:
+    from ..uncertainty import PosteriorSamples
+
+    return (isinstance(samples, PosteriorSamples) and samples.error_kind != "none"
+            and samples.predictive is not None)  # fmt: skip
+
+
+def predictive_scenario_plants(samples, idx, omega, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``(P (S, N, n, n), RHP poles)``: posterior-*predictive* plants of draws ``idx`` on ω —
+    the second-order model of each draw plus its model-error term
+    (:func:`hapid.uncertainty.predictive_plants`), so the tuner and the re-check see the
+    misfit the data show (delay, unmodeled modes) and not only parameter uncertainty. The
+    RHP poles are those of the draw's model (0 for PD matrices)."""
+    from ..uncertainty import predictive_plants
+
+    sub = _subset(samples, idx)
+    P = predictive_plants(sub, omega, max_samples=None, seed=seed)["P"]
+    _, pol = posterior_plants(sub.models(), omega)
+    return P, pol
+
+
 def posterior_plants(models, omega) -> tuple[np.ndarray, np.ndarray]:
     """``(P (S, N, n, n), RHP poles of each P̂_s)`` of a batched model on ω (rad/s)."""
 
@@ -99,14 +125,28 @@ def robust_design(
     mu_schedule=(100.0, 1e3, 1e4),
     max_steps: int = 300,
     validate_designs: bool = True,
+    model_error_draws: bool = True,
+    n_holdout_freq: int = 600,
     progress=None,
 ) -> dict:
     """Tune g for ``model`` over posterior ``samples`` and/or ``device`` variants, then
     re-check start and tuned designs with the non-smooth analyses.
 
+    With ``model_error_draws`` (default) and samples that carry a model-error term (white or
+    GP, :attr:`PosteriorSamples.error_kind`), the training and held-out plants are
+    posterior-*predictive* draws (:func:`predictive_scenario_plants`; held out on
+    ``n_holdout_freq`` points of :func:`posterior_grid`), not the bare second-order models.
+
+    **Never worse than the start.** With validation on, the tuned g is kept only if, on the
+    held-out evidence (posterior draws; device variants and the nominal true plant when a
+    device is given), it is no worse than the start: the fraction of plants meeting the
+    margins does not drop, and if it is equal the median isotropic bandwidth does not drop
+    (and a stable true plant stays stable). Otherwise ``out["kept_start"]`` is True, the
+    result's ``g`` is the start and ``out["decision"]`` says why.
+
     Returns ``{"result": TuneResult, "families": {...sizes}, "validation": {"start": v,
-    "tuned": v}, "table": {"start": row, "tuned": row}}`` (``v`` from :func:`.validate`,
-    ``row`` from :func:`.table_row`).
+    "tuned": v}, "table": {"start": row, "tuned": row}, "kept_start": bool, "decision": str}``
+    (``v`` from :func:`.validate`, ``row`` from :func:`.table_row`).
     """
     from ..uncertainty import device_plants
 
@@ -128,11 +168,17 @@ def robust_design(
         k = min(n_train, S // 2)
         tr, ho = perm[:k], perm[k : k + n_holdout]
         omc = posterior_grid(n_freq)
-        P, pol = posterior_plants(_sample_models(samples, tr), omc)
+        pred = model_error_draws and _has_error_term(samples)
+        if pred:
+            P, pol = predictive_scenario_plants(samples, tr, omc, seed=seed)
+            hold_models = predictive_scenario_plants(samples, ho, posterior_grid(n_holdout_freq), seed=seed + 1)[0]
+        else:
+            P, pol = posterior_plants(_sample_models(samples, tr), omc)
+            hold_models = _sample_models(samples, ho)
         families.append(Family(make_scenarios(P, model, omc, p_ol=pol), quantile=quantile,
                                bandwidth=posterior_bandwidth, bw_quantile=0.5, name="posterior"))  # fmt: skip
-        hold_models = _sample_models(samples, ho)
-        info["posterior"] = {"train": int(k), "held_out": int(len(ho))}
+        info["posterior"] = {"train": int(k), "held_out": int(len(ho)),
+                             "plants": f"predictive ({samples.error_kind} model error)" if pred else "models"}  # fmt: skip
     variants = None
     if device is not None:
         omd = below_nyquist_grid(device.fs_hz, n_freq)
@@ -153,14 +199,48 @@ def robust_design(
                              bw_quantile=0.5, name="posterior")  # fmt: skip
     res = tune(families, g0, requirements=req, mu_schedule=mu_schedule, max_steps=max_steps,
                progress=progress)  # fmt: skip
-    out = {"result": res, "families": info}
+    out = {"result": res, "families": info, "kept_start": False, "decision": "not validated"}
     if validate_designs:
         out["validation"], out["table"] = {}, {}
+        omega_c = posterior_grid(n_holdout_freq) if isinstance(hold_models, np.ndarray) else posterior_grid()
         for name, g in (("start", g0), ("tuned", res.g)):
             t0 = time.perf_counter()
             v = validate(g, model, samples=hold_models, device=device, variants=variants,
-                         omega_c=posterior_grid(), gm_db=req.gm_db, pm_deg=req.pm_deg,
+                         omega_c=omega_c, gm_db=req.gm_db, pm_deg=req.pm_deg,
                          p_required=quantile)  # fmt: skip
             out["validation"][name] = v
             out["table"][name] = table_row(v) | {"validate_s": time.perf_counter() - t0}
+        better, why = no_worse(out["table"]["start"], out["table"]["tuned"])
+        out["decision"] = why
+        if not better:
+            out["kept_start"] = True
+            out["result"] = dataclasses.replace(res, g=g0, x=res.x0)
     return out
+
+
+def no_worse(start: dict, tuned: dict) -> tuple[bool, str]:
+    """Is the tuned design no worse than the start on the held-out evidence of two
+    :func:`.table_row` rows? ``(verdict, one-line reason)``. Evidence, in order: the nominal
+    true plant stays stable (when present); for each family (posterior, variants) the
+    fraction of plants meeting the margins does not drop; with equal fractions the median
+    isotropic bandwidth does not drop."""
+    if start.get("true_stable") and not tuned.get("true_stable", True):
+        return False, "kept the start: the tuned g makes the nominal true plant unstable"
+    gains = []
+    for fam in ("posterior", "variants"):
+        key = f"{fam}_frac_meeting_margins"
+        if key not in start:
+            continue
+        a, b = start[key], tuned[key]
+        if b < a - 1e-9:
+            return False, (f"kept the start: on held-out {fam} plants the tuned g meets the margins "
+                           f"on {100 * b:.1f} % against {100 * a:.1f} % for the start")  # fmt: skip
+        bw_a, bw_b = start[f"{fam}_iso_bandwidth_hz_q50"], tuned[f"{fam}_iso_bandwidth_hz_q50"]
+        if b <= a + 1e-9 and bw_b < bw_a - 1e-6:
+            return False, (f"kept the start: same share meeting the margins on held-out {fam} plants "
+                           f"({100 * a:.1f} %) but median bandwidth {bw_b:.3g} Hz < {bw_a:.3g} Hz")  # fmt: skip
+        gains.append(f"{fam}: margins met {100 * a:.1f} → {100 * b:.1f} %, median bandwidth "
+                     f"{bw_a:.3g} → {bw_b:.3g} Hz")  # fmt: skip
+    if not gains:
+        return True, "no held-out evidence to compare on: tuned g returned unchecked"
+    return True, "tuned g kept (no worse than the start on held-out plants): " + "; ".join(gains)

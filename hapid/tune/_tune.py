@@ -58,15 +58,8 @@ class TuneResult:
         """Every smooth constraint met (to 1e-3 in log units) on the training scenarios."""
         return all(v <= 1e-3 for v in self.constraints.values())
 
-    @property
-    def ok(self) -> bool:
-        """The smooth constraints are met on the training scenarios (:attr:`feasible`)."""
-        return self.feasible
-
-    @property
-    def status(self) -> str:
-        """``"feasible"`` or ``"infeasible"``."""
-        return "feasible" if self.feasible else "infeasible"
+    ok = property(lambda self: self.feasible, doc="The smooth constraints are met (:attr:`feasible`).")
+    status = property(lambda self: "feasible" if self.feasible else "infeasible", doc="``feasible``/``infeasible``.")
 
     def summary(self) -> dict:
         """Plain-python summary: verdict, claimed bandwidths (Hz), constraints, parameters."""

@@ -7,6 +7,8 @@
   :func:`laplace_posterior` → :class:`PosteriorSamples`; :func:`save_samples`,
   :func:`load_samples`; :func:`posterior_from_files` for the CLI.
 - :func:`credible_bands` — posterior-predictive bands of |Z|, σ(Z), σ(P), σ(P P̂⁻¹).
+- :func:`predictive_plants` — draws of the true Z_H, Z_T, P on any grid *including* the
+  model-error term (GP conditional on the fit residuals); :func:`band_calibration`.
 - :func:`robust_check`, :func:`device_plants` → :class:`RobustReport` — P(stable), margin
   and bandwidth quantiles of a fixed controller over posterior samples or device variants.
 - :func:`pose_study` — nominal vs re-identified controller over a grid of stylus poses.
@@ -27,7 +29,9 @@ from ._poses import identify as identify
 from ._poses import pose_grid as pose_grid
 from ._poses import pose_study as pose_study
 from ._predictive import QUANTITIES as QUANTITIES
+from ._predictive import band_calibration as band_calibration
 from ._predictive import credible_bands as credible_bands
+from ._predictive import predictive_plants as predictive_plants
 from ._predictive import predictive_samples as predictive_samples
 from ._robust import RobustReport as RobustReport
 from ._robust import device_plants as device_plants

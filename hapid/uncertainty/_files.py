@@ -26,7 +26,8 @@ def posterior_from_files(
     (``n_samples`` draws of the posterior's Laplace Gaussian in matrix coordinates, projected
     onto the PSD cone: :func:`posterior_laplace_samples`). ``fit_options`` go to ``fit_nls``
     (default relative weights, 40 Hz band); ``posterior_options`` to ``make_log_posterior``
-    (its ``f_max_hz`` defaults to the fit's; with ``fix_boundary`` the fit's matrices at the
+    (its ``f_max_hz`` defaults to the fit's; ``model_error="gp"`` uses the NLS fit as the GP
+    amplitudes' reference; with ``fix_boundary`` the fit's matrices at the
     PSD boundary are held fixed, :func:`boundary_fixed`); ``sampler_options`` (``n_walkers``, ``moves``,
     ``max_steps``…) to ``sample_posterior``. Returns the :class:`PosteriorSamples`.
     """
@@ -43,6 +44,8 @@ def posterior_from_files(
     popts = {"f_max_hz": fit_options["f_max_hz"]} | dict(posterior_options or {})
     if fix_boundary and nls.boundary and "fixed" not in popts:
         popts["fixed"] = boundary_fixed(nls)
+    if popts.get("model_error") == "gp":
+        popts.setdefault("reference", nls)
     post = make_log_posterior(frf, nls.scale, **popts)
     if method == "laplace":
         ps = posterior_laplace_samples(post, int(n_samples), nls, key=seed)

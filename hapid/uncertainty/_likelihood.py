@@ -187,7 +187,9 @@ def error_kind(model_error) -> str:
     if model_error is False or model_error is None:
         return "none"
     if model_error not in MODEL_ERRORS:
-        raise ValueError(f"model_error must be one of {MODEL_ERRORS} (or a bool), got {model_error!r}")
+        raise ValueError(
+            f"model_error must be one of {MODEL_ERRORS} (or a bool), got {model_error!r}"
+        )
     return str(model_error)
 
 
@@ -266,8 +268,13 @@ def gp_log_likelihood(rH_re, rH_im, rT_re, rT_im, C):
     ``C`` from :func:`gp_covariance`."""
     N = rH_re.shape[0]
     flat = lambda r: jnp.moveaxis(r.reshape(N, -1), 0, 1)  # noqa: E731  (E, N)
-    Y = jnp.stack([jnp.concatenate([flat(rH_re), flat(rT_re)], 1),
-                   jnp.concatenate([flat(rH_im), flat(rT_im)], 1)], axis=-1)  # fmt: skip  (E, 2N, 2)
+    Y = jnp.stack(
+        [
+            jnp.concatenate([flat(rH_re), flat(rT_re)], 1),
+            jnp.concatenate([flat(rH_im), flat(rT_im)], 1),
+        ],
+        axis=-1,
+    )  # fmt: skip  (E, 2N, 2)
     L = jnp.linalg.cholesky(C)
     W = jax.scipy.linalg.solve_triangular(L, Y, lower=True)
     logdet = 2.0 * jnp.sum(jnp.log(jnp.diagonal(L, axis1=-2, axis2=-1)))
@@ -343,7 +350,9 @@ class LogPosterior(eqx.Module):
 
     @property
     def names(self) -> list[str]:
-        names = param_names(self.n, self.kind if self.model_error else "none", self.parameterization)
+        names = param_names(
+            self.n, self.kind if self.model_error else "none", self.parameterization
+        )
         if not self.free_idx:
             return names
         return [names[i] for i in self.free_idx] + names[self.n_theta :]
@@ -365,7 +374,11 @@ class LogPosterior(eqx.Module):
     def unconstrained(self) -> LogPosterior:
         """The same density without the PSD-cone restriction (``"matrix"``): the Gaussian
         whose mode and curvature :func:`laplace_posterior` uses."""
-        return dataclasses.replace(self, psd_constraint=False) if self.parameterization == "matrix" else self
+        return (
+            dataclasses.replace(self, psd_constraint=False)
+            if self.parameterization == "matrix"
+            else self
+        )
 
     # --- pieces --------------------------------------------------------------------------
     def model_matrices(self, theta: Float[Array, " p"]) -> Float[Array, "6 n n"]:
@@ -585,7 +598,9 @@ def make_log_posterior(
     if np.ndim(frf.omega) != 1:
         raise ValueError("make_log_posterior: a single (unbatched) FRF is required")
     if parameterization not in PARAMETERIZATIONS:
-        raise ValueError(f"parameterization must be one of {PARAMETERIZATIONS}, got {parameterization!r}")
+        raise ValueError(
+            f"parameterization must be one of {PARAMETERIZATIONS}, got {parameterization!r}"
+        )
     if not (-1.0 < noise_corr < 1.0):
         raise ValueError(f"noise_corr must be in (-1, 1), got {noise_corr}")
     if not (prior_scale > 0 and log_tau_sd > 0 and np.isfinite(log_tau_mean)):
@@ -627,7 +642,9 @@ def make_log_posterior(
         for name, A in fixed.items():
             A = np.asarray(A, dtype=np.float64)
             if A.shape != (n, n) or not np.all(np.isfinite(A)):
-                raise ValueError(f"fixed[{name!r}] must be a finite ({n}, {n}) matrix, got shape {A.shape}")
+                raise ValueError(
+                    f"fixed[{name!r}] must be a finite ({n}, {n}) matrix, got shape {A.shape}"
+                )
             k = MATRIX_NAMES.index(name)
             th[k * t : (k + 1) * t] = (0.5 * (A + A.T) * fac[k % 3])[rows, cols]
         blocks = [MATRIX_NAMES.index(nm) for nm in fixed]
@@ -679,7 +696,9 @@ def _reference_theta(reference, scale: Scale, n: int):
     return jnp.asarray(fold_theta(th))
 
 
-def gp_amplitudes(omega, omega_fit, a_fit, ref_theta, scale: Scale) -> tuple[np.ndarray, np.ndarray]:
+def gp_amplitudes(
+    omega, omega_fit, a_fit, ref_theta, scale: Scale
+) -> tuple[np.ndarray, np.ndarray]:
     """``(a_H, a_M)`` (N,) N/m on any ``omega`` (rad/s): the data's RMS element sizes
     ``a_fit = (a_H, a_M)`` on the fit band ``omega_fit``, log-log interpolated inside it;
     outside, the reference model's sizes scaled to meet the data at the nearest band end."""

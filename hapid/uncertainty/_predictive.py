@@ -106,17 +106,6 @@ def credible_bands(
 # --- predictive draws of the plant, model error included ------------------------------
 
 
-def _cholesky_psd(K: np.ndarray, rel: float = 1e-10) -> np.ndarray:
-    """Cholesky factor of a PSD matrix with a growing relative nugget if needed."""
-    d = np.mean(np.diag(K)) if K.size else 1.0
-    for k in range(8):
-        try:
-            return np.linalg.cholesky(K + (rel * 10**k) * max(d, 1e-300) * np.eye(K.shape[0]))
-        except np.linalg.LinAlgError:
-            continue
-    raise np.linalg.LinAlgError("predictive: the GP kernel is not positive definite")
-
-
 def _interp_log(x_new, x, y):
     """``y(x)`` log-log interpolated at ``x_new`` (constant beyond the ends)."""
     return np.exp(np.interp(np.log(x_new), np.log(x), np.log(np.maximum(y, 1e-300))))
@@ -135,7 +124,8 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
       exact GP conditional on the residuals ``[Ẑ_H − Z_H(θ); Ẑ_T − Z_T(θ)]`` at the fit
       frequencies (pathwise: a joint prior draw on fit ∪ new frequencies corrected by
       ``K_{*x} C⁻¹ (r − ỹ)``, Matheron's rule). Far from the fit band it reverts to the prior
-      (amplitude ``τ a(ω)``, :func:`~hapid.uncertainty._likelihood.gp_amplitudes`).
+      (amplitude ``τ a(ω)``, :func:`~hapid.uncertainty._likelihood.gp_amplitudes`, with the
+      slope factor ``(ω/ω_ref)^β`` held at its band-edge value beyond the fit band).
     - ``"white"`` samples: independent circular errors of variance ``τ² a(ω)²`` at each new
       frequency (``a`` log-log interpolated from the fit band): the white model has no
       correlation to condition on.
@@ -148,8 +138,15 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
     from ._likelihood import gp_amplitudes, gp_covariance, kernel
 
     omega = np.asarray(omega, dtype=np.float64)
-    if omega.ndim != 1 or omega.shape[0] < 1 or not np.all(np.isfinite(omega)) or np.any(omega <= 0):
-        raise ValueError("predictive_plants: omega must be a 1-D array of positive frequencies (rad/s)")
+    if (
+        omega.ndim != 1
+        or omega.shape[0] < 1
+        or not np.all(np.isfinite(omega))
+        or np.any(omega <= 0)
+    ):
+        raise ValueError(
+            "predictive_plants: omega must be a 1-D array of positive frequencies (rad/s)"
+        )
     rng = np.random.default_rng(seed)
     S = ps.n_samples
     idx = np.arange(S)
@@ -198,39 +195,51 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
         dH = 0.5 * var_H.reshape(Nf, E).T  # (E, Nf)
         dT = 0.5 * var_T.reshape(Nf, E).T
         dHT = rho * np.sqrt(dH * dT)
-        cond_T = np.sqrt(np.clip(dT - np.where(dH > 0, dHT**2 / np.where(dH > 0, dH, 1), 0), 0, None))
+        cond_T = np.sqrt(
+            np.clip(dT - np.where(dH > 0, dHT**2 / np.where(dH > 0, dH, 1), 0), 0, None)
+        )
         flat = lambda r: np.moveaxis(r.reshape(r.shape[0], Nf, E), 1, 2)  # noqa: E731  (S, E, Nf)
         y_all = np.stack([np.concatenate([flat(rH.real), flat(rT.real)], -1),
                           np.concatenate([flat(rH.imag), flat(rT.imag)], -1)], -1)  # fmt: skip
         gH = np.empty((S_, N, n, n), complex)
         gM = np.empty((S_, N, n, n), complex)
         u_j, a_j = jnp.asarray(u), tuple(jnp.asarray(a) for a in a_all)
+        sdH, cT = jnp.sqrt(jnp.asarray(dH)), jnp.asarray(cond_T)
+        lamT = jnp.asarray(np.where(dH > 0, dHT / np.where(dH > 0, np.sqrt(dH), 1), 0))
 
-        @jax.jit
-        def kernels(h):
+        def one(h, y, key):  # y (E, 2Nf, 2): residuals; returns gH, gM (E, 2, N)
             tau, ell = jnp.exp(h[:2]), jnp.exp(h[2:4])
-            b = [a_j[i] * jnp.exp(h[4 + i] * u_j) for i in range(2)]
-            Ks = [0.5 * tau[i] ** 2 * jnp.outer(b[i], b[i]) * kernel(u_j, u_j, ell[i]) for i in range(2)]
+            # the amplitude slope is learned on the fit band: held constant beyond it
+            b = [a_j[i] * jnp.exp(h[4 + i] * jnp.clip(u_j, u_j[0], u_j[Nf - 1])) for i in range(2)]
+            Ks = [
+                0.5 * tau[i] ** 2 * jnp.outer(b[i], b[i]) * kernel(u_j, u_j, ell[i])
+                for i in range(2)
+            ]
             C = gp_covariance(u_j[:Nf], a_j[0][:Nf], a_j[1][:Nf], var_H, var_T, rho, h)
-            return Ks[0], Ks[1], C
+            k1, k2, k3 = jax.random.split(key, 3)
+            f = []
+            for K, kk in zip(Ks, (k1, k2), strict=True):
+                Lk = jnp.linalg.cholesky(K + 1e-9 * jnp.mean(jnp.diag(K)) * jnp.eye(K.shape[0]))
+                f.append((Lk @ jax.random.normal(kk, (Nf + N, 2 * E))).T.reshape(E, 2, Nf + N))
+            z1, z2 = jax.random.normal(k3, (2, E, 2, Nf))
+            eH = sdH[:, None] * z1
+            eT = lamT[:, None] * z1 + cT[:, None] * z2
+            sim = jnp.concatenate([f[0][..., :Nf] + eH, f[0][..., :Nf] + f[1][..., :Nf] + eT], -1)
+            resid = jnp.moveaxis(y, -1, 1) - sim  # (E, 2, 2Nf)
+            Lc = jnp.linalg.cholesky(C)[:, None]
+            alpha = jax.scipy.linalg.cho_solve((Lc, True), resid[..., None])[..., 0]
+            outH = f[0][..., Nf:] + (alpha[..., :Nf] + alpha[..., Nf:]) @ Ks[0][Nf:, :Nf].T
+            outM = f[1][..., Nf:] + alpha[..., Nf:] @ Ks[1][Nf:, :Nf].T
+            return outH, outM
 
-        for k in range(S_):
-            KH_, KM_, C = (np.asarray(a) for a in kernels(jnp.asarray(hyper[k])))
-            Ks = [KH_, KM_]
-            f = [(_cholesky_psd(K) @ rng.standard_normal((Nf + N, 2 * E))).T.reshape(E, 2, Nf + N)
-                 for K in Ks]  # fmt: skip  (E, re/im, Nf+N)
-            z1, z2 = rng.standard_normal((2, E, 2, Nf))
-            eH = np.sqrt(dH)[:, None] * z1
-            eT = np.where(dH > 0, dHT / np.where(dH > 0, np.sqrt(dH), 1), 0)[:, None] * z1 + cond_T[:, None] * z2
-            sim = np.concatenate([f[0][..., :Nf] + eH, f[0][..., :Nf] + f[1][..., :Nf] + eT], -1)  # (E, 2, 2Nf)
-            resid = np.moveaxis(y_all[k], -1, 1) - sim  # (E, 2, 2Nf)
-            alpha = np.linalg.solve(C[:, None], resid[..., None])[..., 0]  # (E, 2, 2Nf)
-            KxH = Ks[0][Nf:, :Nf]  # (N, Nf)
-            KxM = Ks[1][Nf:, :Nf]
-            outH = f[0][..., Nf:] + (alpha[..., :Nf] + alpha[..., Nf:]) @ KxH.T  # (E, 2, N)
-            outM = f[1][..., Nf:] + alpha[..., Nf:] @ KxM.T
-            gH[k] = np.moveaxis(outH[:, 0] + 1j * outH[:, 1], 0, 1).reshape(N, n, n)
-            gM[k] = np.moveaxis(outM[:, 0] + 1j * outM[:, 1], 0, 1).reshape(N, n, n)
+        run = jax.jit(jax.vmap(one))
+        keys = jax.random.split(jax.random.PRNGKey(int(rng.integers(2**31))), S_)
+        parts = [run(jnp.asarray(hyper[i : i + 50]), jnp.asarray(y_all[i : i + 50]), keys[i : i + 50])
+                 for i in range(0, S_, 50)]  # fmt: skip
+        oH = np.concatenate([np.asarray(p[0]) for p in parts])  # (S, E, 2, N)
+        oM = np.concatenate([np.asarray(p[1]) for p in parts])
+        cplx = lambda o: np.moveaxis(o[:, :, 0] + 1j * o[:, :, 1], 1, 2).reshape(S_, N, n, n)  # noqa: E731
+        gH, gM = cplx(oH), cplx(oM)
         ZH, ZM = ZH + gH, ZM + gM
     ZT = ZH + ZM
     P = np.linalg.solve(np.swapaxes(ZT, -1, -2), np.swapaxes(ZH, -1, -2)).swapaxes(-1, -2)
@@ -253,7 +262,9 @@ def band_calibration(draws, truth, level: float = 0.9) -> dict[str, float]:
     X = np.asarray(draws)
     T = np.asarray(truth)
     if X.ndim != 4 or T.shape != X.shape[1:]:
-        raise ValueError(f"band_calibration: draws (S, N, n, n) and truth (N, n, n), got {X.shape}, {T.shape}")
+        raise ValueError(
+            f"band_calibration: draws (S, N, n, n) and truth (N, n, n), got {X.shape}, {T.shape}"
+        )
     med = np.median(X.real, 0) + 1j * np.median(X.imag, 0)
     d = np.linalg.norm(X - med[None], axis=(-2, -1))  # (S, N)
     r = np.quantile(d, level, axis=0)

@@ -26,7 +26,17 @@ plant's are the roots of det Ẑ_T,s with ``Re > 0`` (none for PD matrices); a d
 Summary statistics. An unstable sample counts as the worst possible value of every margin
 (``−inf`` dB/deg, disk margin 0) and of the bandwidth (0 Hz), so a 5 % quantile is only
 finite when fewer than 5 % of the samples are unstable. ``passed``: ``P(stable) ≥
-p_stable_required`` and the 5 % quantiles of GM and PM meet ``gm_db`` / ``pm_deg``.
+p_stable_required`` and the 5 % quantiles of GM and PM meet ``gm_db`` / ``pm_deg``;
+:meth:`RobustReport.reasons` says which requirement failed and by how much.
+
+**Margin sign convention** (the same as :func:`hapid.control.max_siso_gain`). The raw
+``gm_db``/``pm_deg`` of a plant are *signed* (``pm = ∠λ + 180°`` wrapped to [−180°, 180°) at
+the gain crossing nearest −1; a negative value means the locus crosses beyond −180°, a
+conditionally stable crossing that a phase *lead* or gain *decrease* would destabilize).
+Stability is decided by the generalized Nyquist count, not by the sign; on a loop that count
+calls stable, the margin is the size of the smallest perturbation that reaches −1, i.e.
+``|GM|`` and ``|PM|``. Quantiles and ``passed`` therefore use ``|GM|``, ``|PM|`` of stable
+plants (unstable: ``−inf``); :meth:`RobustReport.rows` keeps the signed values.
 
 CPU hang (jax 0.10.2). A ``vmap`` of ``analyze_loop`` over a chunk of plants hung
 intermittently on this project's 2-core CPU machine (about 1 process in 4, CPU idle inside
@@ -93,8 +103,11 @@ class RobustReport:
         return float(np.mean(self.stable))
 
     def penalized(self, name: str) -> np.ndarray:
-        """Field ``name`` with unstable plants set to the worst value (module docstring)."""
+        """Field ``name`` with unstable plants set to the worst value; GM and PM as
+        magnitudes ``|GM|``, ``|PM|`` (module docstring, "Margin sign convention")."""
         v = np.asarray(getattr(self, name), dtype=float)
+        if name in ("gm_db", "pm_deg"):
+            v = np.abs(v)
         return np.where(self.stable, v, _WORST[name])
 
     def quantile(self, name: str, q: float) -> float:
@@ -112,11 +125,26 @@ class RobustReport:
 
     @property
     def passed(self) -> bool:
-        return (
-            self.p_stable >= self.p_stable_required
-            and self.quantile("gm_db", 0.05) >= self.gm_req_db
-            and self.quantile("pm_deg", 0.05) >= self.pm_req_deg
-        )
+        return not self.reasons()
+
+    def reasons(self) -> list[str]:
+        """Why the check did not pass — one line per failed requirement, with how far the
+        5 % quantile (or ``P(stable)``) is from the requirement and what fraction of plants
+        miss it; empty when it passed."""
+        out = []
+        if self.p_stable < self.p_stable_required:
+            n_bad = int(np.sum(~np.asarray(self.stable, bool)))
+            out.append(f"P(stable) {self.p_stable:.3f} < required {self.p_stable_required:.3f} "
+                       f"({n_bad} of {self.n} plants unstable)")  # fmt: skip
+        for name, req, unit, label in (("gm_db", self.gm_req_db, "dB", "|GM|"),
+                                       ("pm_deg", self.pm_req_deg, "°", "|PM|")):  # fmt: skip
+            q = self.quantile(name, 0.05)
+            if not q >= req:
+                frac = float(np.mean(self.penalized(name) < req))
+                short = "unstable plants" if not np.isfinite(q) else f"short by {req - q:.3g} {unit}"
+                out.append(f"{label} 5 % quantile {q:.4g} {unit} < required {req:g} {unit} ({short}; "
+                           f"{100 * frac:.1f} % of plants below {req:g} {unit})")  # fmt: skip
+        return out
 
     @property
     def ok(self) -> bool:
@@ -141,6 +169,7 @@ class RobustReport:
         out["requirements"] = {"gm_db": self.gm_req_db, "pm_deg": self.pm_req_deg,
                                "p_stable": self.p_stable_required}  # fmt: skip
         out["passed"] = self.passed
+        out["reasons"] = self.reasons()
         return out
 
     def rows(self) -> list[dict]:

@@ -71,7 +71,9 @@ class LaplaceIndependenceMove(emcee.moves.MHMove):
         cov = np.asarray(cov, dtype=np.float64) * inflate**2
         lam, V = np.linalg.eigh(0.5 * (cov + cov.T))
         if not (np.all(np.isfinite(lam)) and lam.min() > 0):
-            raise ValueError("LaplaceIndependenceMove: the covariance must be finite and positive definite")
+            raise ValueError(
+                "LaplaceIndependenceMove: the covariance must be finite and positive definite"
+            )
         root = V * np.sqrt(lam)
         whiten = V / np.sqrt(lam)  # x ↦ (x − mean) @ whiten gives standard coordinates
         d = mean.shape[0]
@@ -181,7 +183,10 @@ class PosteriorSamples:
         m = self.models()
         h, mech = m.hand, m.mechanism
         vals = (h.M, h.B, h.K, mech.M, mech.B, mech.K)
-        return {k: np.asarray(v) for k, v in zip(("M_H", "B_H", "K_H", "M_M", "B_M", "K_M"), vals, strict=True)}
+        return {
+            k: np.asarray(v)
+            for k, v in zip(("M_H", "B_H", "K_H", "M_M", "B_M", "K_M"), vals, strict=True)
+        }
 
     @property
     def ok(self) -> bool:
@@ -250,7 +255,9 @@ def laplace_samples(nls_result: NLSResult, n_samples: int, key=0) -> PosteriorSa
         raise ValueError("laplace_samples: an unbatched NLSResult is required")
     if not (isinstance(n_samples, int | np.integer) and n_samples > 0):
         raise ValueError(f"n_samples must be a positive int, got {n_samples!r}")
-    theta, cov = _canonical_with_cov(np.asarray(nls_result.theta), np.asarray(nls_result.covariance))
+    theta, cov = _canonical_with_cov(
+        np.asarray(nls_result.theta), np.asarray(nls_result.covariance)
+    )
     if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(cov))):
         raise ValueError("laplace_samples: the NLS result has a non-finite θ or covariance")
     n = n_from_params(theta.shape[0])
@@ -318,7 +325,11 @@ def posterior_laplace_samples(post: LogPosterior, n_samples: int, init, key=0) -
     """
     if not (isinstance(n_samples, int | np.integer) and n_samples > 0):
         raise ValueError(f"n_samples must be a positive int, got {n_samples!r}")
-    x0 = initial_point(post, init) if isinstance(init, NLSResult) else np.asarray(init, dtype=np.float64)
+    x0 = (
+        initial_point(post, init)
+        if isinstance(init, NLSResult)
+        else np.asarray(init, dtype=np.float64)
+    )
     mean, cov, info = laplace_posterior(post, x0)
     draws = post.project(_mvn(_check_key(key), mean, cov, n_samples))
     theta, extra = post.split(draws)
@@ -353,10 +364,12 @@ def initial_point(post: LogPosterior, nls_result: NLSResult | None = None) -> np
             f"the NLS result has θ of length {th.shape[-1]} (n = {n_from_params(th.shape[-1])}), "
             f"the posterior expects {post.n_theta} (n = {post.n})"
         )
-    if not np.allclose(np.asarray(nls_result.scale.z_ref), np.asarray(post.scale.z_ref)) or not np.allclose(
-        np.asarray(nls_result.scale.omega_ref), np.asarray(post.scale.omega_ref)
-    ):
-        raise ValueError("the NLS result's scale differs from the posterior's: build it with scale=nls.scale")
+    if not np.allclose(
+        np.asarray(nls_result.scale.z_ref), np.asarray(post.scale.z_ref)
+    ) or not np.allclose(np.asarray(nls_result.scale.omega_ref), np.asarray(post.scale.omega_ref)):
+        raise ValueError(
+            "the NLS result's scale differs from the posterior's: build it with scale=nls.scale"
+        )
     th, _ = _canonical_with_cov(th, np.eye(th.shape[0]))
     if post.parameterization == "matrix":
         th = theta_to_matrix(th, post.n)
@@ -513,7 +526,9 @@ def sample_posterior(
     if isinstance(init, tuple):
         mean, cov = (np.asarray(a, dtype=np.float64) for a in init)
         if mean.shape != (d,) or cov.shape != (d, d):
-            raise ValueError(f"init (mean, cov) must be ({d},) and ({d}, {d}), got {mean.shape}, {cov.shape}")
+            raise ValueError(
+                f"init (mean, cov) must be ({d},) and ({d}, {d}), got {mean.shape}, {cov.shape}"
+            )
         if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
             raise ValueError("init: the Gaussian's mean or covariance contains NaN or inf")
         x0 = post.project(_mvn(jax.random.PRNGKey(int(rng.integers(2**31))), mean, cov, W))
@@ -522,7 +537,9 @@ def sample_posterior(
             bad = ~np.isfinite(lp)
             if not bad.any():
                 break
-            x0[bad] = post.project(_mvn(jax.random.PRNGKey(int(rng.integers(2**31))), mean, cov, int(bad.sum())))
+            x0[bad] = post.project(
+                _mvn(jax.random.PRNGKey(int(rng.integers(2**31))), mean, cov, int(bad.sum()))
+            )
             lp = lp_fn(x0)
     else:
         x0 = np.asarray(init, dtype=np.float64)
@@ -530,7 +547,9 @@ def sample_posterior(
             raise ValueError(f"init has {x0.shape[0]} walkers but n_walkers = {W}")
         W = x0.shape[0] if x0.ndim == 2 else W
     lp0 = check_initial_state(post, x0, lp_fn)
-    move_list = _moves(moves, (mean, cov) if moves == "laplace_de" and isinstance(init, tuple) else None)
+    move_list = _moves(
+        moves, (mean, cov) if moves == "laplace_de" and isinstance(init, tuple) else None
+    )
 
     total = max_steps if n_steps is None else int(n_steps)
     if total < 1:
@@ -640,6 +659,8 @@ def load_samples(path, n: int | None = None) -> PosteriorSamples:
             f"{path}: {s.shape[0]} samples with log_prob of shape {log_prob.shape}; expected "
             f"≥ 1 sample and log_prob of shape ({s.shape[0]},)"
         )
+    if not np.all(np.isfinite(log_prob)):
+        raise ValueError(f"{path}: log_prob contains NaN or inf (every draw has a finite density)")
     if not (np.isfinite(omega_ref) and omega_ref > 0 and np.isfinite(z_ref) and z_ref > 0):
         raise ValueError(f"{path}: omega_ref = {omega_ref:g}, z_ref = {z_ref:g}; expected both > 0")
     diag = {k[5:]: (v.item() if v.ndim == 0 else v) for k, v in d.items() if k.startswith("diag_")}
@@ -661,5 +682,7 @@ def _load_predictive(d: dict, path, n: int) -> dict:
     N = np.shape(out.get("omega", ()))
     for k in ("Z_H", "Z_T", "var_H", "var_T"):
         if k not in out or np.shape(out[k]) != N + (n, n) or not np.all(np.isfinite(out[k])):
-            raise ValueError(f"{path}: predictive data {k!r} missing or not finite ({N[0] if N else 0}, {n}, {n})")
+            raise ValueError(
+                f"{path}: predictive data {k!r} missing or not finite ({N[0] if N else 0}, {n}, {n})"
+            )
     return out

@@ -1,0 +1,182 @@
+"""GP model-error likelihood, predictive plant draws, the margin convention and the tuner's
+never-worse rule (hapid.uncertainty / hapid.tune; issue 14)."""
+
+import numpy as np
+import pytest
+from helpers_fit import random_truth, synthetic_frf
+from scipy.stats import multivariate_normal
+
+from hapid.cli import main
+from hapid.fit import fit_nls
+from hapid.uncertainty import (
+    PosteriorSamples,
+    RobustReport,
+    band_calibration,
+    fold_theta,
+    initial_point,
+    load_samples,
+    make_log_posterior,
+    param_names,
+    posterior_laplace_samples,
+    predictive_plants,
+    save_samples,
+)
+
+FREQ_HZ = np.array([1.0, 2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0])
+
+
+@pytest.fixture(scope="module")
+def case():
+    truth = random_truth(2, seed=5)
+    frf = synthetic_frf(truth, freq_hz=FREQ_HZ, rel_noise=1e-3, seed=6)
+    nls = fit_nls(frf, weight="noise", f_max_hz=None).raise_if_failed()
+    return truth, frf, nls
+
+
+def _matern52_np(x, ell):
+    r = np.abs(x[:, None] - x[None, :]) * np.sqrt(5.0) / ell
+    return (1 + r + r**2 / 3) * np.exp(-r)
+
+
+def test_gp_likelihood_matches_scipy_reference(case):
+    """The closed-form marginal likelihood equals scipy's multivariate normal density of
+    the stacked residuals [r_H; r_T] per element and re/im, with the covariance built in
+    numpy from the documented model (amplitude τ (ω/ω_ref)^β a(ω), Matérn-5/2 in log ω)."""
+    truth, frf, nls = case
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp", reference=nls,
+                              parameterization="cholesky", noise_corr=0.3)  # fmt: skip
+    x = initial_point(post, nls)
+    x[-6:] = [np.log(0.05), np.log(0.02), np.log(0.4), np.log(0.8), 0.5, -0.3]
+    ll = float(post.log_likelihood(x))
+
+    m = nls.model
+    s = 1j * np.asarray(frf.omega)
+    rH = np.asarray(frf.Z_H) - np.asarray(m.Z_H(s))
+    rT = np.asarray(frf.Z_T) - np.asarray(m.Z_T(s))
+    zr = float(nls.scale.z_ref)
+    u = np.log(np.asarray(frf.omega) / float(nls.scale.omega_ref))
+    n = frf.n
+    aH = np.linalg.norm(np.asarray(frf.Z_H), axis=(1, 2)) / n / zr
+    aM = np.linalg.norm(np.asarray(frf.Z_T) - np.asarray(frf.Z_H), axis=(1, 2)) / n / zr
+    tau, ell, beta = np.exp(x[-6:-4]), np.exp(x[-4:-2]), x[-2:]
+    bH, bM = aH * np.exp(beta[0] * u), aM * np.exp(beta[1] * u)
+    KH = 0.5 * tau[0] ** 2 * np.outer(bH, bH) * _matern52_np(u, ell[0])
+    KM = 0.5 * tau[1] ** 2 * np.outer(bM, bM) * _matern52_np(u, ell[1])
+    vH = (np.asarray(frf.Z_H_std) / zr) ** 2 / 2
+    vT = (np.asarray(frf.Z_T_std) / zr) ** 2 / 2
+    ref = 0.0
+    for i in range(n):
+        for j in range(n):
+            dH, dT = vH[:, i, j], vT[:, i, j]
+            dHT = 0.3 * np.sqrt(dH * dT)
+            C = np.block([[KH + np.diag(dH), KH + np.diag(dHT)], [KH + np.diag(dHT), KH + KM + np.diag(dT)]])
+            for part in (np.real, np.imag):
+                y = np.concatenate([part(rH[:, i, j]), part(rT[:, i, j])]) / zr
+                ref += multivariate_normal(np.zeros(len(y)), C, allow_singular=False).logpdf(y)
+    assert abs(ll - ref) < 1e-6 * abs(ref) + 1e-3, (ll, ref)
+
+
+def test_gp_tends_to_white_model_for_short_length_scale(case):
+    """ℓ → 0 and β = 0 make the GP kernel the identity: the GP likelihood is then exactly
+    the white model's (same amplitudes, same τ)."""
+    _, frf, nls = case
+    kw = dict(f_max_hz=None, parameterization="cholesky", reference=nls)
+    white = make_log_posterior(frf, nls.scale, model_error="white", **kw)
+    gp = make_log_posterior(frf, nls.scale, model_error="gp", **kw)
+    xw = initial_point(white, nls)
+    xw[-2:] = [np.log(0.03), np.log(0.01)]
+    xg = np.concatenate([xw, [-30.0, -30.0, 0.0, 0.0]])
+    a, b = float(white.log_likelihood(xw)), float(gp.log_likelihood(xg))
+    assert abs(a - b) < 1e-6 * abs(a), (a, b)
+    assert gp.names[-4:] == ["log_ell_H", "log_ell_M", "beta_H", "beta_M"]
+
+
+@pytest.mark.slow
+def test_gp_predictive_calibrated_on_second_order_truth(case, tmp_path):
+    """Strictly second-order truth (the model class is right): the GP posterior's 90 %
+    predictive band of P covers the truth at held-out frequencies, and the samples file
+    round-trips the fit data the prediction needs."""
+    truth, frf, nls = case
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp", reference=nls)
+    ps = posterior_laplace_samples(post, 300, nls, key=1)
+    path = save_samples(tmp_path / "s.npz", ps)
+    ps2 = load_samples(path)
+    assert ps2.error_kind == "gp" and ps2.predictive is not None
+    om = 2 * np.pi * np.geomspace(1.2, 38.0, 40)
+    om = om[np.min(np.abs(om[:, None] / (2 * np.pi) - FREQ_HZ[None]), axis=1) > 0.3]
+    d = predictive_plants(ps2, om, max_samples=300)
+    c = band_calibration(d["P"], np.asarray(truth.P(1j * om)))
+    assert c["coverage"] >= 0.85, c
+    assert c["rel_error_median"] < 0.01, c
+    # the draws include the model-error term: wider than parameter-only draws
+    d0 = predictive_plants(ps2, om, max_samples=300, include_error=False)
+    spread = lambda X: np.median(np.std(np.abs(X), axis=0))  # noqa: E731
+    assert spread(d["P"]) >= spread(d0["P"])
+
+
+def test_robust_report_margin_convention_and_reasons():
+    """|GM|, |PM| on stable loops decide `passed` (as in max_siso_gain): a stable plant with
+    signed PM −40° has 40° of phase margin; the reasons name the failed requirement and
+    the distance to it."""
+    S = 20
+    base = dict(stable=np.ones(S, bool), n_closed_loop_rhp=np.zeros(S), gm_db=np.full(S, 8.0),
+                pm_deg=np.full(S, -40.0), disk_margin=np.full(S, 0.5), disk_gm_db=np.full(S, 4.0),
+                disk_pm_deg=np.full(S, 28.0), iso_bandwidth_hz=np.full(S, 5.0), t_peak_db=np.full(S, 3.0))  # fmt: skip
+    assert RobustReport(**base).passed and RobustReport(**base).reasons() == []
+    pm = base["pm_deg"].copy()
+    pm[:3] = 20.0  # 15 % of plants below 30°
+    rep = RobustReport(**(base | {"pm_deg": pm}))
+    assert not rep.passed
+    (why,) = rep.reasons()
+    assert "|PM|" in why and "short by 10" in why and "15.0 %" in why
+    st = base["stable"].copy()
+    st[:2] = False
+    rep = RobustReport(**(base | {"stable": st}))
+    assert any("P(stable) 0.900" in r for r in rep.reasons())
+    assert rep.summary()["reasons"] == rep.reasons()
+
+
+def test_tuner_never_worse_rule():
+    from hapid.tune._recipe import no_worse
+
+    start = {"true_stable": True, "posterior_frac_meeting_margins": 0.8, "posterior_iso_bandwidth_hz_q50": 4.0}
+    ok, why = no_worse(start, start | {"posterior_frac_meeting_margins": 0.7})
+    assert not ok and "70.0 % against 80.0 %" in why
+    ok, _ = no_worse(start, start | {"posterior_iso_bandwidth_hz_q50": 3.0})
+    assert not ok
+    ok, _ = no_worse(start, start | {"true_stable": False, "posterior_frac_meeting_margins": 1.0})
+    assert not ok
+    ok, why = no_worse(start, start | {"posterior_frac_meeting_margins": 0.9, "posterior_iso_bandwidth_hz_q50": 3.5})
+    assert ok and "80.0 → 90.0 %" in why
+
+
+def test_cli_predict_and_plant(case, tmp_path, capsys):
+    _, frf, nls = case
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp", reference=nls)
+    # draws near the NLS optimum with fixed GP hyperparameters (no Laplace: keeps this fast)
+    rng = np.random.default_rng(0)
+    th = np.asarray(fold_theta(np.asarray(nls.theta)))
+    th = fold_theta(th + 1e-3 * rng.standard_normal((12, th.shape[0])))
+    hyp = np.tile([np.log(0.02), np.log(0.02), np.log(0.5), np.log(0.5), 0.0, 0.0], (12, 1))
+    ps = PosteriorSamples(samples=np.concatenate([th, hyp], 1), log_prob=np.zeros(12), scale=nls.scale,
+                          n=2, names=tuple(param_names(2, "gp")),
+                          predictive=post.predictive_data())  # fmt: skip
+    s = save_samples(tmp_path / "s.npz", ps)
+    out = tmp_path / "draws.npz"
+    assert main(["predict", "--samples", str(s), "--f-min-hz", "2", "--f-max-hz", "80", "--n-freq", "7",
+                 "--max-samples", "10", "--out", str(out)]) == 0  # fmt: skip
+    with np.load(out) as z:
+        assert z["freq_hz"].shape == (7,) and z["P"].shape == (10, 7, 2, 2)
+        assert np.all(np.isfinite(z["P"]))
+    bad = tmp_path / "bad.npz"
+    assert main(["predict", "--samples", str(s), "--f-min-hz", "5", "--f-max-hz", "1", "--out", str(bad)]) == 2
+    assert not bad.exists()
+    fp = tmp_path / "plant.npz"
+    assert main(["plant", "--device", "tripod3", "--n-freq", "30", "--out", str(fp)]) == 0
+    from hapid.device import preset
+    from hapid.io import load_frf
+
+    f = load_frf(fp)
+    P = np.asarray(preset("tripod3").sampled_P(np.asarray(f.omega)))
+    assert np.allclose(np.asarray(f.P), P, rtol=1e-10, atol=1e-12)
+    assert main(["plant", "--device", "cu5", "--f-max-hz", "600", "--out", str(tmp_path / "x.npz")]) == 2
