@@ -178,8 +178,6 @@ COMMON: dict[str, tuple] = {
     ),
     "f_max_hz": gt(0, " Hz"),
     "f_min_hz": ge(0, " Hz"),
-    "model_floor": ge(0),
-    "true_device": (lambda v: v in _presets(), "a device preset (cu5, tripod3, hexapod6)"),
     "h1": FLAG,
     "nperseg": int_ge(8),
     "response": one_of(["displacement", "velocity", "acceleration"]),
