@@ -284,11 +284,14 @@ ML_FLOOR = 0.3  # model_floor tuned on cu5 (issue 17; held out: hexapod6, tripod
 
 
 def protocol_run(dev, mult: float, seed: int = 0):
+    """6 periods, ``mult`` × the default noise; the second-order truth with an ideal
+    band-limited actuator (its FRF is then exactly second order), the others sampled (ZOH)."""
     from hapid.experiment import Protocol, periodic_run
 
     prot = Protocol(n_periods=6, force_noise=5e-3 * mult,
                     position_noise=0.0 if mult == 1.0 else 2e-6 * mult, seed=seed)  # fmt: skip
-    return periodic_run(dev, prot)
+    hold = "bandlimited" if isinstance(dev, SecondOrderDevice) else "zoh"
+    return periodic_run(dev, prot, hold=hold)
 
 
 def run_ml_case(case, mult, dev, f_max_hz, repeat):
@@ -302,8 +305,8 @@ def run_ml_case(case, mult, dev, f_max_hz, repeat):
         warnings.simplefilter("ignore")
         frf = estimate_frf(run)
     w = frf.omega
-    P = np.asarray(dev.sampled_P(w))
     truth = dev.model if isinstance(dev, SecondOrderDevice) else None
+    P = np.asarray(dev.P(1j * w) if truth is not None else dev.sampled_P(w))
     floor = 0.0 if truth is not None else ML_FLOOR
     fmax = None if truth is not None else f_max_hz
     rows = []

@@ -116,6 +116,11 @@ class FitQuality:
         return not self.warnings
 
     @property
+    def status(self) -> str:
+        """``"ok"`` or the warnings, joined by ``"; "``."""
+        return "; ".join(self.warnings) or "ok"
+
+    @property
     def worst_median_db(self) -> float:
         return float(np.max(self.median_db))
 

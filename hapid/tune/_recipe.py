@@ -171,7 +171,9 @@ def robust_design(
         pred = model_error_draws and _has_error_term(samples)
         if pred:
             P, pol = predictive_scenario_plants(samples, tr, omc, seed=seed)
-            hold_models = predictive_scenario_plants(samples, ho, posterior_grid(n_holdout_freq), seed=seed + 1)[0]
+            hold_models = predictive_scenario_plants(
+                samples, ho, posterior_grid(n_holdout_freq), seed=seed + 1
+            )[0]
         else:
             P, pol = posterior_plants(_sample_models(samples, tr), omc)
             hold_models = _sample_models(samples, ho)
@@ -202,7 +204,11 @@ def robust_design(
     out = {"result": res, "families": info, "kept_start": False, "decision": "not validated"}
     if validate_designs:
         out["validation"], out["table"] = {}, {}
-        omega_c = posterior_grid(n_holdout_freq) if isinstance(hold_models, np.ndarray) else posterior_grid()
+        omega_c = (
+            posterior_grid(n_holdout_freq)
+            if isinstance(hold_models, np.ndarray)
+            else posterior_grid()
+        )
         for name, g in (("start", g0), ("tuned", res.g)):
             t0 = time.perf_counter()
             v = validate(g, model, samples=hold_models, device=device, variants=variants,
