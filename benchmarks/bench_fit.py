@@ -433,14 +433,14 @@ def run(quick: bool = False, out: str = "out/bench") -> Section:
     ]
     for dname, dev, fmax in ml_devices:
         for mult in ml_noises:
-            rows = run_ml_case(dname, mult, dev, fmax, repeat)
-            all_rows += rows
+            ml_rows = run_ml_case(dname, mult, dev, fmax, repeat)
+            all_rows += ml_rows
             cases.append((dname, f"{mult:g}× protocol"))
-            md = _md_rows(rows, dname.startswith("second-order"))
-            for d, r in zip(md, rows, strict=True):
+            md = _md_rows(ml_rows, dname.startswith("second-order"))
+            for d, r in zip(md, ml_rows, strict=True):
                 d["Cramér–Rao band dB"] = r["crb_db"]
             sec.add(f"### {dname}, protocol run with {mult:g}× the default force and encoder "
-                    "noise (6 periods; band vs the TRUE sampled plant; Cramér–Rao band of the "
+                    "noise (6 periods; band vs the TRUE plant; Cramér–Rao band of the "
                     "ML fit, median over N(θ̂, CRB))\n\n" + table(md))  # fmt: skip
 
     fig = str(Path(out) / "pareto_band.png")

@@ -156,7 +156,9 @@ def extra_quality_lines(quality, fitted: Fitted, data, a):
 
     dev = preset(name)
     if dev.n != data.n:
-        raise FitCommandError(f"--true-device {name} has n = {dev.n} rods but the data n = {data.n}")
+        raise FitCommandError(
+            f"--true-device {name} has n = {dev.n} rods but the data n = {data.n}"
+        )
     P = np.asarray(dev.sampled_P(np.asarray(data.omega)))
     lo, hi = pphat_band_db(P, fitted.model, data.omega, a.band_hz)
     return quality.with_line(
