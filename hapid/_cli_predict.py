@@ -120,10 +120,10 @@ def register(sub):
     )
     pl.add_argument("--fs", type=float, default=1000.0, help="sampling rate (Hz), default 1000")
     pl.add_argument(
-        "--f-min-hz", type=float, default=0.1, help="lowest frequency (Hz), default 0.1"
+        "--f-min-hz", type=float, default=0.001, help="lowest frequency (Hz), default 0.001"
     )
     pl.add_argument(
-        "--f-max-hz", type=float, default=499.0, help="highest frequency (Hz), default 499"
+        "--f-max-hz", type=float, default=499.99, help="highest frequency (Hz), default 499.99"
     )
     pl.add_argument("--n-freq", type=int, default=1500, help="log-spaced frequencies, default 1500")
     pl.add_argument("--out", required=True, help="output FRF file (.npz)")
