@@ -81,7 +81,9 @@ def _fmt(v) -> str:
 def recheck_table(start: dict, tuned: dict) -> str:
     """The ``hapid tune`` re-check as a text table: quantity, unit, start, tuned (4
     significant figures)."""
-    rows = [(k, _unit(k), _fmt(start.get(k)), _fmt(tuned.get(k))) for k in tuned if k != "validate_s"]
+    rows = [
+        (k, _unit(k), _fmt(start.get(k)), _fmt(tuned.get(k))) for k in tuned if k != "validate_s"
+    ]
     w = max(len(r[0]) for r in rows) if rows else 10
     head = f"  {'quantity':{w}s}  {'unit':4s}  {'start g':>10s}  {'tuned g':>10s}"
     return "\n".join([head] + [f"  {a:{w}s}  {u:4s}  {b:>10s}  {c:>10s}" for a, u, b, c in rows])

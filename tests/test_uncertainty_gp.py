@@ -69,7 +69,9 @@ def test_gp_likelihood_matches_scipy_reference(case):
         for j in range(n):
             dH, dT = vH[:, i, j], vT[:, i, j]
             dHT = 0.3 * np.sqrt(dH * dT)
-            C = np.block([[KH + np.diag(dH), KH + np.diag(dHT)], [KH + np.diag(dHT), KH + KM + np.diag(dT)]])
+            C = np.block(
+                [[KH + np.diag(dH), KH + np.diag(dHT)], [KH + np.diag(dHT), KH + KM + np.diag(dT)]]
+            )
             for part in (np.real, np.imag):
                 y = np.concatenate([part(rH[:, i, j]), part(rT[:, i, j])]) / zr
                 ref += multivariate_normal(np.zeros(len(y)), C, allow_singular=False).logpdf(y)
@@ -139,14 +141,21 @@ def test_robust_report_margin_convention_and_reasons():
 def test_tuner_never_worse_rule():
     from hapid.tune._recipe import no_worse
 
-    start = {"true_stable": True, "posterior_frac_meeting_margins": 0.8, "posterior_iso_bandwidth_hz_q50": 4.0}
+    start = {
+        "true_stable": True,
+        "posterior_frac_meeting_margins": 0.8,
+        "posterior_iso_bandwidth_hz_q50": 4.0,
+    }
     ok, why = no_worse(start, start | {"posterior_frac_meeting_margins": 0.7})
     assert not ok and "70.0 % against 80.0 %" in why
     ok, _ = no_worse(start, start | {"posterior_iso_bandwidth_hz_q50": 3.0})
     assert not ok
     ok, _ = no_worse(start, start | {"true_stable": False, "posterior_frac_meeting_margins": 1.0})
     assert not ok
-    ok, why = no_worse(start, start | {"posterior_frac_meeting_margins": 0.9, "posterior_iso_bandwidth_hz_q50": 3.5})
+    ok, why = no_worse(
+        start,
+        start | {"posterior_frac_meeting_margins": 0.9, "posterior_iso_bandwidth_hz_q50": 3.5},
+    )
     assert ok and "80.0 → 90.0 %" in why
 
 
@@ -169,7 +178,22 @@ def test_cli_predict_and_plant(case, tmp_path, capsys):
         assert z["freq_hz"].shape == (7,) and z["P"].shape == (10, 7, 2, 2)
         assert np.all(np.isfinite(z["P"]))
     bad = tmp_path / "bad.npz"
-    assert main(["predict", "--samples", str(s), "--f-min-hz", "5", "--f-max-hz", "1", "--out", str(bad)]) == 2
+    assert (
+        main(
+            [
+                "predict",
+                "--samples",
+                str(s),
+                "--f-min-hz",
+                "5",
+                "--f-max-hz",
+                "1",
+                "--out",
+                str(bad),
+            ]
+        )
+        == 2
+    )
     assert not bad.exists()
     fp = tmp_path / "plant.npz"
     assert main(["plant", "--device", "tripod3", "--n-freq", "30", "--out", str(fp)]) == 0
@@ -179,4 +203,7 @@ def test_cli_predict_and_plant(case, tmp_path, capsys):
     f = load_frf(fp)
     P = np.asarray(preset("tripod3").sampled_P(np.asarray(f.omega)))
     assert np.allclose(np.asarray(f.P), P, rtol=1e-10, atol=1e-12)
-    assert main(["plant", "--device", "cu5", "--f-max-hz", "600", "--out", str(tmp_path / "x.npz")]) == 2
+    assert (
+        main(["plant", "--device", "cu5", "--f-max-hz", "600", "--out", str(tmp_path / "x.npz")])
+        == 2
+    )

@@ -106,13 +106,20 @@ def credible_bands(
 # --- predictive draws of the plant, model error included ------------------------------
 
 
+def _taper(omega, lo, hi, width: float = 0.5):
+    """1 on [lo, hi], raised-cosine to 0 within ``width`` (natural-log units) outside."""
+    lw = np.log(omega)
+    d = np.maximum(np.log(lo) - lw, 0.0) + np.maximum(lw - np.log(hi), 0.0)
+    return np.where(d >= width, 0.0, 0.5 * (1.0 + np.cos(np.pi * np.minimum(d / width, 1.0))))
+
+
 def _interp_log(x_new, x, y):
     """``y(x)`` log-log interpolated at ``x_new`` (constant beyond the ends)."""
     return np.exp(np.interp(np.log(x_new), np.log(x), np.log(np.maximum(y, 1e-300))))
 
 
 def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 500, seed: int = 0,
-                      include_error: bool = True) -> dict[str, np.ndarray]:  # fmt: skip
+                      include_error: bool = True, error_band=None) -> dict[str, np.ndarray]:  # fmt: skip
     """Posterior-predictive draws of the *true* ``Z_H, Z_T, P = Z_H Z_T⁻¹`` on ``omega`` (rad/s,
     any grid), including the model-error term — not only parameter uncertainty.
 
@@ -130,6 +137,11 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
       frequency (``a`` log-log interpolated from the fit band): the white model has no
       correlation to condition on.
     - no model error (or ``include_error=False``): ``Z(θ)`` only.
+
+    ``error_band = (ω_lo, ω_hi)`` (rad/s, optional) confines the error term to that band: it
+    is multiplied by a taper that is 1 inside and falls to 0 (raised cosine) within a factor
+    e^0.5 of frequency outside — for loop analyses that need a rational plant far from the
+    data (see :func:`hapid.tune._recipe.predictive_scenario_plants`).
 
     ``Z_T`` carries ``e_H + e_M`` (``Z_T = Z_H + Z_M``). Returns ``{"omega": (N,), "Z_H",
     "Z_T", "P": (S', N, n, n)}`` with at most ``max_samples`` draws (random subset, ``seed``).
@@ -169,6 +181,8 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
         om_fit = np.asarray(data["omega"])
         aH = _interp_log(omega, om_fit, np.asarray(data["a_H"]))
         aM = _interp_log(omega, om_fit, np.asarray(data["a_M"]))
+        if error_band is not None:
+            aH, aM = aH * _taper(omega, *error_band), aM * _taper(omega, *error_band)
 
         def circ(sd):  # (S, N) → circular complex (S, N, n, n) with E|e|² = sd²
             z = rng.standard_normal((2, S_, N, n, n)) * np.sqrt(0.5)
@@ -240,6 +254,9 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
         oM = np.concatenate([np.asarray(p[1]) for p in parts])
         cplx = lambda o: np.moveaxis(o[:, :, 0] + 1j * o[:, :, 1], 1, 2).reshape(S_, N, n, n)  # noqa: E731
         gH, gM = cplx(oH), cplx(oM)
+        if error_band is not None:
+            w = _taper(omega, *error_band)[None, :, None, None]
+            gH, gM = gH * w, gM * w
         ZH, ZM = ZH + gH, ZM + gM
     ZT = ZH + ZM
     P = np.linalg.solve(np.swapaxes(ZT, -1, -2), np.swapaxes(ZH, -1, -2)).swapaxes(-1, -2)
