@@ -220,7 +220,7 @@ def test_samples_with_nan_log_prob_are_rejected(files, tmp_path):
     np.savez(tmp_path / "s.npz", **d)
     (tmp_path / "model.npz").write_bytes(files[1]["model"].read_bytes())
     assert_clean_error(["robust", "--samples", "s.npz", "--model", "model.npz", "--out", "o.json"],
-                       tmp_path, "log_prob contains NaN")  # fmt: skip
+                       tmp_path, "log_prob has NaN or inf entries")  # fmt: skip
 
 
 def test_design_with_nan_or_negative_frequency_names_the_file(tmp_path):
