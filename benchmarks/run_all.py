@@ -27,6 +27,7 @@ import hapid  # noqa: E402,F401  (before any JAX computation: XLA flags, float64
 
 # (key, module); order = report order
 SUITE = [
+    ("fast", "bench_fast"),
     ("fit", "bench_fit"),
     ("throughput", "bench_throughput"),
     ("compile", "bench_compile"),

@@ -182,6 +182,7 @@ COMMON: dict[str, tuple] = {
     "nperseg": int_ge(8),
     "response": one_of(["displacement", "velocity", "acceleration"]),
     "sign": one_of(["+", "-"]),
+    "window": one_of(["hann", "boxcar"]),
     "fs_hz": gt(0, " Hz"),
     "force_key": ANY,
     "response_key": ANY,
@@ -238,7 +239,8 @@ PER_COMMAND: dict[str, dict] = {
     "robust": {"samples": _In("a posterior-samples file", (".npz",)),
                "model": _In("a model file", ARRAY_EXT), "out": _Out("a JSON report", (".json",))},
     "sweep": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder"),
-              "estimator": one_of(("wls", "wls+positize", "nls"))},
+              "estimator": ((lambda v: v in _estimators()),
+                            "a registered estimator (hapid.pipeline.ESTIMATORS: wls, wls+positize, nls, …)")},
     "tune": {"model": _In("a model file", ARRAY_EXT),
              "samples": _In("a posterior-samples file", (".npz",)),
              "out": _Out("a design file", (".npz",)), "report": _Out("a JSON report", (".json",))},
@@ -249,6 +251,12 @@ PER_COMMAND: dict[str, dict] = {
               "f_min_hz": gt(0, " Hz")},
     "run": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder")},
 }  # fmt: skip
+
+
+def _estimators():
+    from .pipeline import ESTIMATORS
+
+    return ESTIMATORS
 
 
 def _solvers():
@@ -401,14 +409,18 @@ def _sweep_cross(a):
             from . import sweep as _sweep
 
             try:
-                _sweep.classify(key, load_scene_checked(a.scene), getattr(a, "estimator", "wls+positize"))
+                _sweep.classify(
+                    key, load_scene_checked(a.scene), getattr(a, "estimator", "wls+positize")
+                )
             except ValueError as e:
                 raise ValueError(f"--vary: {e}") from None
+            cfg = load_scene_checked(a.scene)
             for s in vals.split(","):
                 try:
-                    float(s)
+                    x = float(s)
                 except ValueError:
                     raise ValueError(f"--vary {key}: {s!r} is not a number") from None
+                _check_swept_value(cfg, key, s, x)
             continue
         test, allowed = SWEEP_KEYS[key]
         for s in vals.split(","):
@@ -419,6 +431,24 @@ def _sweep_cross(a):
             xv = _as_int_if_whole(x) if allowed.startswith("an integer") else x
             if not test(xv):
                 raise ValueError(f"--vary {key} must be {allowed}, got {s}")
+
+
+def _check_swept_value(cfg: dict, key: str, text: str, x: float) -> None:
+    """A swept value of any scene option obeys that option's scene rule (an integer option
+    takes whole numbers only)."""
+    import copy
+
+    from . import sweep as _sweep
+
+    sec, k, i = _sweep._parse(key)
+    cur = cfg[sec][k] if i is None else None
+    if _int(cur):
+        if not (math.isfinite(x) and x == int(x)):
+            raise ValueError(f"--vary {key} must be an integer, got {text}")
+        x = int(x)
+    c = copy.deepcopy(cfg)
+    _sweep._set(c, key, x)
+    check_scene(c, f"--vary {key}={text}")
 
 
 _CROSS = {"simulate": _protocol_cross, "analyze": _analyze_cross, "tune": _tune_cross,

@@ -76,7 +76,7 @@ def _pair_nls(frf, a, band) -> Fitted:
     return Fitted(res.model, meta, status, notes=notes)
 
 
-def _pair_ml(frf, a) -> Fitted:
+def _pair_ml(frf, a, band=None) -> Fitted:
     """Sample maximum likelihood on the run's spectra (``hapid.fit.fit_ml``); the run is the
     file read by :func:`run_fit` (``a.ml_run``), ``frf`` its banded FRF (for the report)."""
     from .fit import crb_band_db, fit_ml
@@ -98,9 +98,8 @@ def _pair_ml(frf, a) -> Fitted:
                 sigma2=float(res.sigma2), covariance=np.asarray(res.covariance),
                 crb=np.asarray(res.crb), theta=np.asarray(res.theta))  # fmt: skip
     notes = (f"at the PSD boundary: {', '.join(res.boundary)}",) if res.boundary else ()
-    clo, chi = crb_band_db(res.theta, res.crb, res.scale, frf.omega, f_max_hz=a.band_hz)
-    notes += (f"Cramér–Rao limit of the P·P̂⁻¹ band to {a.band_hz:g} Hz (median over "
-              f"N(θ̂, CRB)): {clo:+.1f} / {chi:+.1f} dB",)  # fmt: skip
+    clo, chi = crb_band_db(res.model, res.crb, res.scale, frf.omega, f_max_hz=a.band_hz)
+    meta["cramer_rao_band_db"] = np.array([clo, chi])
     status = (f"{res.status} after {int(res.n_steps)} steps, cost {float(res.cost):.4g}, "
               f"σ̂² {float(res.sigma2):.3g} (≈1: noise explains the misfit; ≫1: model error)")  # fmt: skip
     return Fitted(res.model, meta, status, notes=notes)
@@ -142,6 +141,13 @@ METHODS = tuple(dict.fromkeys([*PAIR_METHODS, *SINGLE_METHODS]))
 def extra_quality_lines(quality, fitted: Fitted, data, a):
     """Hook for report lines that need more than the fit: the band against a known true
     plant (``--true-device``, haptic pair only)."""
+    crb = fitted.meta.get("cramer_rao_band_db")
+    if crb is not None:
+        quality = quality.with_line(
+            "cramer_rao",
+            f"Cramér–Rao limit of the P·P̂⁻¹ band to {a.band_hz:g} Hz (noise only; median over "
+            f"draws from the bound): {float(crb[0]):+.2f} / {float(crb[1]):+.2f} dB",
+        )
     name = getattr(a, "true_device", None)
     if not name or not hasattr(data, "Z_T"):
         return quality
@@ -150,7 +156,9 @@ def extra_quality_lines(quality, fitted: Fitted, data, a):
 
     dev = preset(name)
     if dev.n != data.n:
-        raise FitCommandError(f"--true-device {name} has n = {dev.n} rods but the data n = {data.n}")
+        raise FitCommandError(
+            f"--true-device {name} has n = {dev.n} rods but the data n = {data.n}"
+        )
     P = np.asarray(dev.sampled_P(np.asarray(data.omega)))
     lo, hi = pphat_band_db(P, fitted.model, data.omega, a.band_hz)
     return quality.with_line(
@@ -194,9 +202,11 @@ def run_fit(a) -> None:
         a.ml_run = io.load_run(a.frf)
         kind = "frf"
     elif kind not in ("frf", "impedance_frf"):
+        what = "arrays hapid does not know" if kind == "unknown" else f"a {kind} file"
         raise FitCommandError(
-            f"{a.frf}: holds a {kind} file, not an FRF; hapid fit takes an FRF with Z_H, Z_T "
-            "(hapid frf on a run file) or an impedance FRF with Z (hapid frf on a time series)"
+            f"{a.frf}: holds {what}, not an FRF; hapid fit takes an FRF with freq_hz, Z_H, Z_T "
+            "(hapid frf on a run file; CSV header freq_hz,Z_H_re_0_0,…) or an impedance FRF "
+            "with freq_hz, Z (hapid frf on a time series; CSV header freq_hz,Z_re_0_0,…)"
         )
     single = kind == "impedance_frf"
     if a.method == "ml":
@@ -278,10 +288,11 @@ def run_frf_lab(a) -> None:
         )
     z = estimate_impedance_h1(ts, nperseg=a.nperseg, response=a.response,
                               sign=-1.0 if a.sign == "-" else 1.0,
-                              f_min_hz=a.f_min_hz, f_max_hz=a.f_max_hz)  # fmt: skip
+                              f_min_hz=a.f_min_hz, f_max_hz=a.f_max_hz,
+                              window=a.window)  # fmt: skip
     out = io.save_impedance_frf(a.out, z)
     E, T, n = ts.force.shape
-    seg = E * ((T - a.nperseg) // (a.nperseg // 2) + 1)
+    seg = E * ((T - a.nperseg) // (a.nperseg if a.window == "boxcar" else a.nperseg // 2) + 1)
     rel = np.asarray(z.Z_std) / np.maximum(np.abs(np.asarray(z.Z)), 1e-300)
     conv = {"displacement": "Z = F/x", "velocity": "Z = jω·F/v", "acceleration": "Z = (jω)²·F/a"}
     f = np.asarray(z.freq_hz)
@@ -299,6 +310,9 @@ def register_lab_frf_args(f) -> None:
                      help="H1 estimate over Welch segments (implied for a time series)")  # fmt: skip
     lab.add_argument("--nperseg", type=int, default=2048,
                      help="samples per Welch segment (default 2048)")  # fmt: skip
+    lab.add_argument("--window", choices=["hann", "boxcar"], default="hann",
+                     help="segment window: hann (default) or boxcar (periodic excitation whose "
+                     "period divides --nperseg: leakage-free)")  # fmt: skip
     lab.add_argument("--response", choices=["displacement", "velocity", "acceleration"],
                      default="displacement", help="what the response channels measure; Z = F/x "
                      "is formed in the frequency domain (default displacement)")  # fmt: skip
@@ -332,7 +346,8 @@ def register_fit(sub, func) -> None:
     f.add_argument("--method", choices=list(METHODS), default="nls",
                    help="wls, nls (FRF file) or ml (sample maximum likelihood: the RUN file)")  # fmt: skip
     f.add_argument("--model-floor", type=float, default=0.3,
-                   help="ml: relative equation-error floor φ for unmodeled dynamics (0 = pure ML)")  # fmt: skip
+                   help="ml: relative equation-error floor φ for unmodeled dynamics (default 0.3, "
+                   "chosen on cu5; 0 = pure ML for data a second-order model describes)")  # fmt: skip
     f.add_argument("--true-device", help="simulated data: also report the P·P̂⁻¹ band against "
                    "this preset's true sampled plant (cu5, tripod3, hexapod6)")  # fmt: skip
     f.add_argument("--positize", action="store_true", help="positize the WLS model (paper 5.1)")

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-TWO_PI = 2.0 * np.pi
+from ._constants import TWO_PI
+from ._grids import log_grid_hz
 
 
 def _grid(a):
@@ -17,7 +18,7 @@ def _grid(a):
         raise CLIError(f"--f-max-hz must be above --f-min-hz ({a.f_min_hz} Hz), got {a.f_max_hz}")
     if a.n_freq < 2:
         raise CLIError(f"--n-freq must be ≥ 2, got {a.n_freq}")
-    return np.geomspace(a.f_min_hz, a.f_max_hz, a.n_freq)
+    return log_grid_hz(a.f_min_hz, a.f_max_hz, a.n_freq) / TWO_PI  # Hz
 
 
 def cmd_predict(a):

@@ -98,7 +98,8 @@ def cmd_frf(a):
     run = io.load_run(a.run)
     if a.h1:
         frf = estimate_frf_h1(run.fs_hz, run.R_A, run.R_I, run.L, nperseg=a.nperseg,
-                              f_band_hz=(a.f_min_hz or 0.0, a.f_max_hz or run.fs_hz / 2))  # fmt: skip
+                              f_band_hz=(a.f_min_hz or 0.0, a.f_max_hz or run.fs_hz / 2),
+                              window=a.window)  # fmt: skip
     else:
         frf = estimate_frf(run, cond_warn=a.cond_warn)
     out = io.save_frf(a.out, frf)
@@ -229,6 +230,7 @@ def cmd_run(a):
                                progress=lambda name: print(f"  … {name}", flush=True))  # fmt: skip
     print(f"computed: {', '.join(log['computed']) or '—'}; from cache: {', '.join(log['cached']) or '—'} "
           f"({time.perf_counter() - t0:.1f} s)")  # fmt: skip
+    print("per stage: " + ", ".join(f"{k} {v:.1f} s" for k, v in log["seconds"].items()))
     print(f"outputs in {a.out or cfg['outputs']['dir']}")
 
 

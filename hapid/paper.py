@@ -65,7 +65,10 @@ def figure(num: int, out_dir, *deps) -> str:
                            title="Fig. 9 — characteristic loci of P(z)G(z) (eigenvalues)")  # fmt: skip
     elif num == 10:
         mimo, *rest = deps
-        reps = {"MIMO, paper WLS + positize": mimo["wls"]["report"], "MIMO, hapid NLS + PD": mimo["nls"]["report"]}
+        reps = {
+            "MIMO, paper WLS + positize": mimo["wls"]["report"],
+            "MIMO, hapid NLS + PD": mimo["nls"]["report"],
+        }
         if rest:  # the scene's tuned-g loop (the summary's third column)
             reps["MIMO, hapid NLS + PD + tuned g"] = rest[0]["report"]
         fig, _ = plot.sigma_T_minus_I(reps, title="Fig. 10 — σ(T(jω) − I), MIMO controller G = g(s) Ẑ_T Ẑ_H⁻¹")  # fmt: skip

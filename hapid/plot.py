@@ -125,7 +125,9 @@ def impedance_fit(f, Z, f_model, models: dict, *, title: str = "", name: str = "
     else:
         sv, sd = _sv(Z), None
     note = ""
-    if sd is not None:  # say how big the bars are: at low noise they hide behind the markers
+    if sd is not None and not np.any(sd > 0):  # e.g. Z_T from noiseless commands and encoders
+        note, sd = " (its std is 0: no noise source enters this estimate)", None
+    elif sd is not None:  # say how big the bars are: at low noise they hide behind the markers
         note = f" (±1 std bars, median {np.median(20 * np.log10(1 + sd / sv)):.2g} dB)"
     for k in range(sv.shape[1]):
         y = 20 * np.log10(sv[:, k])

@@ -1,17 +1,18 @@
 """Scenes: a small TOML file names the device, protocol, estimators, controller and outputs.
 
 ``run_scene`` computes only the stages the requested outputs need, each cached on disk under a
-hash of its inputs (``hapid._stages``): a Z_H figure needs no controller; no MCMC unless a
-posterior is asked for; no time-domain simulation unless the protocol says so. Changing one
-option recomputes only the stages downstream of it.
+hash of its inputs and of hapid's source (``hapid._stages``): a Z_H figure needs no
+controller; no tuning unless the summary (or fig10) asks for the tuned g; no time-domain
+simulation unless the protocol says so. Changing one option recomputes only the stages
+downstream of it.
 
 Stage graph::
 
     device ─► run ─► frf ─┬─► wls ─┐                         ┌─► fig5 (SISO σ(T − I))
                           └─► nls ─┴─► mimo ◄─ plant ◄─ device├─► fig9, fig10 (MIMO)
     controller ───────────────────────► mimo, siso ─────────┴─► summary
-    device, nls ─► tuned (g by hapid.tune) ─► tuned_mimo ──────────► summary
-    frf, wls, nls ─► fig6, fig7, fig8                     posterior ─► robust
+    device, nls ─► tuned (g by hapid.tune) ─► tuned_mimo ──────────► summary, fig10
+    frf, wls, nls ─► fig6, fig7, fig8
 
 Every stage function composes :mod:`hapid.pipeline` (experiment → frf → fit → controller →
 loop); the loop verdict (controller's own RHP poles included) is the pipeline's.
@@ -21,9 +22,9 @@ Config sections (all optional, defaults = the paper reproduction on ``cu5``):
 light_damping, extra_modes, encoder; ``[protocol]`` freqs ("paper" or list, Hz), periods,
 transient, pattern, phases, amplitude, seed, noise, position_noise, encoder_res, synthesis
 ("periodic" | "time_domain"), friction; ``[fit]`` omega_c_hz, positize, weight, f_max_hz,
-solver, max_steps, rtol, atol, ftol, patience, blend_floor, p_weight, pd_eps, init_floor (the
-NLS options of :func:`hapid.fit.fit_nls`); ``[controller]`` k, lag_zero_hz, lag_pole_hz, notch_hz, zeta_num, zeta_den,
-lowpass_hz, siso_gm_db, siso_pm_deg; ``[analysis]`` f_min_hz, n_freq, band_hz;
+solver, max_steps, rtol, atol, ftol, patience, blend_floor, p_weight, pd_eps, init_floor
+(the NLS options of :func:`hapid.fit.fit_nls`); ``[controller]`` k, lag_zero_hz, lag_pole_hz,
+notch_hz, zeta_num, zeta_den, lowpass_hz, siso_gm_db, siso_pm_deg; ``[analysis]`` f_min_hz, n_freq, band_hz;
 ``[posterior]`` walkers, steps, seed, samples; ``[outputs]`` want = [...], dir.
 """
 
@@ -177,7 +178,7 @@ def _mimo_one(model, g, plant):
     from . import pipeline
 
     ctrl = pipeline.controller(model, g, ts=plant["ts"])
-    rep = pipeline.loop(ctrl, plant["plant"])
+    rep = pipeline.loop(ctrl, plant["plant"], pipeline.MetricsSpec(arrays=True))  # figures 9, 10
     return {"report": rep, "p_ol": int(ctrl.p_rhp)}
 
 
@@ -201,7 +202,10 @@ def _siso(o, plant, ctrl):
             out[label] = {"c": c, "report": None}
             continue
         C = pipeline.controller(None, ctrl["g"], kind="siso", c=c, n=n, ts=plant["ts"])
-        out[label] = {"c": c, "report": pipeline.loop(C, plant["plant"])}
+        out[label] = {
+            "c": c,
+            "report": pipeline.loop(C, plant["plant"], pipeline.MetricsSpec(arrays=True)),
+        }
     return out
 
 
@@ -283,7 +287,7 @@ def _save_models(out_dir, w, n):
     return [str(a), str(b)]
 
 
-_EXTRA_STAGES: list[Stage] = []  # the uncertainty stages register here
+_EXTRA_STAGES: list[Stage] = []  # other modules may register stages here (none do yet)
 
 
 def graph() -> Graph:

@@ -11,6 +11,7 @@ from hapid.cli import main
 from hapid.control import Compensator
 from hapid.device import cu5
 from hapid.frf import as_frf
+from hapid.impedance import ImpedanceModel, SecondOrder
 from hapid.tune import save_design
 
 
@@ -24,12 +25,15 @@ def _strict(text):
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("an")
-    model = cu5().rigid_model()
+    eye = np.eye(5)  # a simple PD 5-rod model (cheap; the device closes the loop)
+    hand = SecondOrder(0.3 * eye, 5.0 * eye, 400.0 * eye)
+    model = ImpedanceModel.from_hand_mechanism(hand, SecondOrder(0.5 * eye, 30.0 * eye, 0.0 * eye))
     io.save_model(d / "m.npz", model, method="rigid")
     save_design(d / "g.npz", Compensator.paper(k=0.4))
     f = np.array([1.0, 5.0, 20.0, 60.0, 100.0])
-    s = 2j * np.pi * f
-    io.save_frf(d / "frf.npz", as_frf(f, np.asarray(model.hand(s)), np.asarray(model.total(s))))
+    s = 2j * np.pi * f[:, None, None]
+    ZH = 0.3 * s**2 * eye + 5.0 * s * eye + 400.0 * eye
+    io.save_frf(d / "frf.npz", as_frf(f, ZH, ZH + 0.5 * s**2 * eye + 30.0 * s * eye))
     return d, model
 
 

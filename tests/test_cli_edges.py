@@ -64,6 +64,8 @@ def test_simulate_fs_zero_without_numpy_warnings(files):
          "--quantile must be in (0, 1], got 1.5"),
         (["sweep", "scene.toml", "--vary", "protocol.periods=0", "--out", "sw"],
          "--vary protocol.periods must be an integer ≥ 1, got 0"),
+        (["sweep", "scene.toml", "--vary", "controller.zeta_den=0.5,-1", "--out", "sw"],
+         "--vary controller.zeta_den=-1: controller.zeta_den must be > 0"),
         (["sweep", "scene.toml", "--vary", "controller.k=0.5", "--chunk", "0", "--out", "sw"],
          "--chunk must be an integer ≥ 1, got 0"),
         (["analyze", "--model", "model.npz", "--device", "cu5", "--k", "0", "--out", "a.json"],
@@ -218,7 +220,7 @@ def test_samples_with_nan_log_prob_are_rejected(files, tmp_path):
     np.savez(tmp_path / "s.npz", **d)
     (tmp_path / "model.npz").write_bytes(files[1]["model"].read_bytes())
     assert_clean_error(["robust", "--samples", "s.npz", "--model", "model.npz", "--out", "o.json"],
-                       tmp_path, "log_prob contains NaN")  # fmt: skip
+                       tmp_path, "log_prob has NaN or inf entries")  # fmt: skip
 
 
 def test_design_with_nan_or_negative_frequency_names_the_file(tmp_path):

@@ -7,8 +7,7 @@ Z_H = 0 the relative weights were 1/0.
 """
 
 import numpy as np
-import pytest
-from helpers_fit import random_truth, synthetic_frf
+from helpers_fit import PAPER_FREQ_HZ, random_truth, synthetic_frf
 
 from hapid.fit import fit_nls, model_to_theta, project_pd, wls
 from hapid.frf import as_frf
@@ -26,20 +25,34 @@ def test_model_to_theta_of_a_zero_mechanism_is_finite():
     assert np.all(np.isfinite(theta0))
 
 
-@pytest.mark.parametrize("layout", ["ZH=ZT", "ZH=0"])
-def test_single_impedance_in_the_pair_fits_noise_free(layout):
+def test_single_impedance_as_Z_H_equal_Z_T_fits_noise_free():
     truth = random_truth(2, seed=3)
-    f = synthetic_frf(truth, rel_noise=0.0)
-    Z = np.asarray(f.Z_T)
-    ZH = Z if layout == "ZH=ZT" else np.zeros_like(Z)
-    frf = as_frf(f.freq_hz, ZH, Z)
-    # the start really has a zero block (what made the Cholesky NaN)
-    start = wls(frf)
-    block = start.mechanism if layout == "ZH=ZT" else start.hand
-    assert float(np.max(np.abs(np.asarray(block.K)))) == 0.0
+    Z = np.asarray(synthetic_frf(truth, rel_noise=0.0).Z_T)
+    frf = as_frf(PAPER_FREQ_HZ, Z, Z)
+    start = wls(frf)  # the start really has a zero mechanism (what made the Cholesky NaN)
+    assert float(np.max(np.abs(np.asarray(start.mechanism.K)))) == 0.0
     res = fit_nls(frf, f_max_hz=None, rtol=1e-12, atol=1e-14)
     assert res.ok, res.summary()
     assert np.isfinite(float(res.cost))
     tot = res.model.total
     for a, b in ((tot.M, truth.total.M), (tot.B, truth.total.B), (tot.K, truth.total.K)):
         assert np.linalg.norm(np.asarray(a) - np.asarray(b)) <= 1e-6 * np.linalg.norm(b)
+
+
+def test_single_impedance_as_Z_H_zero_fits_through_the_cli_without_nan(tmp_path, capsys):
+    from hapid import io
+    from hapid.cli import main
+
+    truth = random_truth(2, seed=3)
+    Z = np.asarray(synthetic_frf(truth, rel_noise=0.0).Z_T)
+    assert float(np.max(np.abs(np.asarray(wls(as_frf(PAPER_FREQ_HZ, 0 * Z, Z)).hand.K)))) == 0.0
+    io.save_frf(tmp_path / "z0.npz", as_frf(PAPER_FREQ_HZ, np.zeros_like(Z), Z))
+    out = tmp_path / "m.npz"
+    assert main(["fit", str(tmp_path / "z0.npz"), "--method", "nls", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "nan" not in text.lower() and "inf dB" not in text
+    assert "Z_H: the data are zero" in text and "data-fit relative error of Z_T" in text
+    tot = io.load_model(out).total
+    for a, b in ((tot.M, truth.total.M), (tot.B, truth.total.B), (tot.K, truth.total.K)):
+        assert np.linalg.norm(np.asarray(a) - np.asarray(b)) <= 1e-6 * np.linalg.norm(b)
+    assert float(io.load_model_metadata(out)["quality_median_db"][0]) < -100  # Z_T

@@ -64,6 +64,7 @@ READERS = {
               ["robust", "--samples", "samples.npz", "--model", "{f}", "--out", "o.json"],
               ["tune", "--model", "{f}", "--device", "tripod3", "--out", "o.npz"]],
     "samples": [["robust", "--samples", "{f}", "--model", "model.npz", "--out", "o.json"],
+                ["predict", "--samples", "{f}", "--out", "o.npz"],
                 ["tune", "--model", "model.npz", "--samples", "{f}", "--out", "o.npz"]],
     "design": [["analyze", "--model", "model.npz", "--device", "tripod3", "--design", "{f}",
                 "--out", "o.json"]],
@@ -280,6 +281,8 @@ BASES = {
     "tune": ["tune", "--model", "model.npz", "--device", "tripod3", "--out", "o.npz"],
     "paper": ["paper", "--out", "o"],
     "run": ["run", "scene.toml", "--out", "o"],
+    "predict": ["predict", "--samples", "samples.npz", "--out", "o.npz"],
+    "plant": ["plant", "--device", "tripod3", "--out", "o.npz"],
 }
 
 NOT_POS = st.sampled_from(
@@ -302,7 +305,7 @@ OPTION_BAD = {
     "--n-train": int_below(1), "--n-holdout": int_below(1), "--steps": int_below(1),
     "--samples": int_below(1), "--subjects": int_below(0),
     "--walkers": st.sampled_from(["1", "-1", "-100", "x"]),
-    "--nperseg": int_below(8), "--fs-hz": NOT_POS, "--f-min-hz": NEG,
+    "--nperseg": int_below(8), "--n-freq": int_below(2), "--delay": st.sampled_from(["-1", "1001", "0.5"]), "--fs-hz": NOT_POS, "--f-min-hz": NEG,
     "--seed": st.integers(max_value=-1).map(str) | st.integers(min_value=2**32).map(str),
     "--quantile": st.sampled_from(["0", "1.5", "-0.1", "nan", "1.0000001"]) | st.floats(min_value=1, exclude_min=True, allow_infinity=False).map(repr),
     "--gm-db": st.sampled_from(["-1", "nan", "61", "inf"]),
@@ -314,7 +317,10 @@ OPTION_BAD = {
     "--vary": st.sampled_from(["controller.k=0", "controller.k=-1", "protocol.periods=0",
                                "protocol.periods=1.5", "device.dx=5", "protocol.noise=-1",
                                "fit.omega_c_hz=0", "nosuch.key=1", "controller.k", "controller.k=",
-                               "controller.k=a", "protocol.seed=-3", "device.subject_seed=0.5"]),
+                               "controller.k=a", "protocol.seed=-3", "device.subject_seed=0.5",
+                               "controller.zeta_den=-1", "analysis.n_freq=1", "device.dyaw=3",
+                               "controller.notch_hz[1]=900", "analysis.f_min_hz=0",
+                               "fit.max_steps=2.5", "controller.lowpass_hz[0]=-5"]),
     "--set": st.sampled_from(["controller.k=0", "nosuch.k=1", "protocol.periods=0", "k",
                               "device.preset=\"x\"", "fit.solver=\"newton\"", "analysis.n_freq=1"]),
     "--outputs": st.sampled_from(["fig11", "summary,nope", ""]),
@@ -339,8 +345,8 @@ def bad_option(draw):
     argv = list(BASES[cmd])
     flags = [f for f in _options_of(cmd) if f in OPTION_BAD or f in ("--move", "--out")]
     flag = draw(st.sampled_from(sorted(flags)))
-    if cmd in ("robust", "tune") and flag == "--samples":
-        flag = "--max-samples" if cmd == "robust" else "--n-train"
+    if cmd in ("robust", "tune", "predict") and flag == "--samples":
+        flag = "--n-train" if cmd == "tune" else "--max-samples"
     if flag == "--move":
         return argv + ["--move", *draw(MOVE_BAD)]
     if flag == "--out":

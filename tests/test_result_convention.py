@@ -57,3 +57,24 @@ def test_robust_report_and_tune_result():
     s = res.summary()
     assert s["constraints"]["pm"] == pytest.approx(0.2) and s["bandwidth_hz"] == 12.0
     json.loads(io.to_json(s))
+
+
+def test_every_result_class_has_ok_status_summary():
+    from hapid.control import ControllerCheck, LoopReport
+    from hapid.fit import NLSResult
+    from hapid.fit._positize import CRHPReport
+    from hapid.fit._quality import FitQuality
+    from hapid.uncertainty import PosteriorSamples
+
+    for cls in (
+        NLSResult,
+        FitQuality,
+        CRHPReport,
+        ControllerCheck,
+        LoopReport,
+        RobustReport,
+        TuneResult,
+        PosteriorSamples,
+    ):
+        for attr in ("ok", "status", "summary"):
+            assert hasattr(cls, attr), f"{cls.__name__} has no {attr}"

@@ -41,6 +41,9 @@ from ._loop import isotropic_bandwidth as isotropic_bandwidth
 from ._loop import loop_matrices as loop_matrices
 from ._margins import disk_margin_from_peak as disk_margin_from_peak
 from ._margins import loci_margins as loci_margins
+from ._metrics import LoopMetrics as LoopMetrics
+from ._metrics import MetricsSpec as MetricsSpec
+from ._metrics import loop_metrics as loop_metrics
 from ._nyquist import characteristic_loci as characteristic_loci
 from ._nyquist import nyquist_encirclements as nyquist_encirclements
 from ._nyquist import track_loci as track_loci

@@ -120,10 +120,12 @@ def estimate_frf_h1(
     freq_hz: np.ndarray | None = None,
     f_band_hz: tuple[float, float] | None = None,
     reference: str = "L",
+    window: str = "hann",
 ) -> FRF:
     """Averaged cross-spectral estimate for non-periodic records (chirp, noise, lab data).
 
-    Signals ``(E, T, n)``; Welch segments of ``nperseg`` samples (Hann window, 50 % overlap)
+    Signals ``(E, T, n)``; Welch segments of ``nperseg`` samples (Hann window with 50 % overlap,
+    or ``window="boxcar"`` without overlap: leakage-free for periodic excitation)
     over all experiments. ``reference="L"`` is the classic H1 estimator
     ``Z = −S_{R L} S_{L L}⁻¹`` (assumes noise-free ``L``); ``reference="R_A"`` uses the
     known command as instrument, ``Z = −S_{R A} S_{L A}⁻¹``, which is not biased by encoder
@@ -140,11 +142,16 @@ def estimate_frf_h1(
     E, T, n = R_A.shape
     if nperseg > T or nperseg < 8:
         raise ValueError(f"nperseg = {nperseg} must be between 8 and the record length {T}")
-    step = nperseg // 2
+    if window not in ("hann", "boxcar"):
+        raise ValueError(f"window must be 'hann' or 'boxcar', got {window!r}")
+    # boxcar segments do not overlap: overlapping rectangular segments share half their noise,
+    # which the segment-scatter std below (segments independent) would not see
+    step = nperseg if window == "boxcar" else nperseg // 2
     starts = np.arange(0, T - nperseg + 1, step)
     if len(starts) * E < n:
         raise ValueError(f"only {len(starts) * E} segments for n = {n} rods: record too short")
-    win = np.hanning(nperseg)
+    # boxcar: leakage-free for periodic excitation whose period divides nperseg
+    win = np.hanning(nperseg) if window == "hann" else np.ones(nperseg)
     seg = lambda x: np.stack([x[:, s : s + nperseg] for s in starts], 1) * win[:, None]  # noqa: E731
     fft = lambda x: np.fft.rfft(seg(x), axis=2)  # noqa: E731  (E, S, F, n)
     XL, XI, XA = fft(L), fft(R_I), fft(R_A)

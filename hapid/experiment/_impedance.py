@@ -83,6 +83,7 @@ def estimate_impedance_h1(
     sign: float = 1.0,
     f_min_hz: float | None = None,
     f_max_hz: float | None = None,
+    window: str = "hann",
 ) -> ImpedanceFRF:
     """Dynamic stiffness ``Z = sign · F/x`` ``(N, n, n)`` with element std from lab records.
 
@@ -90,7 +91,9 @@ def estimate_impedance_h1(
     channels measure); ``sign`` ``+1`` (force on the structure and displacement counted in the
     same direction: a spring has Z = +k) or ``-1`` (reaction-force convention, the paper's
     ``R = −Z L``). Frequencies are the Welch bins (``fs/nperseg`` spacing) in
-    ``[f_min_hz, f_max_hz]`` (default all but DC). The unit is ``ts.z_unit``.
+    ``[f_min_hz, f_max_hz]`` (default all but DC). The unit is ``ts.z_unit``. ``window``
+    ``"hann"`` (default) or ``"boxcar"`` (leakage-free, hence exact without noise, for periodic
+    excitation whose period divides ``nperseg``).
     """
     if response not in RESPONSE_KINDS:
         raise ValueError(f"response must be one of {tuple(RESPONSE_KINDS)}, got {response!r}")
@@ -104,7 +107,7 @@ def estimate_impedance_h1(
     R = -float(sign) * np.asarray(ts.force, dtype=np.float64)
     frf = estimate_frf_h1(
         ts.fs_hz, R, R, np.asarray(ts.response, dtype=np.float64),
-        nperseg=nperseg, f_band_hz=(lo, hi), reference="R_A",
+        nperseg=nperseg, f_band_hz=(lo, hi), reference="R_A", window=window,
     )  # fmt: skip
     if frf.omega.shape[0] == 0:
         raise ValueError(

@@ -46,10 +46,11 @@ Two floors keep ``S_k`` positive definite:
 
 Uncertainty: the Fisher information ``F = JᵀJ`` of the whitened residual with the weighting
 held at ``θ̂`` (the derivative of ``S(θ)`` multiplies the zero-mean ``e`` and drops out of
-the expected information). ``crb = F⁺`` is the Cramér–Rao bound of the fitted model at the
-data's noise level (estimated: measured 𝓛 in place of the noise-free one, sample
-covariances); ``covariance = max(1, σ̂²)·F⁺`` with ``σ̂² = 2V/(m − p)`` (≫ 1 signals model
-error, which inflates the Laplace covariance rather than being hidden).
+the expected information). ``crb = F⁺`` (with φ = 0, in symmetric-matrix coordinates, where
+the model is linear) is the Cramér–Rao bound of the fitted model at the data's noise level (estimated: measured 𝓛 in place of the noise-free one,
+sample covariances); ``covariance = max(1, σ̂²)·F_φ⁺`` (information of the cost as fitted,
+with its floor) with ``σ̂² = 2V/(m − p)`` (≫ 1 signals model error, which inflates the
+Laplace covariance rather than being hidden).
 """
 
 from __future__ import annotations
@@ -66,9 +67,26 @@ from ..experiment._protocol import validate_run
 from ..frf import FRF
 from ..impedance import ImpedanceModel
 from ._checks import TWO_PI
-from ._nls import LEAST_SQUARES_SOLVERS, MINIMISERS, _run_solver, data_scale, fit_nls
-from ._pd import Scale, boundary_report, model_to_theta, theta_to_model, theta_to_scaled
-from ._result import CONVERGED, FAILED, NLSResult
+from ._nls import (
+    LEAST_SQUARES_SOLVERS,
+    MINIMISERS,
+    PD_EPS,
+    _run_solver,
+    data_scale,
+    final_status,
+    fit_nls,
+    init_model,
+    pinv_psd,
+)
+from ._pd import (
+    Scale,
+    boundary_report,
+    model_to_theta,
+    scaled_pair,
+    theta_to_model,
+    theta_to_scaled,
+)
+from ._result import CONVERGED, NLSResult
 
 ML_SOLVERS = LEAST_SQUARES_SOLVERS + MINIMISERS
 
@@ -207,11 +225,7 @@ class MLProblem(eqx.Module):
         return int(self.X.shape[-1] // 3)
 
     def model_arrays(self, theta):
-        mats = theta_to_scaled(theta, self.n, self.eps)
-        s = self.s[:, None, None]
-        ZH = mats[0] * s**2 + mats[1] * s + mats[2]
-        ZT = ZH + mats[3] * s**2 + mats[4] * s + mats[5]
-        return ZH, ZT
+        return scaled_pair(theta_to_scaled(theta, self.n, self.eps), self.s)
 
     def _A(self, theta):
         n = self.n
@@ -251,11 +265,47 @@ class MLProblem(eqx.Module):
         K, E, m = self.X.shape
         return 2 * K * E * (2 * m // 3)
 
+    def fisher_matrices(self, theta):
+        """``JᵀJ`` in symmetric-matrix coordinates at ``θ`` (weighting held there).
+
+        Coordinates: the ``n(n+1)/2`` lower-triangle entries of each of the six scaled
+        matrices (order of ``MATRIX_NAMES``) — the model is linear in them, so this is the
+        information of an unconstrained ``M, B, K`` estimate, well defined also where a
+        fitted matrix sits on the PSD boundary (where the Cholesky coordinates are singular).
+        """
+        T = jax.lax.stop_gradient(self.weight_factor(theta))
+        mats0 = theta_to_scaled(theta, self.n, self.eps)
+        v0 = _sym_to_vec(mats0)
+        J = jax.jacfwd(lambda v: self._whiten_mats(_vec_to_sym(v, self.n), T))(v0)
+        return J.T @ J
+
+    def _whiten_mats(self, mats, T):
+        ZH, ZT = scaled_pair(mats, self.s)
+        K = ZH.shape[0]
+        n = self.n
+        eye = jnp.broadcast_to(jnp.eye(2 * n, dtype=ZH.dtype), (K, 2 * n, 2 * n))
+        A = jnp.concatenate([eye, jnp.concatenate([ZH, ZT], axis=-2)], axis=-1)
+        r = np.sqrt(2.0) * (T @ (A @ jnp.swapaxes(self.X, -1, -2)))
+        return jnp.concatenate([jnp.real(r).ravel(), jnp.imag(r).ravel()])
+
     def fisher(self, theta):
         """``JᵀJ`` with the weighting held at ``θ`` (expected information)."""
         T = jax.lax.stop_gradient(self.weight_factor(theta))
         J = jax.jacfwd(lambda t: self.whiten(t, T))(theta)
         return J.T @ J
+
+
+def _sym_to_vec(mats):
+    n = mats.shape[-1]
+    rows, cols = np.tril_indices(n)
+    return mats[:, rows, cols].reshape(-1)
+
+
+def _vec_to_sym(v, n):
+    rows, cols = np.tril_indices(n)
+    t = len(rows)
+    L = jnp.zeros((6, n, n), dtype=v.dtype).at[:, rows, cols].set(v.reshape(6, t))
+    return L + jnp.swapaxes(L, -1, -2) - L * jnp.eye(n)
 
 
 def make_ml_problem(
@@ -287,8 +337,12 @@ class MLResult(NLSResult):
     """:class:`NLSResult` of :func:`fit_ml`, plus the Cramér–Rao bound.
 
     - ``cost``: ``V(θ̂) = Σ eᴴ S⁻¹ e`` (≈ ``m/2`` real residuals' worth at the truth).
-    - ``crb``: ``(p, p)`` Cramér–Rao bound ``F⁺`` of ``theta`` (scaled units) at ``θ̂``.
-    - ``covariance``: ``max(1, sigma2)·crb`` (``sigma2 = 2V/(m − p)``).
+    - ``crb``: ``(p, p)`` Cramér–Rao bound at ``θ̂`` from the measurement noise alone
+      (``model_floor`` = 0): what the data allow — in symmetric-*matrix* coordinates (the
+      lower-triangle entries of the six scaled matrices, order ``MATRIX_NAMES``; see
+      :meth:`MLProblem.fisher_matrices`), not in ``theta``'s Cholesky coordinates.
+    - ``covariance``: ``max(1, sigma2)·F_φ⁺`` with the information ``F_φ`` of the cost as
+      fitted (with the ``model_floor``) and ``sigma2 = 2V/(m − p)``.
     - ``dof``: ν = E(P − 1) degrees of freedom of the sample covariances.
     """
 
@@ -296,26 +350,19 @@ class MLResult(NLSResult):
     dof: int = eqx.field(static=True)
 
 
-def _pinv_psd(F):
-    lam, V = jnp.linalg.eigh(0.5 * (F + F.T))
-    keep = lam > 1e-12 * jnp.max(lam)
-    inv = jnp.where(keep, 1.0 / jnp.where(keep, lam, 1.0), 0.0)
-    return (V * inv) @ V.T
-
-
 @eqx.filter_jit
-def _ml_core(problem: MLProblem, theta0, dyn, static):
+def _ml_core(problem: MLProblem, noise_only: MLProblem, theta0, dyn, static):
     solver, linear_solver = static
     theta, n_steps, code = _run_solver(problem, theta0, solver, dyn["rtol"], dyn["atol"],
                                        dyn["max_steps"], linear_solver, dyn["ftol"],
                                        dyn["patience"])  # fmt: skip
     cost = problem.cost(theta)
-    crb = _pinv_psd(problem.fisher(theta))
+    fisher_inv = pinv_psd(problem.fisher(theta))
+    crb = pinv_psd(noise_only.fisher_matrices(theta))
     p = theta.shape[-1]
     sigma2 = 2.0 * cost / jnp.maximum(problem.n_residuals - p, 1)
-    finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(cost)
-    code = jnp.where(finite, code, FAILED).astype(jnp.int32)
-    return theta, n_steps, code, cost, crb, sigma2
+    code = final_status(theta, cost, code)
+    return theta, n_steps, code, cost, crb, sigma2, fisher_inv
 
 
 def fit_ml(
@@ -331,7 +378,7 @@ def fit_ml(
     atol: float = 1e-10,
     ftol: float = 1e-8,
     patience: int = 20,
-    pd_eps: float = 0.0,
+    pd_eps: float = PD_EPS,
     init_floor: float = 1e-6,
     linear_solver: str = "cholesky",
     boundary_rtol: float = 1e-6,
@@ -349,7 +396,10 @@ def fit_ml(
     - ``solver``: ``"lm"`` (default), ``"dogleg"``, ``"gauss_newton"``, ``"bfgs"``,
       ``"nonlinear_cg"``; ``max_steps``, ``rtol``, ``atol``, ``ftol``, ``patience``,
       ``linear_solver``: as :func:`~hapid.fit.fit_nls`.
-    - ``pd_eps``, ``init_floor``, ``boundary_rtol``: as :func:`~hapid.fit.fit_nls`.
+    - ``pd_eps``: ``pd_eps·I`` (scaled units, default 1e-3) added to every matrix: strictly
+      PD, so a matrix the fit drives to the PSD boundary (a soft direction of the hand) does
+      not put a root of det Ẑ at s = 0 or ∞ (closed RHP; measured on hexapod6 at 10× noise).
+    - ``init_floor``, ``boundary_rtol``: as :func:`~hapid.fit.fit_nls`.
 
     Returns an :class:`MLResult` (``weight == "ml"``): ``status`` converged / max_steps /
     failed, ``cost`` V(θ̂), ``crb`` and ``covariance`` of ``theta`` (in ``scale`` units).
@@ -373,21 +423,16 @@ def fit_ml(
     scale = data_scale(frf, f_max_hz)
     if init is None:
         init = fit_nls(frf, f_max_hz=f_max_hz)
-    if isinstance(init, NLSResult):
-        init = init.model
-    if not isinstance(init, ImpedanceModel):
-        raise ValueError(
-            f"fit_ml: init must be an ImpedanceModel or NLSResult, got {type(init).__name__}"
-        )
-    if init.n != run.n:
-        raise ValueError(f"fit_ml: init has n = {init.n} rods but the run has n = {run.n}")
+    init = init_model(init, run.n, data="run", what="fit_ml: ")
     theta0 = model_to_theta(init, scale, floor=init_floor)
     problem = make_ml_problem(spectra, scale, model_floor=model_floor, pd_eps=pd_eps)
     dyn = dict(rtol=jnp.asarray(rtol), atol=jnp.asarray(atol), ftol=jnp.asarray(ftol),
                max_steps=jnp.asarray(max_steps), patience=jnp.asarray(patience))  # fmt: skip
-    theta, n_steps, code, cost, crb, sigma2 = _ml_core(
-        problem, theta0, dyn, (solver, linear_solver)
+    noise_only = make_ml_problem(spectra, scale, model_floor=0.0, pd_eps=pd_eps)
+    theta, n_steps, code, cost, crb, sigma2, fisher_inv = _ml_core(
+        problem, noise_only, theta0, dyn, (solver, linear_solver)
     )
+
     model = theta_to_model(theta, scale, pd_eps)
     return MLResult(
         model=model,
@@ -396,10 +441,10 @@ def fit_ml(
         status_code=code,
         n_steps=jnp.asarray(n_steps).astype(jnp.int32),
         cost=cost,
-        covariance=jnp.maximum(sigma2, 1.0) * crb,
+        covariance=jnp.maximum(sigma2, 1.0) * fisher_inv,
         sigma2=sigma2,
         n_residuals=jnp.asarray(problem.n_residuals),
-        at_boundary=boundary_report(model, rtol=boundary_rtol),
+        at_boundary=boundary_report(theta_to_model(theta, scale), rtol=boundary_rtol),
         weight="ml",
         solver=solver,
         crb=crb,
@@ -414,32 +459,33 @@ def ml_cost(theta, run: Run, scale: Scale, *, f_max_hz: float | None = 40.0,
 
 
 def cramer_rao(run: Run, model: ImpedanceModel, *, f_max_hz: float | None = 40.0,
-               model_floor: float = 0.0, scale: Scale | None = None):  # fmt: skip
-    """``(theta, crb, scale)``: the Cramér–Rao bound of the second-order PD model at
-    ``model`` for the noise of ``run`` (any fit's model: WLS, NLS, ML). ``crb`` is
-    ``(p, p)`` in ``scale`` units (default: the NLS data scale of the run's FRF)."""
+               scale: Scale | None = None):  # fmt: skip
+    """``(crb, scale)``: the Cramér–Rao bound (matrix coordinates, see :class:`MLResult`) of
+    the second-order model at ``model`` for the noise of ``run`` — for any fit's model (WLS,
+    NLS, ML); ``scale`` defaults to the NLS data scale of the run's FRF."""
     spectra = run_spectra(run, f_max_hz)
     if scale is None:
         scale = data_scale(estimate_frf(run), f_max_hz)
     theta = model_to_theta(model, scale)
-    problem = make_ml_problem(spectra, scale, model_floor=model_floor)
-    return theta, _pinv_psd(problem.fisher(theta)), scale
+    problem = make_ml_problem(spectra, scale, model_floor=0.0)
+    return pinv_psd(problem.fisher_matrices(theta)), scale
 
 
-def _band_draws(theta, cov, scale, omega, n_draws, seed):
-    """Draws of the (min, max) dB of σ(P(θ̂)·P̂⁻¹) with ``P̂⁻¹`` linearized at ``θ̂``."""
+def _band_draws(model, cov, scale, omega, n_draws, seed):
+    """Draws of the (min, max) dB of σ(P(θ̂)·P̂⁻¹) with ``P̂⁻¹`` linearized at the model."""
     from ..impedance import singular_values
+    from ._pd import model_to_scaled, scaled_to_model
 
-    theta = jnp.asarray(theta)
+    n = model.n
     s = 1j * jnp.asarray(omega)
-    model = theta_to_model(theta, scale)
+    v0 = _sym_to_vec(model_to_scaled(model, scale))
     P0 = model.P(s)
 
-    def pinv_flat(t):
-        Pi = theta_to_model(t, scale).P_inv(s)
+    def pinv_flat(v):
+        Pi = scaled_to_model(_vec_to_sym(v, n), scale).P_inv(s)
         return jnp.concatenate([jnp.real(Pi).ravel(), jnp.imag(Pi).ravel()])
 
-    G = jax.jacfwd(pinv_flat)(theta)  # (2·N·n², p)
+    G = jax.jacfwd(pinv_flat)(v0)  # (2·N·n², p)
     cov = np.asarray(cov)
     lam, V = np.linalg.eigh(0.5 * (cov + cov.T))
     root = jnp.asarray(V * np.sqrt(np.maximum(lam, 0.0)))
@@ -447,12 +493,12 @@ def _band_draws(theta, cov, scale, omega, n_draws, seed):
     d = (G @ root @ z.T).T  # (draws, 2·N·n²)
     half = d.shape[1] // 2
     dPi = (d[:, :half] + 1j * d[:, half:]).reshape((n_draws,) + P0.shape)
-    db = 20.0 * jnp.log10(singular_values(jnp.eye(P0.shape[-1]) + P0 @ dPi))
+    db = 20.0 * jnp.log10(singular_values(jnp.eye(n) + P0 @ dPi))
     return np.asarray(jnp.min(db, axis=(1, 2))), np.asarray(jnp.max(db, axis=(1, 2)))
 
 
 def crb_band_db(
-    theta,
+    model: ImpedanceModel,
     crb,
     scale: Scale,
     omega,
@@ -464,19 +510,18 @@ def crb_band_db(
 ) -> tuple[float, float]:
     """The P·P̂⁻¹ band an efficient estimator reaches at this noise level.
 
-    Draws ``δθ ~ N(0, crb)`` (the Cramér–Rao bound, scaled units) and, with ``P̂⁻¹``
-    linearized at ``theta`` (the Cholesky coordinates are quadratic near the PSD boundary,
-    where the bound is large along directions ``P̂`` does not see to first order: sampling
-    the nonlinear map there would blow up), the singular values of
-    ``P(θ̂)(P̂⁻¹(θ̂) + ∂P̂⁻¹ δθ)`` (dB) over ``omega`` ≤ ``f_max_hz`` (rad/s grid, Hz limit).
-    Returns the ``quantile`` (default median) over draws of the lower band edge taken from
-    below and of the upper edge from above: ``(lo dB ≤ 0, hi dB ≥ 0)``.
+    ``crb``: the Cramér–Rao bound in matrix coordinates at ``model`` (``MLResult.crb`` or
+    :func:`cramer_rao`), in ``scale`` units. Draws ``δv ~ N(0, crb)`` and, with ``P̂⁻¹``
+    linearized at ``model``, the singular values of ``P(v̂)(P̂⁻¹(v̂) + ∂P̂⁻¹ δv)`` (dB) over
+    ``omega`` ≤ ``f_max_hz`` (rad/s grid, Hz limit). Returns the ``quantile`` (default
+    median) over draws of the lower band edge taken from below and of the upper edge from
+    above: ``(lo dB ≤ 0, hi dB ≥ 0)``.
     """
     omega = np.asarray(omega)
     keep = omega <= TWO_PI * f_max_hz * (1 + 1e-12)
     if not keep.any():
         raise ValueError(f"crb_band_db: no frequencies ≤ {f_max_hz} Hz")
-    lo, hi = _band_draws(theta, crb, scale, omega[keep], n_draws, seed)
+    lo, hi = _band_draws(model, crb, scale, omega[keep], n_draws, seed)
     return float(np.quantile(lo, 1 - quantile)), float(np.quantile(hi, quantile))
 
 

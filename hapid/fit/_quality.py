@@ -81,7 +81,8 @@ def inside_confidence(Z, Z_hat, Z_std, level: float = LEVEL):
 
 
 def _db(x):
-    return 20.0 * np.log10(np.maximum(np.asarray(x, dtype=float), 1e-300))
+    x = np.asarray(x, dtype=float)
+    return np.where(np.isnan(x), np.nan, 20.0 * np.log10(np.maximum(np.nan_to_num(x), 1e-300)))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,6 +114,11 @@ class FitQuality:
     def ok(self) -> bool:
         """True when no warning was raised."""
         return not self.warnings
+
+    @property
+    def status(self) -> str:
+        """``"ok"`` or the warnings, joined by ``"; "``."""
+        return "; ".join(self.warnings) or "ok"
 
     @property
     def worst_median_db(self) -> float:
@@ -207,15 +213,27 @@ def fit_quality(
     same order); ``std``: block name → ``(N, n, n)`` element std or ``None``. ``before``: the
     quality of the same fit before positizing (adds the "positizing made it worse" warning).
     """
-    blocks = tuple(data)
     std = std or {}
     data = {b: np.asarray(v) for b, v in data.items()}  # numpy at the edge: no per-shape compile
     fitted = {b: np.asarray(v) for b, v in fitted.items()}
     std = {b: None if v is None else np.asarray(v) for b, v in std.items()}
     fro = lambda A: np.sqrt(np.sum(np.abs(A) ** 2, axis=(-2, -1)))  # noqa: E731
-    rel = np.stack([fro(fitted[b] - data[b]) / fro(data[b]) for b in blocks])
-    rel_db = _db(rel)
-    med, mx = np.median(rel_db, axis=1), np.max(rel_db, axis=1)
+    # a block whose data are zero everywhere (Z_H = 0: a single impedance in the pair) has no
+    # relative error: it is left out, with a line giving the model's size instead
+    lines = tuple(
+        (f"zero_{b}", f"{b}: the data are zero, so no relative error (max ‖Ẑ‖_F of the model "
+                      f"{float(np.max(fro(fitted[b]))):.3g})")
+        for b in data if not np.any(fro(data[b]) > 0)
+    )  # fmt: skip
+    blocks = tuple(b for b in data if np.any(fro(data[b]) > 0))
+    if not blocks:
+        raise ValueError("fit_quality: every data block is zero")
+    norm = {b: fro(data[b]) for b in blocks}
+    rel = np.stack(
+        [fro(fitted[b] - data[b]) / np.where(norm[b] > 0, norm[b], np.nan) for b in blocks]
+    )
+    rel_db = _db(rel)  # NaN where a block's data are zero at that frequency
+    med, mx = np.nanmedian(rel_db, axis=1), np.nanmax(rel_db, axis=1)
     tr = lambda A: np.swapaxes(A, -1, -2)  # noqa: E731
     asym = np.array(
         [
@@ -266,6 +284,7 @@ def fit_quality(
         inside_fraction=inside,
         level=level,
         warnings=tuple(warns),
+        lines=lines,
     )
 
 

@@ -1,9 +1,12 @@
 """Stage ``frf → model``: any estimator by name with its options.
 
 ``fit(frf, "nls", f_max_hz=30.0, rtol=1e-9)`` → :class:`Fit`. Estimators live in
-:data:`ESTIMATORS`; another module adds one with a single line::
+:data:`ESTIMATORS` (``wls``, ``wls+positize``, ``nls``, ``ml``); another module adds one with a
+single line, as ``ml`` is added here::
 
-    ESTIMATORS["ml"] = lambda frf, **o: Fit.from_nls(fit_ml(frf, **o))   # or @register("ml")
+    ESTIMATORS["name"] = lambda frf, **o: Fit.from_nls(my_fit(frf, **o), "name")
+
+``ml`` (sample maximum likelihood) works on the periodic run, not on an FRF.
 
 Options use the scene's units (Hz): ``omega_c_hz`` (paper weight corner) and ``f_max_hz``
 (fit band) for every estimator; the NLS ones are those of :func:`hapid.fit.fit_nls`
@@ -117,14 +120,27 @@ def _nls(frf, **o) -> Fit:
     return Fit.from_nls(fit_nls(frf, omega_c=omega_c, **o))
 
 
+@register("ml")
+def _ml(run, **o) -> Fit:
+    """Sample maximum likelihood (:func:`hapid.fit.fit_ml`): needs the periodic *run* (the
+    experiment stage's output), not an FRF; ``omega_c_hz`` is ignored."""
+    from ..fit import fit_ml
+
+    o = dict(o)
+    o.pop("omega_c_hz", None)
+    if "max_steps" in o:
+        o["max_steps"] = int(o["max_steps"])
+    return Fit.from_nls(fit_ml(run, **o), estimator="ml")
+
+
 def _no_more(o, name):
     if o:
         raise ValueError(f"estimator {name!r} has no option(s) {sorted(o)}")
 
 
 def fit(frf, estimator: str = "nls", **options) -> Fit:
-    """Fit ``frf`` with the named estimator (module docstring). ``ValueError`` names the
-    known estimators for an unknown one."""
+    """Fit ``frf`` with the named estimator (module docstring; ``"ml"`` takes the periodic
+    run instead of the FRF). ``ValueError`` names the known estimators for an unknown one."""
     try:
         fn = ESTIMATORS[estimator]
     except KeyError:

@@ -30,22 +30,25 @@ from jaxtyping import Array, Complex, Float, Int
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
 
+try:  # hapid.control's spec once loop_metrics is on main (the same fields and meaning)
+    from ..control import MetricsSpec  # type: ignore[attr-defined]
+except ImportError:
 
-@dataclasses.dataclass(frozen=True)
-class MetricsSpec:
-    """What a caller wants besides the verdict (static, hashable).
+    @dataclasses.dataclass(frozen=True)
+    class MetricsSpec:
+        """What a caller wants besides the verdict (static, hashable).
 
-    ``bandwidth`` (isotropic bandwidth), ``margins`` (loci GM/PM), ``t_peak`` (peak of σ̄(T)),
-    ``disk`` (disk margin), ``arrays`` (σ(T − I), loci, … for figures). The verdict is always
-    computed. The LAPACK backend computes everything regardless; the spec is forwarded to
-    :func:`hapid.control.loop_metrics` when that backend is used.
-    """
+        ``bandwidth`` (isotropic bandwidth), ``margins`` (loci GM/PM), ``t_peak`` (peak of
+        σ̄(T)), ``disk`` (disk margin), ``arrays`` (σ(T − I), loci, … for figures). The verdict
+        is always computed. The LAPACK backend computes everything regardless; the spec is
+        forwarded to :func:`hapid.control.loop_metrics` once that backend is used.
+        """
 
-    bandwidth: bool = True
-    margins: bool = True
-    t_peak: bool = True
-    disk: bool = True
-    arrays: bool = False
+        bandwidth: bool = True
+        margins: bool = True
+        t_peak: bool = True
+        disk: bool = True
+        arrays: bool = False
 
 
 class Plant(eqx.Module):
@@ -103,7 +106,9 @@ def verdict(n_encirclements, p_ol, resolved, singular):
 
 
 def _backend(P, G, omega, p_ol, spec: MetricsSpec):
-    """The ONE call into the loop-analysis numerics (switch kernels here)."""
+    """The ONE call into the loop-analysis numerics (switch kernels here: once
+    ``hapid.control.loop_metrics`` is on main this becomes
+    ``return loop_metrics(P, G, omega, p_ol=p_ol, spec=spec)``)."""
     from ..control import analyze_loop
 
     del spec  # the LAPACK reference computes everything

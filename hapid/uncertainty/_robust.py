@@ -3,7 +3,7 @@
 
 The controller is designed once from the *nominal* model, ``G(jω) = g(jω) Ẑ_T Ẑ_H⁻¹``, and
 held fixed. Every plant of a batch is then analysed with
-:func:`hapid.control.analyze_loop` (``vmap``-ed, in chunks): generalized-Nyquist stability
+:func:`hapid.control.loop_metrics` (``vmap``-ed, in chunks): generalized-Nyquist stability
 verdict first, then gain/phase margins of the characteristic loci, the balanced disk
 margin, the isotropic bandwidth and the peak of σ̄(T).
 
@@ -38,14 +38,20 @@ calls stable, the margin is the size of the smallest perturbation that reaches �
 ``|GM|`` and ``|PM|``. Quantiles and ``passed`` therefore use ``|GM|``, ``|PM|`` of stable
 plants (unstable: ``−inf``); :meth:`RobustReport.rows` keeps the signed values.
 
-CPU hang (jax 0.10.2). A ``vmap`` of ``analyze_loop`` over a chunk of plants hung
-intermittently on this project's 2-core CPU machine (about 1 process in 4, CPU idle inside
-the XLA execution, also with ``XLA_FLAGS=--xla_cpu_multi_thread_eigen=false``; docs/conventions.md
-"CPU pitfalls"). The default therefore analyses one plant per call of a jitted
-``analyze_loop`` (one compile), which has not hung in our runs (10 of 10 processes). Cost:
-≈ 4 ms per plant at n = 2, N = 400 (2× the vmapped chunk); at n = 5, N = 1000 both paths
-take ≈ 40 ms per plant (benchmarks/bench_uncertainty.py). ``vectorize=True`` keeps the
-vmapped path.
+Compute path. By default every plant is analysed by :func:`hapid.control.analyze_loop` (the
+LAPACK reference, one plant per call of one jitted program: ≈ 54 ms per plant at n = 5,
+N = 1000 on the loaded 2-core machine). ``backend="metrics"``: each chunk of plants is
+analysed by :func:`hapid.control.loop_metrics`'s
+screened program, ``vmap``-ed over the chunk (the last chunk padded, so one compile): XLA
+small-matrix kernels for det/inverse/σ̄, exact values only where the cheap bounds do not
+decide, refined crossings. Plants whose screen did not decide are re-analysed on the whole
+grid (same rules). The only LAPACK call left in the batched program is ``eigvals`` on the
+few grid intervals that need loci, so the XLA:CPU hang of concurrent LAPACK kernels (which
+forced one plant per call before) does not arise; ``vectorize=False`` still runs one plant
+per call. Measured on cu5 Laplace draws (benchmarks/bench_fast.py): identical verdicts, but
+the screen does not decide for these draws (their loops are far from g·I: eigenvalue spread
+≈ 4× |tr L/n|), so the exact whole-grid path runs and is ≈ 6× slower than the reference —
+hence not the default yet.
 """
 
 from __future__ import annotations
@@ -60,7 +66,8 @@ import numpy as np
 from .. import _config  # noqa: F401  (float64)
 from .._grids import continuous_grid as posterior_omega
 from .._grids import sampled_grid as robust_omega
-from ..control import Compensator, analyze_loop
+from ..control import Compensator, MetricsSpec, analyze_loop, disk_margin_from_peak
+from ..control._metrics import metrics_exact, metrics_screened
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
 from ._sampler import PosteriorSamples
@@ -165,7 +172,9 @@ class RobustReport:
             out[f"{f}_q50"] = self.quantile(f, 0.50)
         out["worst_index"] = w
         out["worst_label"] = None if self.labels is None else self.labels[w]
-        out["worst"] = {f: float(getattr(self, f)[w]) for f in FIELDS} | {"stable": bool(self.stable[w])}
+        out["worst"] = {f: float(getattr(self, f)[w]) for f in FIELDS} | {
+            "stable": bool(self.stable[w])
+        }
         out["requirements"] = {"gm_db": self.gm_req_db, "pm_deg": self.pm_req_deg,
                                "p_stable": self.p_stable_required}  # fmt: skip
         out["passed"] = self.passed
@@ -176,31 +185,89 @@ class RobustReport:
         """One dict per plant (label, stable, margins, bandwidth)."""
         rows = []
         for i in range(self.n):
-            r = {"label": None if self.labels is None else self.labels[i], "stable": bool(self.stable[i])}
+            r = {
+                "label": None if self.labels is None else self.labels[i],
+                "stable": bool(self.stable[i]),
+            }
             r |= {f: float(getattr(self, f)[i]) for f in FIELDS}
             rows.append(r)
         return rows
 
 
 _KEYS = ("stable", "n_closed_loop_rhp") + FIELDS
+_SPEC = MetricsSpec(bandwidth=True, margins=True, t_peak=True, disk=True)
+
+
+def _fields(m: dict) -> dict:
+    d = disk_margin_from_peak(2.0 / m["disk_margin"])
+    out = {
+        k: m[k]
+        for k in ("stable", "n_closed_loop_rhp", "gm_db", "pm_deg", "iso_bandwidth_hz", "t_peak_db")
+    }
+    out["disk_margin"] = m["disk_margin"]
+    out["disk_gm_db"] = jnp.where(m["stable"], d["disk_gm_db"], 0.0)
+    out["disk_pm_deg"] = jnp.where(m["stable"], d["disk_pm_deg"], 0.0)
+    return out
 
 
 @eqx.filter_jit
-def _analyze_one(P, p_ol, G, omega):
+def _reference_one(P, p_ol, G, omega):
     r = analyze_loop(P, G, omega, p_ol)
     return {k: getattr(r, k) for k in _KEYS}
 
 
+def _reference_chunk(P, p_ol, G, omega):
+    """The LAPACK reference, one plant per call of a jitted ``analyze_loop`` (grid values)."""
+    outs = [_reference_one(P[i], p_ol[i], G, omega) for i in range(P.shape[0])]
+    return {k: np.stack([np.asarray(o[k]) for o in outs]) for k in _KEYS}
+
+
 @eqx.filter_jit
-def _analyze_vmapped(P, p_ol, G, omega):
-    return jax.vmap(lambda P_, p_: _analyze_one(P_, p_, G, omega))(P, p_ol)
+def _screened_chunk(P, p_ol, G, omega):
+    def one(P_, p_):
+        m, overflow = metrics_screened(P_, G, omega, p_, None, _SPEC)
+        return _fields(m), overflow
+
+    return jax.vmap(one)(P, p_ol)
+
+
+@eqx.filter_jit
+def _exact_chunk(P, p_ol, G, omega):
+    return jax.vmap(lambda P_, p_: _fields(metrics_exact(P_, G, omega, p_, None, _SPEC)))(P, p_ol)
 
 
 def _analyze_chunk(P, p_ol, G, omega, vectorize):
+    """Per-plant fields of a (padded) chunk: the screened analysis vmapped over the chunk
+    (one compile for every chunk), then the exact whole-grid analysis — vmapped over the
+    undecided plants, padded to the chunk size — for the plants whose screen did not decide
+    (:mod:`hapid.control._metrics`)."""
     if vectorize:
-        return _analyze_vmapped(P, p_ol, G, omega)
-    outs = [_analyze_one(P[i], p_ol[i], G, omega) for i in range(P.shape[0])]
-    return {k: np.stack([np.asarray(o[k]) for o in outs]) for k in _KEYS}
+        res, overflow = _screened_chunk(P, p_ol, G, omega)
+        res = {k: np.array(v) for k, v in res.items()}
+        overflow = np.asarray(overflow)
+    else:
+        outs = [_screened_chunk(P[i : i + 1], p_ol[i : i + 1], G, omega) for i in range(P.shape[0])]
+        res = {k: np.concatenate([np.asarray(o[0][k]) for o in outs]) for k in _KEYS}
+        overflow = np.concatenate([np.asarray(o[1]) for o in outs])
+    idx = np.flatnonzero(overflow)
+    if idx.size:
+        size = P.shape[0] if vectorize else 1
+        for s in range(0, idx.size, size):
+            sel = idx[s : s + size]
+            pad = np.concatenate([sel, np.full(size - sel.size, sel[-1])])
+            ex = _exact_chunk(P[pad], p_ol[pad], G, omega)
+            for k in _KEYS:
+                res[k][sel] = np.asarray(ex[k])[: sel.size]
+    return res
+
+
+def _pad(x, size):
+    """Pad the leading axis to ``size`` with copies of the last row (no recompile for the
+    last chunk)."""
+    m = x.shape[0]
+    if m == size:
+        return x
+    return jnp.concatenate([x, jnp.broadcast_to(x[-1:], (size - m,) + x.shape[1:])])
 
 
 @eqx.filter_jit
@@ -255,7 +322,8 @@ def robust_check(
     max_samples: int | None = 1000,
     seed: int = 0,
     labels=None,
-    vectorize: bool = False,
+    vectorize: bool = True,
+    backend: str = "reference",
 ) -> RobustReport:
     """Analyse the loop of a fixed controller with every plant of a batch.
 
@@ -270,14 +338,20 @@ def robust_check(
       model plants; :func:`robust_omega`, 0.05–450 Hz, for sampled plant arrays).
     - ``gm_db``, ``pm_deg``, ``p_stable_required``: requirements for ``passed``.
     - ``chunk``: plants per vmapped batch (memory: chunk × N × n² complex per array).
-    - ``vectorize``: ``True`` vmaps :func:`~hapid.control.analyze_loop` over each chunk
-      (no faster at n = 5); ``False`` (default) calls it once per plant (one compile, a python
-      loop). See "CPU hang" in the module docstring.
+    - ``backend``: ``"reference"`` (default): :func:`~hapid.control.analyze_loop` once per
+      plant (grid values, the numbers every other command reports today); ``"metrics"``:
+      :func:`~hapid.control.loop_metrics` (refined crossings), see "Compute path".
+    - ``vectorize`` (``backend="metrics"``): ``True`` vmaps the analysis over each chunk;
+      ``False`` runs it once per plant.
 
     Returns a :class:`RobustReport`.
     """
     if omega is None:
-        omega = posterior_omega() if isinstance(plants, PosteriorSamples | ImpedanceModel) else robust_omega()
+        omega = (
+            posterior_omega()
+            if isinstance(plants, PosteriorSamples | ImpedanceModel)
+            else robust_omega()
+        )
     omega = np.asarray(omega, dtype=float)
     if omega.ndim != 1 or np.any(np.diff(omega) <= 0) or np.any(omega <= 0):
         raise ValueError("omega must be a strictly increasing (N,) array of positive rad/s")
@@ -291,7 +365,11 @@ def robust_check(
             idx = np.random.default_rng(seed).choice(theta.shape[0], max_samples, replace=False)
             theta = theta[np.sort(idx)]
         S = theta.shape[0]
-        get = lambda i, j: _model_plants(jnp.asarray(theta[i:j]), plants.scale, om)  # noqa: E731
+
+        def get(i, j):
+            th = _pad(jnp.asarray(theta[i:j]), min(chunk, S))
+            return tuple(a[: j - i] for a in _model_plants(th, plants.scale, om))
+
     elif isinstance(plants, ImpedanceModel):
         if np.ndim(plants.hand.M) != 3:
             raise ValueError("robust_check: a batched ImpedanceModel (S, n, n) is required")
@@ -306,12 +384,23 @@ def robust_check(
         get = lambda i, j: (P[i:j], pol[i:j])  # noqa: E731
     if S == 0:
         raise ValueError("robust_check: no plants")
-    if G.shape[-1] != (plants.n if isinstance(plants, PosteriorSamples | ImpedanceModel) else G.shape[-1]):
-        raise ValueError(f"controller is {G.shape[-1]}×{G.shape[-1]} but the plants have n = {plants.n}")
+    if G.shape[-1] != (
+        plants.n if isinstance(plants, PosteriorSamples | ImpedanceModel) else G.shape[-1]
+    ):
+        raise ValueError(
+            f"controller is {G.shape[-1]}×{G.shape[-1]} but the plants have n = {plants.n}"
+        )
     parts = []
+    chunk = max(1, min(int(chunk), S))
     for i in range(0, S, chunk):
-        Pc, pol = get(i, min(S, i + chunk))
-        parts.append(_analyze_chunk(Pc, jnp.asarray(pol, dtype=jnp.float64) + c_rhp, G, om, vectorize))
+        j = min(S, i + chunk)
+        Pc, pol = get(i, j)
+        pol = jnp.asarray(pol, dtype=jnp.float64) + c_rhp
+        if backend == "metrics":
+            r = _analyze_chunk(_pad(Pc, chunk), _pad(pol, chunk), G, om, vectorize)
+        else:
+            r = _reference_chunk(Pc, pol, G, om)
+        parts.append({k: v[: j - i] for k, v in r.items()})
     res = {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in parts[0]}
     if labels is not None and len(labels) != S:
         raise ValueError(f"{len(labels)} labels for {S} plants")
@@ -329,7 +418,9 @@ def _sampled_P(device, omega):
     return device.sampled_P(omega)
 
 
-def device_plants(device, omega=None, *, poses=(), n_subjects: int = 0, key=0, include_nominal: bool = True):
+def device_plants(
+    device, omega=None, *, poses=(), n_subjects: int = 0, key=0, include_nominal: bool = True
+):
     """True sampled plants of a simulated device's variants: ``(labels, P (S, N, n, n))``.
 
     - ``device``: a :class:`hapid.device.ParallelDevice` (e.g. ``cu5()``).

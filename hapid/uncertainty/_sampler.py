@@ -659,8 +659,11 @@ def load_samples(path, n: int | None = None) -> PosteriorSamples:
             f"{path}: {s.shape[0]} samples with log_prob of shape {log_prob.shape}; expected "
             f"≥ 1 sample and log_prob of shape ({s.shape[0]},)"
         )
-    if not np.all(np.isfinite(log_prob)):
-        raise ValueError(f"{path}: log_prob contains NaN or inf (every draw has a finite density)")
+    if not (np.all(np.isfinite(log_prob)) or np.all(np.isnan(log_prob))):  # all NaN: not evaluated
+        raise ValueError(
+            f"{path}: log_prob has NaN or inf entries; expected all finite (MCMC draws) or all "
+            "NaN (draws whose density was not evaluated, e.g. Laplace)"
+        )
     if not (np.isfinite(omega_ref) and omega_ref > 0 and np.isfinite(z_ref) and z_ref > 0):
         raise ValueError(f"{path}: omega_ref = {omega_ref:g}, z_ref = {z_ref:g}; expected both > 0")
     diag = {k[5:]: (v.item() if v.ndim == 0 else v) for k, v in d.items() if k.startswith("diag_")}
