@@ -294,7 +294,9 @@ def _read_run_csv(path) -> dict:
     try:
         header, data = rows[0], np.asarray(rows[1:], dtype=float)
         n = sum(h.startswith("R_A_") for h in header)
-        want = ["experiment", "sample"] + [f"{k}_{i}" for k in ("R_A", "R_I", "L") for i in range(n)]
+        want = ["experiment", "sample"] + [
+            f"{k}_{i}" for k in ("R_A", "R_I", "L") for i in range(n)
+        ]
         if header != want:
             raise ValueError(f"header {header[:8]}… is not {want[:8]}…")
         E = int(data[:, 0].max()) + 1
@@ -303,7 +305,9 @@ def _read_run_csv(path) -> dict:
         T = data.shape[0] // E
         idx = np.stack([np.repeat(np.arange(E), T), np.tile(np.arange(T), E)], axis=1)
         if data.shape[0] != E * T or not np.array_equal(data[:, :2], idx):
-            raise ValueError("experiment/sample columns must count 0, 1, … (every experiment the same length)")
+            raise ValueError(
+                "experiment/sample columns must count 0, 1, … (every experiment the same length)"
+            )
         arr = data[:, 2:].reshape(E, T, 3 * n)
         return {
             "fs_hz": float(meta["fs_hz"]),
@@ -435,10 +439,13 @@ def save_model(path, model: ImpedanceModel, **metadata) -> Path:
     for k, v in arrays.items():
         if not np.all(np.isfinite(v)):
             raise ValueError(f"model matrix {k} contains NaN or inf; not writing {path}")
-    for k, v in metadata.items():
-        if v is not None:
-            arrays[k] = np.asarray(v)
-    return _write_arrays(path, arrays)
+    return _write_with_metadata(path, arrays, metadata)
+
+
+def _write_with_metadata(path, arrays: dict, metadata: dict) -> Path:
+    """Write ``arrays`` plus every ``metadata`` entry that is not ``None`` (as an array)."""
+    extra = {k: np.asarray(v) for k, v in metadata.items() if v is not None}
+    return _write_arrays(path, arrays | extra)
 
 
 def load_model(path) -> ImpedanceModel:
@@ -654,10 +661,9 @@ def load_timeseries(
         raise FileFormatError(f"{paths[0]}: {e}") from None
 
 
-def _read_timeseries_csv(path) -> dict:
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file")
+def _csv_table(path, layout: str) -> tuple[dict, list[str], list[str]]:
+    """A CSV file with an optional ``# key=value; …`` first line, split into
+    ``(meta, header, data lines)``; ``layout`` ends the error messages."""
     with _open_text(path) as fh:
         lines = fh.read().splitlines()
     meta = {}
@@ -665,8 +671,27 @@ def _read_timeseries_csv(path) -> dict:
         meta = dict(p.strip().split("=", 1) for p in lines[0][1:].split(";") if "=" in p)
         lines = lines[1:]
     if not lines:
-        raise FileFormatError(f"{path}: no header row; {TIMESERIES_CSV_LAYOUT}")
-    header = [h.strip() for h in lines[0].split(",")]
+        raise FileFormatError(f"{path}: no header row; {layout}")
+    return meta, [h.strip() for h in lines[0].split(",")], lines[1:]
+
+
+def _csv_rows(path, rows: list[str], header: list[str], layout: str) -> np.ndarray:
+    """The numeric data lines of a CSV as ``(rows, len(header))`` float64; at least one row."""
+    try:
+        data = np.loadtxt(rows, delimiter=",", ndmin=2)
+    except ValueError as e:
+        raise FileFormatError(f"{path}: non-numeric row ({e}); {layout}") from None
+    if data.shape[0] == 0 or data.shape[1] != len(header):
+        raise FileFormatError(
+            f"{path}: {data.shape[0]} rows of {data.shape[1] if data.size else 0} values for "
+            f"{len(header)} header columns; {layout}"
+        )
+    return data
+
+
+def _read_timeseries_csv(path) -> dict:
+    path = Path(path)
+    meta, header, rows = _csv_table(path, TIMESERIES_CSV_LAYOUT)
     fcols = [i for i, h in enumerate(header) if h.startswith("force_")]
     rcols = [i for i, h in enumerate(header) if h.startswith("response_")]
     if not fcols or len(fcols) != len(rcols):
@@ -674,15 +699,7 @@ def _read_timeseries_csv(path) -> dict:
             f"{path}: header {header[:6]}… has {len(fcols)} force_ and {len(rcols)} response_ "
             f"columns; {TIMESERIES_CSV_LAYOUT}"
         )
-    try:
-        data = np.loadtxt(lines[1:], delimiter=",", ndmin=2)
-    except ValueError as e:
-        raise FileFormatError(f"{path}: non-numeric row ({e}); {TIMESERIES_CSV_LAYOUT}") from None
-    if data.shape[0] == 0 or data.shape[1] != len(header):
-        raise FileFormatError(
-            f"{path}: {data.shape[0]} rows of {data.shape[1] if data.size else 0} values for "
-            f"{len(header)} header columns; {TIMESERIES_CSV_LAYOUT}"
-        )
+    data = _csv_rows(path, rows, header, TIMESERIES_CSV_LAYOUT)
     out = {}
     if "fs_hz" in meta:
         out["fs_hz"] = float(meta["fs_hz"])
@@ -787,17 +804,7 @@ def _impedance_csv(arrays: dict) -> str:
 
 def _read_impedance_csv(path) -> dict:
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file")
-    with _open_text(path) as fh:
-        lines = fh.read().splitlines()
-    meta = {}
-    if lines and lines[0].startswith("#"):
-        meta = dict(p.strip().split("=", 1) for p in lines[0][1:].split(";") if "=" in p)
-        lines = lines[1:]
-    if not lines:
-        raise FileFormatError(f"{path}: no header row; {IMPEDANCE_CSV_LAYOUT}")
-    header = [h.strip() for h in lines[0].split(",")]
+    meta, header, rows = _csv_table(path, IMPEDANCE_CSV_LAYOUT)
     col = {h: i for i, h in enumerate(header)}
     n = int(round(np.sqrt(sum(h.startswith("Z_re_") for h in header))))
     idx = [f"{i}_{j}" for i in range(n) for j in range(n)]
@@ -807,12 +814,7 @@ def _read_impedance_csv(path) -> dict:
         raise FileFormatError(
             f"{path}: missing columns {missing[:4] or ['Z_re_0_0']}; {IMPEDANCE_CSV_LAYOUT}"
         )
-    try:
-        data = np.loadtxt(lines[1:], delimiter=",", ndmin=2)
-    except ValueError as e:
-        raise FileFormatError(f"{path}: non-numeric row ({e}); {IMPEDANCE_CSV_LAYOUT}") from None
-    if data.shape[0] == 0 or data.shape[1] != len(header):
-        raise FileFormatError(f"{path}: no data rows matching the header; {IMPEDANCE_CSV_LAYOUT}")
+    data = _csv_rows(path, rows, header, IMPEDANCE_CSV_LAYOUT)
     pick = lambda names: data[:, [col[k] for k in names]].reshape(-1, n, n)  # noqa: E731
     out = {"freq_hz": data[:, col["freq_hz"]],
            "Z": _complex(pick([f"Z_re_{s}" for s in idx]), pick([f"Z_im_{s}" for s in idx]))}  # fmt: skip
@@ -832,10 +834,7 @@ def save_impedance_model(path, model: SecondOrder, **metadata) -> Path:
     for k, v in arrays.items():
         if v.ndim != 2 or not np.all(np.isfinite(v)):
             raise ValueError(f"model matrix {k} is not a finite (n, n) matrix; not writing {path}")
-    for k, v in metadata.items():
-        if v is not None:
-            arrays[k] = np.asarray(v)
-    return _write_arrays(path, arrays)
+    return _write_with_metadata(path, arrays, metadata)
 
 
 def load_impedance_model(path) -> SecondOrder:

@@ -23,8 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 import hapid  # noqa: E402,F401
 from hapid.device import SecondOrderDevice  # noqa: E402
-from hapid.experiment import Protocol, estimate_frf, periodic_run  # noqa: E402
-from hapid.fit import fit_ml, fit_nls, model_relative_errors, wls  # noqa: E402
+from hapid.experiment import Protocol, periodic_run  # noqa: E402
+from hapid.fit import ESTIMATORS, fit_estimators, model_relative_errors  # noqa: E402
 
 FREQ_HZ = (1.0, 2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0, 30.0, 40.0)
 
@@ -45,21 +45,14 @@ def errors(periods, seeds, force_noise, position_noise):
     """Per estimator: (rms over seeds of max rel. error, relative bias of the flat parameters)."""
     dev = device()
     truth = _flat(dev.model)
-    res = {k: ([], []) for k in ("ML", "NLS relative", "NLS noise", "WLS")}
+    res = {k: ([], []) for k in ESTIMATORS}
     for seed in seeds:
         prot = Protocol(freq_hz=FREQ_HZ, n_periods=periods, force_noise=force_noise,
                         position_noise=position_noise, encoder_resolution=0.0, seed=seed,
                         pattern="hadamard")  # fmt: skip
-        run = periodic_run(dev, prot, hold="bandlimited")
-        frf = estimate_frf(run)
-        nls = fit_nls(frf, f_max_hz=None)
-        models = {
-            "ML": fit_ml(run, nls, f_max_hz=None).model,
-            "NLS relative": nls.model,
-            "NLS noise": fit_nls(frf, f_max_hz=None, weight="noise").model,
-            "WLS": wls(frf),
-        }
-        for k, m in models.items():
+        fits = fit_estimators(periodic_run(dev, prot, hold="bandlimited"), f_max_hz=None)
+        for k, fit in fits.items():
+            m = fit if k == "WLS" else fit.model
             res[k][0].append(float(np.max(model_relative_errors(m, dev.model))))
             res[k][1].append(_flat(m))
     out = {}

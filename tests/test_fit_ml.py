@@ -130,22 +130,18 @@ def test_rejects_an_frf_and_single_period():
 
 
 def _ml_and_nls_errors(dev, periods, seeds, force_noise, position_noise):
-    from hapid.fit import fit_nls
+    from hapid.fit import fit_estimators
 
-    out = {"ml": [], "nls": [], "nls_noise": []}
+    names = {"ml": "ML", "nls": "NLS relative", "nls_noise": "NLS noise"}
+    out = {k: [] for k in names}
     for seed in seeds:
         prot = Protocol(freq_hz=FREQ_HZ, n_periods=periods, force_noise=force_noise,
                         position_noise=position_noise, encoder_resolution=0.0, seed=seed,
                         pattern="hadamard")  # fmt: skip
-        run = periodic_run(dev, prot, hold="bandlimited")
-        frf = estimate_frf(run)
-        nls = fit_nls(frf, f_max_hz=None)
-        ml = fit_ml(run, nls, f_max_hz=None)
-        assert ml.ok
-        out["ml"].append(float(np.max(model_relative_errors(ml.model, dev.model))))
-        out["nls"].append(float(np.max(model_relative_errors(nls.model, dev.model))))
-        nn = fit_nls(frf, f_max_hz=None, weight="noise")
-        out["nls_noise"].append(float(np.max(model_relative_errors(nn.model, dev.model))))
+        fits = fit_estimators(periodic_run(dev, prot, hold="bandlimited"), f_max_hz=None)
+        assert fits["ML"].ok
+        for k, name in names.items():
+            out[k].append(float(np.max(model_relative_errors(fits[name].model, dev.model))))
     return {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in out.items()}
 
 

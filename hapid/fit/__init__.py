@@ -11,6 +11,8 @@
 """
 
 from .. import _config  # noqa: F401  (float64)
+from ._compare import ESTIMATORS as ESTIMATORS
+from ._compare import fit_estimators as fit_estimators
 from ._diagnostics import ImpedanceSV as ImpedanceSV
 from ._diagnostics import anisotropy_reduction as anisotropy_reduction
 from ._diagnostics import impedance_singular_values as impedance_singular_values

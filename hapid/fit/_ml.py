@@ -67,9 +67,26 @@ from ..experiment._protocol import validate_run
 from ..frf import FRF
 from ..impedance import ImpedanceModel
 from ._checks import TWO_PI
-from ._nls import LEAST_SQUARES_SOLVERS, MINIMISERS, _run_solver, data_scale, fit_nls
-from ._pd import Scale, boundary_report, model_to_theta, theta_to_model, theta_to_scaled
-from ._result import CONVERGED, FAILED, NLSResult
+from ._nls import (
+    LEAST_SQUARES_SOLVERS,
+    MINIMISERS,
+    PD_EPS,
+    _run_solver,
+    data_scale,
+    final_status,
+    fit_nls,
+    init_model,
+    pinv_psd,
+)
+from ._pd import (
+    Scale,
+    boundary_report,
+    model_to_theta,
+    scaled_pair,
+    theta_to_model,
+    theta_to_scaled,
+)
+from ._result import CONVERGED, NLSResult
 
 ML_SOLVERS = LEAST_SQUARES_SOLVERS + MINIMISERS
 
@@ -208,11 +225,7 @@ class MLProblem(eqx.Module):
         return int(self.X.shape[-1] // 3)
 
     def model_arrays(self, theta):
-        mats = theta_to_scaled(theta, self.n, self.eps)
-        s = self.s[:, None, None]
-        ZH = mats[0] * s**2 + mats[1] * s + mats[2]
-        ZT = ZH + mats[3] * s**2 + mats[4] * s + mats[5]
-        return ZH, ZT
+        return scaled_pair(theta_to_scaled(theta, self.n, self.eps), self.s)
 
     def _A(self, theta):
         n = self.n
@@ -267,9 +280,7 @@ class MLProblem(eqx.Module):
         return J.T @ J
 
     def _whiten_mats(self, mats, T):
-        s = self.s[:, None, None]
-        ZH = mats[0] * s**2 + mats[1] * s + mats[2]
-        ZT = ZH + mats[3] * s**2 + mats[4] * s + mats[5]
+        ZH, ZT = scaled_pair(mats, self.s)
         K = ZH.shape[0]
         n = self.n
         eye = jnp.broadcast_to(jnp.eye(2 * n, dtype=ZH.dtype), (K, 2 * n, 2 * n))
@@ -339,13 +350,6 @@ class MLResult(NLSResult):
     dof: int = eqx.field(static=True)
 
 
-def _pinv_psd(F):
-    lam, V = jnp.linalg.eigh(0.5 * (F + F.T))
-    keep = lam > 1e-12 * jnp.max(lam)
-    inv = jnp.where(keep, 1.0 / jnp.where(keep, lam, 1.0), 0.0)
-    return (V * inv) @ V.T
-
-
 @eqx.filter_jit
 def _ml_core(problem: MLProblem, noise_only: MLProblem, theta0, dyn, static):
     solver, linear_solver = static
@@ -353,12 +357,11 @@ def _ml_core(problem: MLProblem, noise_only: MLProblem, theta0, dyn, static):
                                        dyn["max_steps"], linear_solver, dyn["ftol"],
                                        dyn["patience"])  # fmt: skip
     cost = problem.cost(theta)
-    fisher_inv = _pinv_psd(problem.fisher(theta))
-    crb = _pinv_psd(noise_only.fisher_matrices(theta))
+    fisher_inv = pinv_psd(problem.fisher(theta))
+    crb = pinv_psd(noise_only.fisher_matrices(theta))
     p = theta.shape[-1]
     sigma2 = 2.0 * cost / jnp.maximum(problem.n_residuals - p, 1)
-    finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(cost)
-    code = jnp.where(finite, code, FAILED).astype(jnp.int32)
+    code = final_status(theta, cost, code)
     return theta, n_steps, code, cost, crb, sigma2, fisher_inv
 
 
@@ -375,7 +378,7 @@ def fit_ml(
     atol: float = 1e-10,
     ftol: float = 1e-8,
     patience: int = 20,
-    pd_eps: float = 1e-3,
+    pd_eps: float = PD_EPS,
     init_floor: float = 1e-6,
     linear_solver: str = "cholesky",
     boundary_rtol: float = 1e-6,
@@ -420,14 +423,7 @@ def fit_ml(
     scale = data_scale(frf, f_max_hz)
     if init is None:
         init = fit_nls(frf, f_max_hz=f_max_hz)
-    if isinstance(init, NLSResult):
-        init = init.model
-    if not isinstance(init, ImpedanceModel):
-        raise ValueError(
-            f"fit_ml: init must be an ImpedanceModel or NLSResult, got {type(init).__name__}"
-        )
-    if init.n != run.n:
-        raise ValueError(f"fit_ml: init has n = {init.n} rods but the run has n = {run.n}")
+    init = init_model(init, run.n, data="run", what="fit_ml: ")
     theta0 = model_to_theta(init, scale, floor=init_floor)
     problem = make_ml_problem(spectra, scale, model_floor=model_floor, pd_eps=pd_eps)
     dyn = dict(rtol=jnp.asarray(rtol), atol=jnp.asarray(atol), ftol=jnp.asarray(ftol),
@@ -448,7 +444,7 @@ def fit_ml(
         covariance=jnp.maximum(sigma2, 1.0) * fisher_inv,
         sigma2=sigma2,
         n_residuals=jnp.asarray(problem.n_residuals),
-        at_boundary=boundary_report(model, rtol=boundary_rtol),
+        at_boundary=boundary_report(theta_to_model(theta, scale), rtol=boundary_rtol),
         weight="ml",
         solver=solver,
         crb=crb,
@@ -472,7 +468,7 @@ def cramer_rao(run: Run, model: ImpedanceModel, *, f_max_hz: float | None = 40.0
         scale = data_scale(estimate_frf(run), f_max_hz)
     theta = model_to_theta(model, scale)
     problem = make_ml_problem(spectra, scale, model_floor=0.0)
-    return _pinv_psd(problem.fisher_matrices(theta)), scale
+    return pinv_psd(problem.fisher_matrices(theta)), scale
 
 
 def _band_draws(model, cov, scale, omega, n_draws, seed):

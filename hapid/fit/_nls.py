@@ -53,6 +53,7 @@ from ._pd import (
     model_to_theta,
     n_params,
     project_pd,
+    scaled_pair,
     theta_to_model,
     theta_to_scaled,
 )
@@ -66,6 +67,10 @@ SOLVERS = LEAST_SQUARES_SOLVERS + MINIMISERS + ("jaxopt_lm",)
 LINEAR_SOLVERS = ("cholesky", "qr")
 #: relative weights: a block's norm is floored at this fraction of the other block's
 RELATIVE_FLOOR = 1e-6
+#: default ``pd_eps`` of fit_nls and fit_ml (scaled units, i.e. relative to the data scale):
+#: every matrix is ``L Lᵀ + PD_EPS·I``, strictly PD, so a matrix the fit drives to the PSD
+#: boundary (hexapod6's rank-3 hand in rod space) cannot put a root of det Ẑ at s = 0 or ∞
+PD_EPS = 1e-3
 
 
 def data_scale(frf: FRF, f_max_hz: float | None = None) -> Scale:
@@ -101,11 +106,7 @@ class Problem(eqx.Module):
         return int(self.Z_H.shape[-1])
 
     def model_arrays(self, theta):
-        mats = theta_to_scaled(theta, self.n, self.eps)
-        s = self.s[:, None, None]
-        ZH = mats[0] * s**2 + mats[1] * s + mats[2]
-        ZT = ZH + mats[3] * s**2 + mats[4] * s + mats[5]
-        return ZH, ZT
+        return scaled_pair(theta_to_scaled(theta, self.n, self.eps), self.s)
 
     def __call__(self, theta: Float[Array, " p"], args=None) -> Float[Array, " m"]:
         ZH, ZT = self.model_arrays(theta)
@@ -151,7 +152,7 @@ def make_problem(
     use_P_residual: bool = False,
     blend_floor: float = 0.02,
     p_weight: float = 1.0,
-    pd_eps: float = 0.0,
+    pd_eps: float = PD_EPS,
     scale: Scale | None = None,
 ) -> Problem:
     """Build the residual of :func:`fit_nls` for ``frf`` (same options). Jittable.
@@ -246,27 +247,45 @@ def laplace_covariance(problem: Problem, theta: Float[Array, " p"], noise_weight
     J = jax.jacfwd(problem)(theta)
     r = problem(theta)
     cost = 0.5 * jnp.sum(r**2)
-    JtJ = J.T @ J
-    lam, V = jnp.linalg.eigh(0.5 * (JtJ + JtJ.T))
-    keep = lam > 1e-12 * jnp.max(lam)
-    inv = jnp.where(keep, 1.0 / jnp.where(keep, lam, 1.0), 0.0)
     p = theta.shape[-1]
     dof = jnp.maximum(problem.n_residuals - p, 1)
     sigma2 = jnp.asarray(1.0) if noise_weights else 2.0 * cost / dof
-    return sigma2 * (V * inv) @ V.T, sigma2, cost
+    return sigma2 * pinv_psd(J.T @ J), sigma2, cost
+
+
+def pinv_psd(F: Float[Array, "p p"]) -> Float[Array, "p p"]:
+    """Pseudo-inverse of a symmetric PSD matrix (an information ``JᵀJ``): eigenvalues below
+    ``1e-12`` × the largest (unidentified directions) get variance 0, not 1/0."""
+    lam, V = jnp.linalg.eigh(0.5 * (F + F.T))
+    keep = lam > 1e-12 * jnp.max(lam)
+    inv = jnp.where(keep, 1.0 / jnp.where(keep, lam, 1.0), 0.0)
+    return (V * inv) @ V.T
+
+
+def final_status(theta, cost, code) -> Array:
+    """The solver's status code, ``FAILED`` when ``theta`` or ``cost`` is not finite."""
+    finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(cost)
+    return jnp.where(finite, code, FAILED).astype(jnp.int32)
+
+
+def init_model(init, n: int, data: str = "FRF", what: str = "") -> ImpedanceModel:
+    """A fit's starting model: an :class:`ImpedanceModel`, or an :class:`NLSResult`'s model,
+    checked to have ``n`` rods (``data`` names what has them; ``what`` prefixes the errors)."""
+    if isinstance(init, NLSResult):
+        init = init.model
+    if not isinstance(init, ImpedanceModel):
+        raise ValueError(
+            f"{what}init must be None, an ImpedanceModel or an NLSResult, got {type(init).__name__}"
+        )
+    if init.n != n:
+        raise ValueError(f"{what}init has n = {init.n} rods but the {data} has n = {n}")
+    return init
 
 
 def _init_theta(frf: FRF, init, scale: Scale, omega_c, f_max_hz, init_floor):
     if init is None:
         init = wls(frf, omega_c=omega_c, f_max_hz=f_max_hz)
-    elif isinstance(init, NLSResult):
-        init = init.model
-    elif not isinstance(init, ImpedanceModel):
-        raise ValueError(
-            f"init must be None, an ImpedanceModel or an NLSResult, got {type(init).__name__}"
-        )
-    if init.n != frf.n:
-        raise ValueError(f"init has n = {init.n} rods but the FRF has n = {frf.n}")
+    init = init_model(init, frf.n)
     return model_to_theta(project_pd(init, floor=init_floor), scale, floor=init_floor)
 
 
@@ -300,8 +319,7 @@ def _fit_core(frf, init, dyn, static):
         d["patience"],
     )
     cov, sigma2, cost = laplace_covariance(problem, theta, weight == "noise")
-    finite = jnp.all(jnp.isfinite(theta)) & jnp.isfinite(cost)
-    code = jnp.where(finite, code, FAILED).astype(jnp.int32)
+    code = final_status(theta, cost, code)
     if throw:
         theta = eqx.error_if(
             theta,
@@ -319,7 +337,7 @@ def _fit_core(frf, init, dyn, static):
         covariance=cov,
         sigma2=sigma2,
         n_residuals=problem.n_residuals,
-        at_boundary=boundary_report(model, rtol=d["boundary_rtol"]),
+        at_boundary=boundary_report(theta_to_model(theta, problem.scale), rtol=d["boundary_rtol"]),
         weight=weight,
         solver=solver,
     )
@@ -365,7 +383,7 @@ def fit_nls(
     throw: bool = False,
     blend_floor: float = 0.02,
     p_weight: float = 1.0,
-    pd_eps: float = 0.0,
+    pd_eps: float = PD_EPS,
     init_floor: float = 1e-6,
     linear_solver: str = "cholesky",
     boundary_rtol: float = 1e-6,
@@ -391,7 +409,10 @@ def fit_nls(
       on residuals, in scaled units).
     - ``throw``: raise (also under ``jit``, via ``eqx.error_if``) if the fit did not converge.
     - ``blend_floor``: relative model-error floor of ``"blend"`` weights.
-    - ``pd_eps``: add ``pd_eps·I`` (scaled units) to every matrix, making them strictly PD.
+    - ``pd_eps``: add ``pd_eps·I`` (scaled units, default ``PD_EPS`` = 1e-3) to every
+      matrix, making them strictly PD: then det Ẑ_H, det Ẑ_T have no closed-RHP root (0 gives
+      the bare ``L Lᵀ``, whose boundary puts a root at s = 0 or ∞). ``theta`` holds the ``L``;
+      ``at_boundary`` flags the matrices whose ``L Lᵀ`` part is on the PSD boundary.
     - ``linear_solver``: ``"cholesky"`` (normal equations, default; docs/conventions.md "CPU pitfalls")
       or ``"qr"`` (optimistix's default) for the Gauss–Newton-type solvers.
     - ``boundary_rtol``: an eigenvalue ≤ boundary_rtol × largest counts as on the boundary.

@@ -22,7 +22,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Complex, Float
 
 from ..impedance import ImpedanceModel, SecondOrder
 
@@ -84,6 +84,17 @@ def scaled_to_model(mats: Float[Array, "6 n n"], scale: Scale) -> ImpedanceModel
     hand = SecondOrder(mats[0] / fm, mats[1] / fb, mats[2] / fk)
     mech = SecondOrder(mats[3] / fm, mats[4] / fb, mats[5] / fk)
     return ImpedanceModel.from_hand_mechanism(hand, mech)
+
+
+def scaled_pair(
+    mats: Float[Array, "6 n n"], s: Complex[Array, " N"]
+) -> tuple[Complex[Array, "N n n"], Complex[Array, "N n n"]]:
+    """``(Ẑ_H, Ẑ_T)`` ``(N, n, n)`` of the six scaled matrices (:func:`theta_to_scaled`) at the
+    scaled Laplace variable ``s = jω/ω_ref`` ``(N,)``; ``Ẑ_T = Ẑ_H + Ẑ_M``."""
+    s = s[:, None, None]
+    ZH = mats[0] * s**2 + mats[1] * s + mats[2]
+    ZT = ZH + mats[3] * s**2 + mats[4] * s + mats[5]
+    return ZH, ZT
 
 
 def theta_to_model(
