@@ -1,5 +1,5 @@
-"""fit_nls's default PD floor (``pd_eps = PD_EPS``): no closed-RHP root of det Ẑ when the
-hand is singular (a hand acting in a subspace of the rods, as on hexapod6)."""
+"""fit_nls's PD floor (``pd_eps = PD_EPS``, fit_ml's default): no closed-RHP root of det Ẑ
+when the hand is singular (a hand acting in a subspace of the rods, as on hexapod6)."""
 
 import numpy as np
 import pytest
@@ -25,13 +25,13 @@ def _max_real_root(so: SecondOrder) -> float:
     return float(np.max(np.where(np.isfinite(r), r.real, np.inf)))
 
 
-def test_default_pd_floor_keeps_a_singular_hand_free_of_crhp_roots():
+def test_pd_floor_keeps_a_singular_hand_free_of_crhp_roots():
     truth = _subspace_hand_truth()
     frf = synthetic_frf(truth, rel_noise=1e-2, seed=15)
     w = np.asarray(frf.omega)
     P_true = np.asarray(plant(truth.hand.at_omega(w), truth.total.at_omega(w)))
     bare = fit_nls(frf, pd_eps=0.0)
-    res = fit_nls(frf)  # default pd_eps = PD_EPS
+    res = fit_nls(frf, pd_eps=PD_EPS)
     assert bare.ok and res.ok
     # the case exercises the boundary: the bare L Lᵀ fit puts the hand on it, with a root
     # of det Ẑ_H in the closed RHP (at s = 0 or ∞)
@@ -79,7 +79,7 @@ def test_hexapod6_nls_has_no_crhp_roots():
 
     dev = preset("hexapod6")
     run = periodic_run(dev, Protocol(n_periods=6, force_noise=5e-3, position_noise=0.0, seed=0))
-    res = fit_nls(estimate_frf(run))
+    res = fit_nls(estimate_frf(run), pd_eps=PD_EPS)
     assert res.ok
     c = crhp_report(res.model)
     assert int(c.hand) == 0 and int(c.total) == 0

@@ -67,7 +67,7 @@ SOLVERS = LEAST_SQUARES_SOLVERS + MINIMISERS + ("jaxopt_lm",)
 LINEAR_SOLVERS = ("cholesky", "qr")
 #: relative weights: a block's norm is floored at this fraction of the other block's
 RELATIVE_FLOOR = 1e-6
-#: default ``pd_eps`` of fit_nls and fit_ml (scaled units, i.e. relative to the data scale):
+#: default ``pd_eps`` of fit_ml, opt-in for fit_nls (scaled units, relative to the data scale):
 #: every matrix is ``L Lᵀ + PD_EPS·I``, strictly PD, so a matrix the fit drives to the PSD
 #: boundary (hexapod6's rank-3 hand in rod space) cannot put a root of det Ẑ at s = 0 or ∞
 PD_EPS = 1e-3
@@ -403,7 +403,7 @@ def fit_nls(
     throw: bool = False,
     blend_floor: float = 0.02,
     p_weight: float = 1.0,
-    pd_eps: float = PD_EPS,
+    pd_eps: float = 0.0,
     init_floor: float = 1e-6,
     linear_solver: str = "cholesky",
     boundary_rtol: float = 1e-6,
@@ -429,9 +429,12 @@ def fit_nls(
       on residuals, in scaled units).
     - ``throw``: raise (also under ``jit``, via ``eqx.error_if``) if the fit did not converge.
     - ``blend_floor``: relative model-error floor of ``"blend"`` weights.
-    - ``pd_eps``: add ``pd_eps·I`` (scaled units, default ``PD_EPS`` = 1e-3) to every
-      matrix, making them strictly PD: then det Ẑ_H, det Ẑ_T have no closed-RHP root (0 gives
-      the bare ``L Lᵀ``, whose boundary puts a root at s = 0 or ∞). The result's ``theta``
+    - ``pd_eps``: add ``pd_eps·I`` (scaled units) to every matrix, making them strictly PD:
+      then det Ẑ_H, det Ẑ_T have no closed-RHP root. The default 0 gives the bare ``L Lᵀ``,
+      whose boundary can put a root at s = 0 or ∞ (hexapod6's rank-3 hand); ``PD_EPS``
+      (1e-3, fit_ml's default) removes it there at ≤ 0.3 dB of P·P̂⁻¹ band, but a block
+      that is truly zero (a single impedance loaded as Z_H = Z_T or Z_H = 0) then carries
+      ``pd_eps·z_ref`` (2e-4 relative error in the noise-free single-impedance fit). The result's ``theta``
       (and its ``covariance``, by the delta method) is the Cholesky factor of the fitted
       matrices, floor included: ``theta_to_model(theta, scale)`` is ``model`` and
       ``nls_cost(theta, frf, scale=scale)`` is ``cost``; ``at_boundary`` flags the matrices
