@@ -225,16 +225,20 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
             tau, ell = jnp.exp(h[:2]), jnp.exp(h[2:4])
             # the amplitude slope is learned on the fit band: held constant beyond it
             b = [a_j[i] * jnp.exp(h[4 + i] * jnp.clip(u_j, u_j[0], u_j[Nf - 1])) for i in range(2)]
-            Ks = [
-                0.5 * tau[i] ** 2 * jnp.outer(b[i], b[i]) * kernel(u_j, u_j, ell[i])
-                for i in range(2)
-            ]
+            R = [kernel(u_j, u_j, ell[i]) for i in range(2)]  # correlations, unit diagonal
+            Ks = [0.5 * tau[i] ** 2 * jnp.outer(b[i], b[i]) * R[i] for i in range(2)]
             C = gp_covariance(u_j[:Nf], a_j[0][:Nf], a_j[1][:Nf], var_H, var_T, rho, h)
             k1, k2, k3 = jax.random.split(key, 3)
             f = []
-            for K, kk in zip(Ks, (k1, k2), strict=True):
-                Lk = jnp.linalg.cholesky(K + 1e-9 * jnp.mean(jnp.diag(K)) * jnp.eye(K.shape[0]))
-                f.append((Lk @ jax.random.normal(kk, (Nf + N, 2 * E))).T.reshape(E, 2, Nf + N))
+            for i, kk in enumerate((k1, k2)):
+                # prior draw = amplitude × draw of the unit-variance correlation: the jitter is
+                # relative to each frequency's own variance (a jitter relative to the mean
+                # diagonal of K is dominated by the kHz amplitudes, ~10¹⁴ × the 1 Hz ones, and
+                # added white noise far larger than the error itself at low frequency)
+                Lr = jnp.linalg.cholesky(R[i] + 1e-9 * jnp.eye(R[i].shape[0]))
+                z = Lr @ jax.random.normal(kk, (Nf + N, 2 * E))
+                sd = jnp.sqrt(0.5) * tau[i] * b[i]
+                f.append((sd[:, None] * z).T.reshape(E, 2, Nf + N))
             z1, z2 = jax.random.normal(k3, (2, E, 2, Nf))
             eH = sdH[:, None] * z1
             eT = lamT[:, None] * z1 + cT[:, None] * z2
