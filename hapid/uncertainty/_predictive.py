@@ -119,7 +119,8 @@ def _interp_log(x_new, x, y):
 
 
 def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 500, seed: int = 0,
-                      include_error: bool = True, error_band=None) -> dict[str, np.ndarray]:  # fmt: skip
+                      include_error: bool = True, error_band=None,
+                      taper_width: float = 0.5) -> dict[str, np.ndarray]:  # fmt: skip
     """Posterior-predictive draws of the *true* ``Z_H, Z_T, P = Z_H Z_T⁻¹`` on ``omega`` (rad/s,
     any grid), including the model-error term — not only parameter uncertainty.
 
@@ -140,8 +141,8 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
 
     ``error_band = (ω_lo, ω_hi)`` (rad/s, optional) confines the error term to that band: it
     is multiplied by a taper that is 1 inside and falls to 0 (raised cosine) within a factor
-    e^0.5 of frequency outside — for loop analyses that need a rational plant far from the
-    data (see :func:`hapid.tune._recipe.predictive_scenario_plants`).
+    e^taper_width of frequency outside — for loop analyses that need a rational plant far from
+    the data (see :func:`hapid.tune._recipe.predictive_scenario_plants`).
 
     ``Z_T`` carries ``e_H + e_M`` (``Z_T = Z_H + Z_M``). Returns ``{"omega": (N,), "Z_H",
     "Z_T", "P": (S', N, n, n)}`` with at most ``max_samples`` draws (random subset, ``seed``).
@@ -182,7 +183,8 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
         aH = _interp_log(omega, om_fit, np.asarray(data["a_H"]))
         aM = _interp_log(omega, om_fit, np.asarray(data["a_M"]))
         if error_band is not None:
-            aH, aM = aH * _taper(omega, *error_band), aM * _taper(omega, *error_band)
+            w = _taper(omega, *error_band, taper_width)
+            aH, aM = aH * w, aM * w
 
         def circ(sd):  # (S, N) → circular complex (S, N, n, n) with E|e|² = sd²
             z = rng.standard_normal((2, S_, N, n, n)) * np.sqrt(0.5)
@@ -259,7 +261,7 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
         cplx = lambda o: np.moveaxis(o[:, :, 0] + 1j * o[:, :, 1], 1, 2).reshape(S_, N, n, n)  # noqa: E731
         gH, gM = cplx(oH), cplx(oM)
         if error_band is not None:
-            w = _taper(omega, *error_band)[None, :, None, None]
+            w = _taper(omega, *error_band, taper_width)[None, :, None, None]
             gH, gM = gH * w, gM * w
         ZH, ZM = ZH + gH, ZM + gM
     ZT = ZH + ZM
