@@ -157,6 +157,31 @@ def test_tuner_never_worse_rule():
         start | {"posterior_frac_meeting_margins": 0.9, "posterior_iso_bandwidth_hz_q50": 3.5},
     )
     assert ok and "80.0 → 90.0 %" in why
+    # the data's own FRF: a tuned g that brings the measured loop closer to −1 (below the
+    # 0.5 floor) is not returned, whatever the draws say; above the floor it may trade margin
+    frf = {"frf_min_sigma_I_plus_L": 0.6}
+    good = start | {"posterior_frac_meeting_margins": 0.9}
+    ok, why = no_worse(start | frf, good | {"frf_min_sigma_I_plus_L": 0.3})
+    assert not ok and "data's own FRF" in why and "0.3 against 0.6" in why
+    assert no_worse(start | frf, good | {"frf_min_sigma_I_plus_L": 0.55})[0]
+
+
+def test_frf_return_difference_matches_numpy(case):
+    """min σ̲(I + P G) on the FRF's frequencies, P = Z_H Z_T⁻¹ measured and G = g Ẑ_T Ẑ_H⁻¹
+    built independently in numpy."""
+    from hapid.control import Compensator
+    from hapid.tune._recipe import frf_return_difference
+
+    _, frf, nls = case
+    om = np.asarray(frf.omega)
+    data = {"omega": om, "Z_H": np.asarray(frf.Z_H), "Z_T": np.asarray(frf.Z_T)}
+    g = Compensator.paper()
+    s = 1j * om
+    gv = np.asarray(g(s))
+    Ghat = gv[:, None, None] * np.asarray(nls.model.Z_T(s)) @ np.linalg.inv(nls.model.Z_H(s))
+    P = data["Z_H"] @ np.linalg.inv(data["Z_T"])
+    ref = np.min(np.linalg.svd(np.eye(frf.n) + P @ Ghat, compute_uv=False)[:, -1])
+    assert abs(frf_return_difference(data, nls.model, g) - ref) < 1e-9 * max(1.0, ref)
 
 
 def test_cli_predict_and_plant(case, tmp_path, capsys):

@@ -236,6 +236,11 @@ def robust_design(
                          p_required=quantile)  # fmt: skip
             out["validation"][name] = v
             out["table"][name] = table_row(v) | {"validate_s": time.perf_counter() - t0}
+        if samples is not None and getattr(samples, "predictive", None) is not None:
+            for name, g in (("start", g0), ("tuned", res.g)):
+                out["table"][name]["frf_min_sigma_I_plus_L"] = frf_return_difference(
+                    samples.predictive, model, g
+                )
         better, why = no_worse(out["table"]["start"], out["table"]["tuned"])
         out["decision"] = why
         if not better:
@@ -244,14 +249,41 @@ def robust_design(
     return out
 
 
+FRF_SIGMA_FLOOR = 0.5  # σ̲(I + L) ≥ 0.5 ⇒ |GM| ≥ 6 dB and |PM| ≥ 29° at every loop (disk)
+
+
+def frf_return_difference(data: dict, model, g: Compensator) -> float:
+    """``min_ω σ̲(I + P̂_meas G)`` on the fit frequencies: the data's own plant ``P = Z_H Z_T⁻¹``
+    (from the FRF stored with the samples, ``data`` = :attr:`PosteriorSamples.predictive`)
+    in closed loop with the continuous inverse-model controller of ``(model, g)``. The
+    distance of the loop to −1 (a return difference, not a Nyquist count: the FRF has too
+    few frequencies to count encirclements); ≥ ``FRF_SIGMA_FLOOR`` means disk margins of
+    6 dB / 29° at those frequencies."""
+    from ..pipeline import controller as make_controller
+
+    om = np.asarray(data["omega"], dtype=float)
+    ZH, ZT = np.asarray(data["Z_H"]), np.asarray(data["Z_T"])
+    P = np.linalg.solve(np.swapaxes(ZT, -1, -2), np.swapaxes(ZH, -1, -2)).swapaxes(-1, -2)
+    G = np.asarray(make_controller(model, g).response(om))
+    IL = np.eye(P.shape[-1]) + P @ G
+    return float(np.min(np.linalg.svd(IL, compute_uv=False)[:, -1]))
+
+
 def no_worse(start: dict, tuned: dict) -> tuple[bool, str]:
     """Is the tuned design no worse than the start on the held-out evidence of two
     :func:`.table_row` rows? ``(verdict, one-line reason)``. Evidence, in order: the nominal
     true plant stays stable (when present); for each family (posterior, variants) the
     fraction of plants meeting the margins does not drop, and it either rises or, equal, the
-    median isotropic bandwidth rises — a tuned g that improves nothing is not returned."""
+    median isotropic bandwidth rises — a tuned g that improves nothing is not returned. With
+    ``frf_min_sigma_I_plus_L`` in both rows (:func:`frf_return_difference`, the measured FRF)
+    the tuned g may not bring the loop on the data closer to −1 than the start when it falls
+    below ``FRF_SIGMA_FLOOR``."""
     if start.get("true_stable") and not tuned.get("true_stable", True):
         return False, "kept the start: the tuned g makes the nominal true plant unstable"
+    k = "frf_min_sigma_I_plus_L"
+    if k in start and k in tuned and tuned[k] < min(start[k], FRF_SIGMA_FLOOR) - 1e-9:
+        return False, (f"kept the start: on the data's own FRF the tuned g brings the loop closer to "
+                       f"−1 (min σ̲(I+L) {tuned[k]:.3g} against {start[k]:.3g} for the start)")  # fmt: skip
     gains = []
     for fam in ("posterior", "variants"):
         key = f"{fam}_frac_meeting_margins"
