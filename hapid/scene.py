@@ -178,7 +178,7 @@ def _mimo_one(model, g, plant):
     from . import pipeline
 
     ctrl = pipeline.controller(model, g, ts=plant["ts"])
-    rep = pipeline.loop(ctrl, plant["plant"], pipeline.MetricsSpec(arrays=True))  # figures 9, 10
+    rep = pipeline.loop(ctrl, plant["plant"], pipeline.SPEC_FIGURES)  # figures 9, 10
     return {"report": rep, "p_ol": int(ctrl.p_rhp)}
 
 
@@ -204,7 +204,7 @@ def _siso(o, plant, ctrl):
         C = pipeline.controller(None, ctrl["g"], kind="siso", c=c, n=n, ts=plant["ts"])
         out[label] = {
             "c": c,
-            "report": pipeline.loop(C, plant["plant"], pipeline.MetricsSpec(arrays=True)),
+            "report": pipeline.loop(C, plant["plant"], pipeline.SPEC_FIGURES),
         }
     return out
 

@@ -147,7 +147,7 @@ def point_fn(cfg: dict, keys: tuple[str, ...], estimator: str = ESTIMATOR_DEFAUL
         f = pipeline.fit(frf, estimator, **fo)
         omega = pipeline.analysis_grid(c["analysis"]["f_min_hz"], n_freq, fs)
         ctrl = pipeline.controller(f.model, pipeline.compensator(c["controller"]), ts=ts)
-        rep = pipeline.loop(ctrl, pipeline.device_plant(dev, omega), pipeline.MetricsSpec())
+        rep = pipeline.loop(ctrl, pipeline.device_plant(dev, omega), pipeline.SPEC_SWEEP)
         out = {k: getattr(rep, k) for k in ("stable", "n_encirclements", "nyquist_resolved", "iso_bandwidth_hz",
                                             "gm_db", "pm_deg", "t_peak_db", "t_peak_hz", "disk_margin")}  # fmt: skip
         out["p_ol"] = jnp.asarray(ctrl.p_rhp)

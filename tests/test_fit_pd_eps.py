@@ -6,7 +6,7 @@ import pytest
 from helpers_fit import random_truth, synthetic_frf
 
 import hapid  # noqa: F401
-from hapid.fit import crhp_report, fit_nls
+from hapid.fit import crhp_report, fit_nls, nls_cost, theta_to_model
 from hapid.fit._nls import PD_EPS
 from hapid.impedance import ImpedanceModel, SecondOrder, plant
 
@@ -56,6 +56,16 @@ def test_default_pd_floor_keeps_a_singular_hand_free_of_crhp_roots():
     assert plant_err(res.model) <= 1.05 * plant_err(bare.model), (
         plant_err(res.model),
         plant_err(bare.model),
+    )
+    # the result's θ is the Cholesky factor of the fitted (floored) matrices: it maps back to
+    # the model and its cost without any eps, as every θ consumer (posterior, Laplace) reads it
+    back = theta_to_model(res.theta, res.scale)
+    for a, b in ((back.hand.K, res.model.hand.K), (back.total.M, res.model.total.M)):
+        np.testing.assert_allclose(
+            np.asarray(a), np.asarray(b), rtol=1e-9, atol=1e-12 * np.abs(b).max()
+        )
+    assert float(nls_cost(res.theta, frf, scale=res.scale)) == pytest.approx(
+        float(res.cost), rel=1e-8
     )
     # the floor is PD_EPS·I in scaled units: the smallest hand-K eigenvalue is ≥ PD_EPS·z_ref
     z_ref = float(res.scale.z_ref)

@@ -41,6 +41,7 @@ from jaxtyping import Array, Bool, Complex, Float
 from .. import _config  # noqa: F401  (float64)
 from . import _kernels as K
 from ._lapack import after, lu_det_solve
+from ._margins import disk_margin_from_peak
 from ._nyquist import _MAX_PERMUTATION_N, _match_greedy, _match_permutation, nyquist_encirclements
 
 TWO_PI = 2.0 * np.pi
@@ -77,6 +78,13 @@ class MetricsSpec:
     max_phase_step: float = float(np.pi / 2)
     n_candidates: int = 128
     kernels: str = "xla"
+    # additions for the one-answer callers (analyze/paper/tune; issue 16):
+    # ``literal``: also the paper-literal iso-bandwidth (last upward crossing of σ̄(T − I)
+    # over 1 − 1/√2, refined; exact σ̄ on the whole grid); ``full_sv``: ``sv_T_minus_I``
+    # (with ``arrays``) holds every singular value ``(N, n)``, largest first (figures 5, 10).
+    # ``disk`` also fills ``disk_gm_db``/``disk_pm_deg`` (from α, as ``disk_margin_from_peak``).
+    literal: bool = False
+    full_sv: bool = False
 
 
 _SCALARS = (
@@ -93,6 +101,9 @@ _SCALARS = (
     "t_peak_db",
     "t_peak_hz",
     "disk_margin",
+    "iso_bandwidth_literal_hz",
+    "disk_gm_db",
+    "disk_pm_deg",
 )
 
 
@@ -123,6 +134,9 @@ class LoopMetrics(eqx.Module):
     t_peak_db: Float[Array, ...]
     t_peak_hz: Float[Array, ...]
     disk_margin: Float[Array, ...]
+    iso_bandwidth_literal_hz: Float[Array, ...]
+    disk_gm_db: Float[Array, ...]
+    disk_pm_deg: Float[Array, ...]
     exact_fallback: Bool[Array, ...]
     freq_hz: Float[Array, "... N"] | None = None
     sv_T_minus_I: Float[Array, "... N"] | None = None
@@ -299,6 +313,24 @@ def _first_crossing(sig_fn, lo, hi, thr, interp, lw, size, exact_all, kernels):
     w = jnp.exp(lw[km] + t * (lw[k] - lw[km]))
     w = jnp.where(~jnp.any(above), jnp.inf, jnp.where(k == 0, 0.0, w))
     return w, overflow, sig
+
+
+def _last_crossing(sig, thr, interp, lw, kernels):
+    """Refined highest ω where σ̄(S) < ``thr`` (the end of the last sub-threshold stretch;
+    the paper's literal bandwidth): inf if below at the last point, 0 if never below."""
+    N = sig.shape[0]
+    below = sig < thr
+    j = N - 1 - jnp.argmax(below[::-1])
+    jp = jnp.minimum(j + 1, N - 1)
+
+    def f(t):
+        x = lw[j] + t * (lw[jp] - lw[j])
+        return _sigma_of_S(interp(jnp.broadcast_to(j, x.shape), x), kernels) - thr
+
+    fab = f(jnp.array([0.0, 1.0]))
+    t = _illinois(f, fab[:1], fab[1:])[0]
+    w = jnp.exp(lw[j] + t * (lw[jp] - lw[j]))
+    return jnp.where(~jnp.any(below), 0.0, jnp.where(j == N - 1, jnp.inf, w))
 
 
 def _sigma_of_S(L, kernels):
@@ -526,6 +558,9 @@ def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec, exact_all: bool):
         t_peak_db=nan,
         t_peak_hz=nan,
         disk_margin=nan,
+        iso_bandwidth_literal_hz=nan,
+        disk_gm_db=nan,
+        disk_pm_deg=nan,
     )
     if spec.margins:
         g, gw = _refine_loci(idx, valid, la, lb, interp, lw, "gm", kern)
@@ -557,10 +592,21 @@ def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec, exact_all: bool):
         v, _, ovd = _peak(2.0 * S - eye, L, interp, lw, "SmT", size, exact_all, kern)
         overflow = overflow | ovd
         out["disk_margin"] = jnp.where(stable, 2.0 / v, 0.0)
+        dm = disk_margin_from_peak(v)
+        out["disk_gm_db"] = jnp.where(stable, dm["disk_gm_db"], 0.0)
+        out["disk_pm_deg"] = jnp.where(stable, dm["disk_pm_deg"], 0.0)
+    if spec.literal:
+        if sig_S_all is None:
+            sig_S_all = _sigma_exact(S, kern)
+        lit = _last_crossing(sig_S_all, ISO_THRESHOLD, interp, lw, kern)
+        out["iso_bandwidth_literal_hz"] = jnp.where(stable, lit / TWO_PI, nan)
     if spec.arrays:
         from ._nyquist import characteristic_loci
 
-        sv = sig_S_all if sig_S_all is not None else _sigma_exact(S, kern)
+        if spec.full_sv:
+            sv = jnp.linalg.svd(after(S, out["stable"]), compute_uv=False)
+        else:
+            sv = sig_S_all if sig_S_all is not None else _sigma_exact(S, kern)
         out.update(freq_hz=omega / TWO_PI, sv_T_minus_I=sv, loci=characteristic_loci(after(L, sv)))
     return out, overflow
 

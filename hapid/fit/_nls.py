@@ -152,7 +152,7 @@ def make_problem(
     use_P_residual: bool = False,
     blend_floor: float = 0.02,
     p_weight: float = 1.0,
-    pd_eps: float = PD_EPS,
+    pd_eps: float = 0.0,
     scale: Scale | None = None,
 ) -> Problem:
     """Build the residual of :func:`fit_nls` for ``frf`` (same options). Jittable.
@@ -268,6 +268,15 @@ def final_status(theta, cost, code) -> Array:
     return jnp.where(finite, code, FAILED).astype(jnp.int32)
 
 
+def absorb_eps(theta: Float[Array, " p"], n: int, eps) -> Float[Array, " p"]:
+    """``theta`` of the matrices ``L Lᵀ + eps·I`` themselves (their Cholesky factors, positive
+    diagonal; ``eps`` > 0), so that ``theta_to_model(θ, scale)`` with no eps is the model."""
+    mats = theta_to_scaled(theta, n, eps)
+    L = jnp.linalg.cholesky(0.5 * (mats + jnp.swapaxes(mats, -1, -2)))
+    rows, cols = np.tril_indices(n)
+    return L[:, rows, cols].reshape(-1)
+
+
 def init_model(init, n: int, data: str = "FRF", what: str = "") -> ImpedanceModel:
     """A fit's starting model: an :class:`ImpedanceModel`, or an :class:`NLSResult`'s model,
     checked to have ``n`` rods (``data`` names what has them; ``what`` prefixes the errors)."""
@@ -319,6 +328,17 @@ def _fit_core(frf, init, dyn, static):
         d["patience"],
     )
     cov, sigma2, cost = laplace_covariance(problem, theta, weight == "noise")
+    free = theta  # the solver's L (matrices L Lᵀ + pd_eps·I)
+    theta, G = jax.lax.cond(
+        d["pd_eps"] > 0,
+        lambda t: (
+            absorb_eps(t, frf.n, d["pd_eps"]),
+            jax.jacfwd(absorb_eps)(t, frf.n, d["pd_eps"]),
+        ),
+        lambda t: (t, jnp.eye(t.shape[-1], dtype=t.dtype)),
+        free,
+    )
+    cov = G @ cov @ G.T
     code = final_status(theta, cost, code)
     if throw:
         theta = eqx.error_if(
@@ -326,7 +346,7 @@ def _fit_core(frf, init, dyn, static):
             code != CONVERGED,
             "fit_nls: the fit did not converge (status max_steps or failed)",
         )
-    model = theta_to_model(theta, problem.scale, d["pd_eps"])
+    model = theta_to_model(theta, problem.scale)
     return NLSResult(
         model=model,
         theta=theta,
@@ -337,7 +357,7 @@ def _fit_core(frf, init, dyn, static):
         covariance=cov,
         sigma2=sigma2,
         n_residuals=problem.n_residuals,
-        at_boundary=boundary_report(theta_to_model(theta, problem.scale), rtol=d["boundary_rtol"]),
+        at_boundary=boundary_report(theta_to_model(free, problem.scale), rtol=d["boundary_rtol"]),
         weight=weight,
         solver=solver,
     )
@@ -411,8 +431,11 @@ def fit_nls(
     - ``blend_floor``: relative model-error floor of ``"blend"`` weights.
     - ``pd_eps``: add ``pd_eps·I`` (scaled units, default ``PD_EPS`` = 1e-3) to every
       matrix, making them strictly PD: then det Ẑ_H, det Ẑ_T have no closed-RHP root (0 gives
-      the bare ``L Lᵀ``, whose boundary puts a root at s = 0 or ∞). ``theta`` holds the ``L``;
-      ``at_boundary`` flags the matrices whose ``L Lᵀ`` part is on the PSD boundary.
+      the bare ``L Lᵀ``, whose boundary puts a root at s = 0 or ∞). The result's ``theta``
+      (and its ``covariance``, by the delta method) is the Cholesky factor of the fitted
+      matrices, floor included: ``theta_to_model(theta, scale)`` is ``model`` and
+      ``nls_cost(theta, frf, scale=scale)`` is ``cost``; ``at_boundary`` flags the matrices
+      whose ``L Lᵀ`` part (without the floor) is on the PSD boundary.
     - ``linear_solver``: ``"cholesky"`` (normal equations, default; docs/conventions.md "CPU pitfalls")
       or ``"qr"`` (optimistix's default) for the Gauss–Newton-type solvers.
     - ``boundary_rtol``: an eigenvalue ≤ boundary_rtol × largest counts as on the boundary.

@@ -28,6 +28,10 @@ from ._experiment import frf as frf
 from ._experiment import protocol as protocol
 from ._experiment import simulated_frf as simulated_frf
 from ._experiment import vary_device as vary_device
+from ._loop import SPEC_FIGURES as SPEC_FIGURES
+from ._loop import SPEC_REPORT as SPEC_REPORT
+from ._loop import SPEC_SWEEP as SPEC_SWEEP
+from ._loop import SPEC_VALIDATE as SPEC_VALIDATE
 from ._loop import MetricsSpec as MetricsSpec
 from ._loop import Plant as Plant
 from ._loop import check_nyquist as check_nyquist

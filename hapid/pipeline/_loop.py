@@ -13,14 +13,11 @@ number of clockwise encirclements equals ``−(p_rhp of the plant + p_rhp of the
 — the controller's own RHP poles included (positizing can leave roots of det Ẑ_H in the
 right half plane, which are poles of ``G = g Ẑ_T Ẑ_H⁻¹``).
 
-The numerics go through ONE adapter, :func:`_backend` (today the LAPACK reference
-:func:`hapid.control.analyze_loop`); switching every caller to another kernel is a one-line
-change there.
+The numerics go through ONE adapter, :func:`_backend`: :func:`hapid.control.loop_metrics`
+(refined crossings, so every command gives one answer per quantity whatever its grid).
 """
 
 from __future__ import annotations
-
-import dataclasses
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -29,26 +26,73 @@ from jaxtyping import Array, Complex, Float, Int
 
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
+from ..control import MetricsSpec, loop_metrics
 
-try:  # hapid.control's spec once loop_metrics is on main (the same fields and meaning)
-    from ..control import MetricsSpec  # type: ignore[attr-defined]
-except ImportError:
+#: What each caller asks for (one spec per use; the verdict is always computed).
+SPEC_SWEEP = MetricsSpec(disk=True)  # the sweep table has the disk margin column
+SPEC_REPORT = MetricsSpec(disk=True, literal=True)  # analyze's printout, paper summary
+SPEC_FIGURES = MetricsSpec(disk=True, literal=True, arrays=True, full_sv=True)  # figs 5, 9, 10
+SPEC_VALIDATE = MetricsSpec(disk=True)  # tune's re-check
 
-    @dataclasses.dataclass(frozen=True)
-    class MetricsSpec:
-        """What a caller wants besides the verdict (static, hashable).
 
-        ``bandwidth`` (isotropic bandwidth), ``margins`` (loci GM/PM), ``t_peak`` (peak of
-        σ̄(T)), ``disk`` (disk margin), ``arrays`` (σ(T − I), loci, … for figures). The verdict
-        is always computed. The LAPACK backend computes everything regardless; the spec is
-        forwarded to :func:`hapid.control.loop_metrics` once that backend is used.
-        """
+class SystemResponse(eqx.Module):
+    """``omega (M,) → H (M, p, m)`` of a state space (continuous ``H(jω)`` or sampled
+    ``H(e^{jω t_s})``) times ``e^{−jω t_s d}`` (``delay`` samples): an exact plant or
+    controller response at any frequency, for refining crossings off the grid. The
+    realization is built once, outside the traced refinement."""
 
-        bandwidth: bool = True
-        margins: bool = True
-        t_peak: bool = True
-        disk: bool = True
-        arrays: bool = False
+    sys: object
+    rows: int = eqx.field(static=True, default=0)  # keep outputs rows: (0: all)
+    delay: int = eqx.field(static=True, default=0)
+
+    def __call__(self, omega):
+        omega = jnp.asarray(omega, dtype=jnp.float64)
+        H = self.sys.response(omega)[:, self.rows :, :]
+        if self.delay:
+            H = H * jnp.exp(-1j * omega * self.sys.ts * self.delay)[:, None, None]
+        return H
+
+
+class DeviceResponse(eqx.Module):
+    """``omega (M,) → P (M, n, n)`` of a simulated device, continuous (``device.P(jω)``)."""
+
+    device: object
+
+    def __call__(self, omega):
+        return self.device.P(1j * jnp.asarray(omega, dtype=jnp.float64))
+
+
+def _sampled_device_response(device) -> SystemResponse:
+    """``device.sampled_P`` as a :class:`SystemResponse` (ZOH realization built once; the
+    position outputs are the rows after the first ``n``; the actuator delay in samples)."""
+    return SystemResponse(device.discrete(), int(device.n), int(device.delay_samples))
+
+
+class ModelResponse(eqx.Module):
+    """``omega (M,) → P̂(jω) (M, n, n)`` of an impedance model."""
+
+    model: object
+
+    def __call__(self, omega):
+        return self.model.P(1j * jnp.asarray(omega, dtype=jnp.float64))
+
+
+class _ControllerResponse(eqx.Module):
+    controller: object
+
+    def __call__(self, omega):
+        return self.controller.response(omega)
+
+
+class LoopResponse(eqx.Module):
+    """``omega (M,) → L = P G (M, n, n)`` from a plant response and a controller (a pytree,
+    so ``eqx.filter_jit`` does not recompile for each new loop of the same structure)."""
+
+    plant_fn: object
+    controller_fn: object
+
+    def __call__(self, omega):
+        return jnp.einsum("wij,wjk->wik", self.plant_fn(omega), self.controller_fn(omega))
 
 
 class Plant(eqx.Module):
@@ -60,6 +104,7 @@ class Plant(eqx.Module):
     P: Complex[Array, "N n n"]
     p_rhp: Int[Array, ""]
     ts: float | None = eqx.field(static=True, default=None)
+    P_fn: object = None
 
     @property
     def n(self) -> int:
@@ -72,8 +117,9 @@ def device_plant(device, omega, *, continuous: bool = False) -> Plant:
     (with the actuator delay). Passive mechanics: ``p_rhp = 0``."""
     omega = jnp.asarray(omega, dtype=jnp.float64)
     if continuous:
-        return Plant(omega, device.P(1j * omega), jnp.asarray(0), None)
-    return Plant(omega, device.sampled_P(omega), jnp.asarray(0), float(device.ts))
+        return Plant(omega, device.P(1j * omega), jnp.asarray(0), None, DeviceResponse(device))
+    P_fn = _sampled_device_response(device)
+    return Plant(omega, device.sampled_P(omega), jnp.asarray(0), float(device.ts), P_fn)
 
 
 def model_plant(model, omega) -> Plant:
@@ -82,7 +128,7 @@ def model_plant(model, omega) -> Plant:
     omega = jnp.asarray(omega, dtype=jnp.float64)
     r = model.total.roots()
     p = jnp.sum(jnp.real(r) > 0) + jnp.sum(~jnp.isfinite(r))
-    return Plant(omega, model.P(1j * omega), p, None)
+    return Plant(omega, model.P(1j * omega), p, None, ModelResponse(model))
 
 
 def frf_plant(frf, ts: float | None = None) -> Plant:
@@ -105,14 +151,10 @@ def verdict(n_encirclements, p_ol, resolved, singular):
     )
 
 
-def _backend(P, G, omega, p_ol, spec: MetricsSpec):
-    """The ONE call into the loop-analysis numerics (switch kernels here: once
-    ``hapid.control.loop_metrics`` is on main this becomes
-    ``return loop_metrics(P, G, omega, p_ol=p_ol, spec=spec)``)."""
-    from ..control import analyze_loop
-
-    del spec  # the LAPACK reference computes everything
-    return analyze_loop(P, G, omega, P_ol_rhp=p_ol)
+def _backend(P, G, omega, p_ol, spec: MetricsSpec, L_fn=None):
+    """The ONE call into the loop-analysis numerics: :func:`hapid.control.loop_metrics`
+    (refined crossings; ``L_fn`` exact ``L`` off the grid when the plant is known)."""
+    return loop_metrics(P, G, omega, p_ol=p_ol, spec=spec, L_fn=L_fn)
 
 
 def check_nyquist(controller, plant: Plant) -> None:
@@ -135,10 +177,11 @@ def check_nyquist(controller, plant: Plant) -> None:
         )
 
 
-def loop(controller, plant: Plant, spec: MetricsSpec = MetricsSpec()):
+def loop(controller, plant: Plant, spec: MetricsSpec = SPEC_REPORT):
     """Loop metrics of ``controller`` (a :class:`hapid.pipeline.Controller`) on ``plant``.
 
-    Returns the backend's report (:class:`hapid.control.LoopReport` today) whose ``stable``
+    Returns :class:`hapid.control.LoopMetrics` (what ``spec`` asks for, crossings refined —
+    on the exact ``L`` when ``plant.P_fn`` is known) whose ``stable``
     is :func:`verdict` with ``p_ol = plant.p_rhp + controller.p_rhp``. Jittable and
     vmappable (the fs/2 check runs only on concrete grids).
     """
@@ -147,6 +190,10 @@ def loop(controller, plant: Plant, spec: MetricsSpec = MetricsSpec()):
     check_nyquist(controller, plant)
     G = controller.response(plant.omega)
     p_ol = jnp.asarray(plant.p_rhp) + jnp.asarray(controller.p_rhp)
-    rep = _backend(plant.P, G, plant.omega, p_ol, spec)
+    L_fn = None
+    if plant.P_fn is not None:
+        c_fn = SystemResponse(controller.discrete()) if controller.ts is not None else None
+        L_fn = LoopResponse(plant.P_fn, c_fn or _ControllerResponse(controller))
+    rep = _backend(plant.P, G, plant.omega, p_ol, spec, L_fn)
     stable = verdict(rep.n_encirclements, p_ol, rep.nyquist_resolved, rep.singular)
     return eqx.tree_at(lambda r: r.stable, rep, stable)

@@ -38,7 +38,7 @@ def tuned_design(device, model, *, fast: bool | None = None) -> dict:
 
 
 def paper_column(device, model, omega, *, design: dict | None = None) -> dict:
-    """``{"report": LoopReport, "parameters": {...}, "g": Compensator}`` for the tuned g on
+    """``{"report": LoopMetrics, "parameters": {...}, "g": Compensator}`` for the tuned g on
     ``device.sampled_P(omega)`` (``design`` from :func:`tuned_design`, computed when
     ``None`` — the scene's ``tuned`` stage caches it)."""
     from .. import pipeline

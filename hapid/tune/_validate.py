@@ -44,7 +44,9 @@ def true_plant_loop(g: Compensator, model, device, omega=None) -> dict:
     """Loop numbers of the discretized controller with ``device.sampled_P`` (Nyquist first)."""
     omega = device_grid(device.fs_hz) if omega is None else np.asarray(omega, dtype=float)
     rep = pipeline.loop(
-        pipeline.controller(model, g, ts=device.ts), pipeline.device_plant(device, omega)
+        pipeline.controller(model, g, ts=device.ts),
+        pipeline.device_plant(device, omega),
+        pipeline.SPEC_VALIDATE,
     )
     s = rep.summary()
     return _clean({k: s[k] for k in _LOOP_KEYS}) | {"report": rep}
@@ -137,7 +139,8 @@ def validate(
             ctrl = pipeline.controller(model, g, ts=device.ts)
             G = np.asarray(ctrl.response(omd))
             rep = robust_check(np.asarray(P), G, omd, controller_rhp=int(ctrl.p_rhp),
-                               gm_db=gm_db, pm_deg=pm_deg, p_stable_required=p_required, labels=labels)  # fmt: skip
+                               gm_db=gm_db, pm_deg=pm_deg, p_stable_required=p_required, labels=labels,
+                               backend="metrics")  # fmt: skip
             out["variants"] = rep.summary() | {"report": rep}
         if time_domain:
             out["time_domain"] = step_response(g, model, device)

@@ -78,13 +78,12 @@ def robust_from_files(
     """
     from ..control import Compensator
     from ..io import load_model, save_json
-    from ._robust import device_plants, posterior_omega, robust_check, robust_omega
+    from ._robust import device_plants, posterior_omega, robust_check
     from ._sampler import load_samples
 
     model = load_model(model_path)
     ps = load_samples(samples_path, n=model.n)
     g = Compensator.paper() if g is None else g
-    omega = robust_omega()  # sampled device plants: below Nyquist
     out = {"posterior": robust_check(ps, (model, g), posterior_omega(), gm_db=gm_db, pm_deg=pm_deg,
                                      max_samples=max_samples).summary(), "device": None}  # fmt: skip
     if device is not None:
@@ -92,9 +91,19 @@ def robust_from_files(
 
         dev = preset(device)
         poses = [dev.pose.moved(*o) for o in pose_offsets]
+        # the sampled controller (as analyze/paper/tune close the loop with the device) on a
+        # grid to fs/2, refined crossings: the nominal row is the single analysis's numbers
+        import numpy as np
+
+        from .. import pipeline
+        from .._grids import nyquist_grid
+
+        omega = nyquist_grid(dev.fs_hz)
         labels, P = device_plants(dev, omega, poses=poses, n_subjects=n_subjects)
-        out["device"] = robust_check(P, (model, g), omega, gm_db=gm_db, pm_deg=pm_deg,
-                                     labels=labels).summary()  # fmt: skip
+        ctrl = pipeline.controller(model, g, ts=dev.ts)
+        out["device"] = robust_check(P, np.asarray(ctrl.response(omega)), omega,
+                                     controller_rhp=int(ctrl.p_rhp), gm_db=gm_db, pm_deg=pm_deg,
+                                     labels=labels, backend="metrics").summary()  # fmt: skip
     if out_json is not None:
         save_json(out_json, out)
     return out
