@@ -119,7 +119,8 @@ def _interp_log(x_new, x, y):
 
 
 def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 500, seed: int = 0,
-                      include_error: bool = True, error_band=None) -> dict[str, np.ndarray]:  # fmt: skip
+                      include_error: bool = True, error_band=None,
+                      taper_width: float = 0.5) -> dict[str, np.ndarray]:  # fmt: skip
     """Posterior-predictive draws of the *true* ``Z_H, Z_T, P = Z_H Z_T⁻¹`` on ``omega`` (rad/s,
     any grid), including the model-error term — not only parameter uncertainty.
 
@@ -140,8 +141,8 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
 
     ``error_band = (ω_lo, ω_hi)`` (rad/s, optional) confines the error term to that band: it
     is multiplied by a taper that is 1 inside and falls to 0 (raised cosine) within a factor
-    e^0.5 of frequency outside — for loop analyses that need a rational plant far from the
-    data (see :func:`hapid.tune._recipe.predictive_scenario_plants`).
+    e^taper_width of frequency outside — for loop analyses that need a rational plant far from
+    the data (see :func:`hapid.tune._recipe.predictive_scenario_plants`).
 
     ``Z_T`` carries ``e_H + e_M`` (``Z_T = Z_H + Z_M``). Returns ``{"omega": (N,), "Z_H",
     "Z_T", "P": (S', N, n, n)}`` with at most ``max_samples`` draws (random subset, ``seed``).
@@ -182,7 +183,8 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
         aH = _interp_log(omega, om_fit, np.asarray(data["a_H"]))
         aM = _interp_log(omega, om_fit, np.asarray(data["a_M"]))
         if error_band is not None:
-            aH, aM = aH * _taper(omega, *error_band), aM * _taper(omega, *error_band)
+            w = _taper(omega, *error_band, taper_width)
+            aH, aM = aH * w, aM * w
 
         def circ(sd):  # (S, N) → circular complex (S, N, n, n) with E|e|² = sd²
             z = rng.standard_normal((2, S_, N, n, n)) * np.sqrt(0.5)
@@ -225,16 +227,20 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
             tau, ell = jnp.exp(h[:2]), jnp.exp(h[2:4])
             # the amplitude slope is learned on the fit band: held constant beyond it
             b = [a_j[i] * jnp.exp(h[4 + i] * jnp.clip(u_j, u_j[0], u_j[Nf - 1])) for i in range(2)]
-            Ks = [
-                0.5 * tau[i] ** 2 * jnp.outer(b[i], b[i]) * kernel(u_j, u_j, ell[i])
-                for i in range(2)
-            ]
+            R = [kernel(u_j, u_j, ell[i]) for i in range(2)]  # correlations, unit diagonal
+            Ks = [0.5 * tau[i] ** 2 * jnp.outer(b[i], b[i]) * R[i] for i in range(2)]
             C = gp_covariance(u_j[:Nf], a_j[0][:Nf], a_j[1][:Nf], var_H, var_T, rho, h)
             k1, k2, k3 = jax.random.split(key, 3)
             f = []
-            for K, kk in zip(Ks, (k1, k2), strict=True):
-                Lk = jnp.linalg.cholesky(K + 1e-9 * jnp.mean(jnp.diag(K)) * jnp.eye(K.shape[0]))
-                f.append((Lk @ jax.random.normal(kk, (Nf + N, 2 * E))).T.reshape(E, 2, Nf + N))
+            for i, kk in enumerate((k1, k2)):
+                # prior draw = amplitude × draw of the unit-variance correlation: the jitter is
+                # relative to each frequency's own variance (a jitter relative to the mean
+                # diagonal of K is dominated by the kHz amplitudes, ~10¹⁴ × the 1 Hz ones, and
+                # added white noise far larger than the error itself at low frequency)
+                Lr = jnp.linalg.cholesky(R[i] + 1e-9 * jnp.eye(R[i].shape[0]))
+                z = Lr @ jax.random.normal(kk, (Nf + N, 2 * E))
+                sd = jnp.sqrt(0.5) * tau[i] * b[i]
+                f.append((sd[:, None] * z).T.reshape(E, 2, Nf + N))
             z1, z2 = jax.random.normal(k3, (2, E, 2, Nf))
             eH = sdH[:, None] * z1
             eT = lamT[:, None] * z1 + cT[:, None] * z2
@@ -255,7 +261,7 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
         cplx = lambda o: np.moveaxis(o[:, :, 0] + 1j * o[:, :, 1], 1, 2).reshape(S_, N, n, n)  # noqa: E731
         gH, gM = cplx(oH), cplx(oM)
         if error_band is not None:
-            w = _taper(omega, *error_band)[None, :, None, None]
+            w = _taper(omega, *error_band, taper_width)[None, :, None, None]
             gH, gM = gH * w, gM * w
         ZH, ZM = ZH + gH, ZM + gM
     ZT = ZH + ZM
