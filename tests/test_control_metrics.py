@@ -47,6 +47,7 @@ def _loop(n=5, eps=0.03, seed=0):
     return on, L_fn
 
 
+@pytest.mark.slow  # CI budget: covered in the default run by test_one_answer / test_readme_table
 def test_verdict_and_refined_metrics_match_the_reference_and_do_not_depend_on_the_grid():
     on, L_fn = _loop()
     P, G, w = on(3000)

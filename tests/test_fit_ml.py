@@ -158,6 +158,7 @@ def test_ml_error_shrinks_like_one_over_sqrt_periods():
     assert e64["ml"] < min(e64["nls"], e64["nls_noise"])
 
 
+@pytest.mark.slow  # CI budget (make test-all runs it)
 def test_cli_fit_ml_writes_model_and_rejects_frf(tmp_path, capsys):
     from hapid import io
     from hapid.cli import main

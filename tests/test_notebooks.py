@@ -122,6 +122,7 @@ _dev0 = bool(_cl(dev, discretize_controller(res.model, g, dev.ts)).is_stable())
 """
 
 
+@pytest.mark.slow  # CI budget (make test-all runs it)
 def test_uncertainty_notebook_robust_verdicts_match_closed_loop_poles(kernel_env, tmp_path):
     probe, _ = run_notebook(
         "03_uncertainty_robustness",
