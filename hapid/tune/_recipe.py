@@ -158,9 +158,10 @@ def robust_design(
     band (the data say nothing there), so a design tuned on them is blind to the delay's
     phase lag above ~40 Hz: on cu5 (16 train / 24 held-out GP draws) the tuned g raised the
     held-out fraction meeting the margins 25 → 87.5 % and the FRF return difference
-    0.61 → 1.05, and made the true plant unstable (GM 0.65 dB, PM 9.6° as returned by the
-    re-check, start GM 3.9 dB / PM 28.7° stable). Needs evidence above the band (a device
-    family, or a delay/roll-off prior on the error) before it can be on.
+    0.61 → 1.05, and made the true sampled plant unstable (:func:`.true_plant_loop`: GM
+    0.65 dB, PM 9.6°; the start: stable, GM 3.9 dB, PM 28.7°, |T| peak at 53 Hz, above the
+    1–40 Hz fit band). Needs evidence above the band (a device family, or a delay/roll-off
+    prior on the error) before it can be on.
 
     **Never worse than the start.** With validation on, the tuned g is kept only if, on the
     held-out evidence (posterior draws; device variants and the nominal true plant when a
