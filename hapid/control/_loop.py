@@ -177,6 +177,19 @@ def isotropic_bandwidth(
 
 
 @eqx.filter_jit
+def loop_arrays(P, G, omega, who: str):
+    """``(P, G, omega)`` as complex128 / float64 arrays, checked: ``P`` and ``G`` both
+    ``(N, n, n)``, ``omega (N,)``; a ``ValueError`` naming ``who`` otherwise."""
+    P = jnp.asarray(P, dtype=jnp.complex128)
+    G = jnp.asarray(G, dtype=jnp.complex128)
+    omega = jnp.asarray(omega, dtype=jnp.float64)
+    if P.ndim != 3 or P.shape != G.shape or P.shape[-1] != P.shape[-2]:
+        raise ValueError(f"{who}: P and G must both be (N, n, n), got {P.shape}, {G.shape}")
+    if omega.shape != P.shape[:1]:
+        raise ValueError(f"{who}: omega must be (N,) = {P.shape[:1]}, got {omega.shape}")
+    return P, G, omega
+
+
 def analyze_loop(
     P: Complex[Array, "N n n"],
     G: Complex[Array, "N n n"],
@@ -208,13 +221,7 @@ def analyze_loop(
     Returns:
         :class:`LoopReport`. jit/vmap-able (``L_fn`` is static; use ``eqx.filter_jit``).
     """
-    P = jnp.asarray(P, dtype=jnp.complex128)
-    G = jnp.asarray(G, dtype=jnp.complex128)
-    omega = jnp.asarray(omega, dtype=jnp.float64)
-    if P.ndim != 3 or P.shape != G.shape or P.shape[-1] != P.shape[-2]:
-        raise ValueError(f"analyze_loop: P and G must both be (N, n, n), got {P.shape}, {G.shape}")
-    if omega.shape != P.shape[:1]:
-        raise ValueError(f"analyze_loop: omega must be (N,) = {P.shape[:1]}, got {omega.shape}")
+    P, G, omega = loop_arrays(P, G, omega, "analyze_loop")
     n = P.shape[-1]
     eye = jnp.eye(n, dtype=jnp.complex128)
 

@@ -41,6 +41,7 @@ from jaxtyping import Array, Bool, Complex, Float
 from .. import _config  # noqa: F401  (float64)
 from . import _kernels as K
 from ._lapack import after, lu_det_solve
+from ._loop import loop_arrays
 from ._margins import disk_margin_from_peak
 from ._nyquist import _MAX_PERMUTATION_N, _match_greedy, _match_permutation, nyquist_encirclements
 
@@ -612,13 +613,7 @@ def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec, exact_all: bool):
 
 
 def _check(P, G, omega):
-    P = jnp.asarray(P, dtype=jnp.complex128)
-    G = jnp.asarray(G, dtype=jnp.complex128)
-    omega = jnp.asarray(omega, dtype=jnp.float64)
-    if P.ndim != 3 or P.shape != G.shape or P.shape[-1] != P.shape[-2]:
-        raise ValueError(f"loop_metrics: P and G must both be (N, n, n), got {P.shape}, {G.shape}")
-    if omega.shape != P.shape[:1]:
-        raise ValueError(f"loop_metrics: omega must be (N,) = {P.shape[:1]}, got {omega.shape}")
+    P, G, omega = loop_arrays(P, G, omega, "loop_metrics")
     if P.shape[0] < 2:
         raise ValueError("loop_metrics: at least 2 frequencies are needed")
     return P, G, omega
