@@ -121,13 +121,7 @@ class LoopReport(eqx.Module):
         ``stable`` comes first. Non-finite values stay ``nan``/``inf`` here; the JSON writer
         (:func:`hapid.io.save_json`) writes them as ``null``.
         """
-        out = {}
-        for name in _SCALARS:
-            v = np.asarray(getattr(self, name))
-            if name in ("n_encirclements", "n_closed_loop_rhp"):
-                v = v.astype(np.int64)
-            out[name] = v.tolist()
-        return out
+        return scalar_fields(self, _SCALARS)
 
 
 def loop_matrices(P, G):
@@ -177,6 +171,18 @@ def isotropic_bandwidth(
 
 
 @eqx.filter_jit
+def scalar_fields(report, names) -> dict:
+    """``{name: python value}`` of a loop report's scalar fields (lists when batched); the
+    encirclement counts as integers."""
+    out = {}
+    for name in names:
+        v = np.asarray(getattr(report, name))
+        if name in ("n_encirclements", "n_closed_loop_rhp"):
+            v = v.astype(np.int64)
+        out[name] = v.tolist()
+    return out
+
+
 def loop_arrays(P, G, omega, who: str):
     """``(P, G, omega)`` as complex128 / float64 arrays, checked: ``P`` and ``G`` both
     ``(N, n, n)``, ``omega (N,)``; a ``ValueError`` naming ``who`` otherwise."""

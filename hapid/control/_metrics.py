@@ -41,7 +41,7 @@ from jaxtyping import Array, Bool, Complex, Float
 from .. import _config  # noqa: F401  (float64)
 from . import _kernels as K
 from ._lapack import after, lu_det_solve
-from ._loop import loop_arrays
+from ._loop import loop_arrays, scalar_fields
 from ._margins import disk_margin_from_peak
 from ._nyquist import _MAX_PERMUTATION_N, _match_greedy, _match_permutation, nyquist_encirclements
 
@@ -163,12 +163,7 @@ class LoopMetrics(eqx.Module):
     def summary(self) -> dict:
         """Scalar fields as python ``bool``/``int``/``float`` (lists when batched), plus
         ``status``. Non-finite values stay ``nan``/``inf``."""
-        out = {}
-        for name in _SCALARS:
-            v = np.asarray(getattr(self, name))
-            if name in ("n_encirclements", "n_closed_loop_rhp"):
-                v = v.astype(np.int64)
-            out[name] = v.tolist()
+        out = scalar_fields(self, _SCALARS)
         s = self.status
         out["status"] = s if isinstance(s, str) else s.tolist()
         return out
