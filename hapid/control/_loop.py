@@ -170,7 +170,6 @@ def isotropic_bandwidth(
     return _first_crossing(top, omega, threshold), _last_crossing(top, omega, threshold)
 
 
-@eqx.filter_jit
 def scalar_fields(report, names) -> dict:
     """``{name: python value}`` of a loop report's scalar fields (lists when batched); the
     encirclement counts as integers."""
@@ -196,6 +195,7 @@ def loop_arrays(P, G, omega, who: str):
     return P, G, omega
 
 
+@eqx.filter_jit
 def analyze_loop(
     P: Complex[Array, "N n n"],
     G: Complex[Array, "N n n"],
