@@ -9,26 +9,30 @@ from ._constants import TWO_PI
 from ._grids import log_grid_hz
 
 
+class CommandError(ValueError):
+    """A bad option of `hapid predict` / `hapid plant` (one line, exit 2)."""
+
+
 def _grid(a):
-    from .cli import CLIError
 
     if not (np.isfinite(a.f_min_hz) and a.f_min_hz > 0):
-        raise CLIError(f"--f-min-hz must be a positive frequency (Hz), got {a.f_min_hz}")
+        raise CommandError(f"--f-min-hz must be a positive frequency (Hz), got {a.f_min_hz}")
     if not (np.isfinite(a.f_max_hz) and a.f_max_hz > a.f_min_hz):
-        raise CLIError(f"--f-max-hz must be above --f-min-hz ({a.f_min_hz} Hz), got {a.f_max_hz}")
+        raise CommandError(
+            f"--f-max-hz must be above --f-min-hz ({a.f_min_hz} Hz), got {a.f_max_hz}"
+        )
     if a.n_freq < 2:
-        raise CLIError(f"--n-freq must be ≥ 2, got {a.n_freq}")
+        raise CommandError(f"--n-freq must be ≥ 2, got {a.n_freq}")
     return log_grid_hz(a.f_min_hz, a.f_max_hz, a.n_freq) / TWO_PI  # Hz
 
 
 def cmd_predict(a):
     from . import io
-    from .cli import CLIError
     from .uncertainty import load_samples, predictive_plants
 
     f = _grid(a)
     if a.max_samples < 1:
-        raise CLIError(f"--max-samples must be ≥ 1, got {a.max_samples}")
+        raise CommandError(f"--max-samples must be ≥ 1, got {a.max_samples}")
     ps = load_samples(a.samples)
     d = predictive_plants(ps, TWO_PI * f, max_samples=a.max_samples, seed=a.seed,
                           include_error=not a.no_model_error)  # fmt: skip
@@ -40,7 +44,6 @@ def cmd_predict(a):
 
 def cmd_plant(a):
     from . import io
-    from .cli import CLIError
     from .device import Pose, preset
     from .frf import FRF
 
@@ -53,7 +56,7 @@ def cmd_plant(a):
         **({"delay_samples": a.delay} if a.delay is not None else {}),
     )
     if f[-1] >= 0.5 * dev.fs_hz:
-        raise CLIError(
+        raise CommandError(
             f"--f-max-hz {f[-1]:g} must be below the Nyquist frequency {0.5 * dev.fs_hz:g} Hz"
         )
     ZH, ZT = (np.asarray(z) for z in dev.sampled_impedances(TWO_PI * f))
