@@ -46,4 +46,5 @@ from ._metrics import MetricsSpec as MetricsSpec
 from ._metrics import loop_metrics as loop_metrics
 from ._nyquist import characteristic_loci as characteristic_loci
 from ._nyquist import nyquist_encirclements as nyquist_encirclements
+from ._nyquist import nyquist_verdict as nyquist_verdict
 from ._nyquist import track_loci as track_loci

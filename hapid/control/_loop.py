@@ -27,7 +27,7 @@ from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
 from ._lapack import after, lu_det_solve
 from ._margins import disk_margin_from_peak, loci_margins
-from ._nyquist import characteristic_loci, nyquist_encirclements
+from ._nyquist import characteristic_loci, nyquist_encirclements, nyquist_verdict
 
 ISO_THRESHOLD = 1.0 - 1.0 / np.sqrt(2.0)
 """``1 − 1/√2 ≈ 0.293``: the paper's isotropic-bandwidth threshold on σ̄(T − I)."""
@@ -246,7 +246,6 @@ def analyze_loop(
     # --- stability first --------------------------------------------------------------
     n_enc, _, resolved = nyquist_encirclements(det, max_phase_step)
     p_ol = jnp.asarray(P_ol_rhp, dtype=jnp.float64)
-    stable = (n_enc == -p_ol) & ~singular & resolved
     nan = jnp.nan
 
     # --- closed-loop maps (S = (I+L)⁻¹, T − I = −S) ----------------------------------
@@ -267,7 +266,7 @@ def analyze_loop(
     # phase unwraps to 0): every locus 1 + λ_i must be resolved too (stress case, issue 7)
     dphi = jnp.diff(jnp.unwrap(jnp.angle(1.0 + loci), axis=0), axis=0)
     resolved = resolved & jnp.all(jnp.abs(dphi) < max_phase_step)
-    stable = stable & resolved
+    stable = nyquist_verdict(n_enc, p_ol, resolved, singular)
 
     def if_stable(x, other=nan):
         return jnp.where(stable, x, other)

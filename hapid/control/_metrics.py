@@ -43,7 +43,13 @@ from . import _kernels as K
 from ._lapack import after, lu_det_solve
 from ._loop import loop_arrays, scalar_fields
 from ._margins import disk_margin_from_peak
-from ._nyquist import _MAX_PERMUTATION_N, _match_greedy, _match_permutation, nyquist_encirclements
+from ._nyquist import (
+    _MAX_PERMUTATION_N,
+    _match_greedy,
+    _match_permutation,
+    nyquist_encirclements,
+    nyquist_verdict,
+)
 
 TWO_PI = 2.0 * np.pi
 ISO_THRESHOLD = 1.0 - 1.0 / np.sqrt(2.0)
@@ -538,7 +544,7 @@ def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec, exact_all: bool):
     dphi = jnp.abs(jnp.angle((1.0 + lb) / (1.0 + la)))
     loci_ok = ~jnp.any(valid[:, None] & ~(dphi < spec.max_phase_step))
     resolved = resolved & loci_ok
-    stable = (n_enc == -p_ol) & ~singular & resolved
+    stable = nyquist_verdict(n_enc, p_ol, resolved, singular)
 
     out = dict(
         stable=stable,

@@ -112,3 +112,18 @@ def nyquist_encirclements(
     ends_ok = jnp.abs(raw - rounded) < 0.2
     finite = jnp.all(jnp.isfinite(det_I_plus_L))
     return rounded, raw, step_ok & ends_ok & finite
+
+
+def nyquist_verdict(n_encirclements, p_ol, resolved, singular) -> Array:
+    """THE stability rule of every loop analysis in hapid:
+    ``resolved & ~singular & (n_encirclements == −p_ol)``.
+
+    ``n_encirclements``: clockwise encirclements of 0 by det(I + L) over the full contour;
+    ``p_ol``: open-loop unstable poles of plant and controller together; ``resolved``: the
+    grid resolved the phase of det(I + L) and of every locus 1 + λᵢ; ``singular``: I + L
+    numerically singular at a grid frequency. Jittable (arrays in, bool array out)."""
+    return (
+        jnp.asarray(resolved)
+        & ~jnp.asarray(singular)
+        & (jnp.asarray(n_encirclements) == -jnp.asarray(p_ol))
+    )

@@ -7,7 +7,7 @@ Stage graph (value objects in, value objects out; numeric stages jittable and vm
     frf ─► fit(estimator, **options) ─► Fit(model, ok, CRHP counts)
     Fit.model + g ─► controller(ts | continuous, mimo | siso) ─► Controller(response, p_rhp)
     device | model | frf ─► Plant(omega, P, p_rhp, ts)
-    Controller + Plant ─► loop(spec) ─► report (verdict rule: :func:`verdict`)
+    Controller + Plant ─► loop(spec) ─► report (verdict rule: :func:`verdict`, i.e. :func:`hapid.control.nyquist_verdict`)
 
 Estimators are registered by name in :data:`ESTIMATORS` (``wls``, ``wls+positize``,
 ``nls``; one line adds another).

@@ -1,13 +1,14 @@
 # ruff: noqa: F722  (jaxtyping shape strings in annotations)
-"""Stage ``controller + plant → loop metrics``, with the stability verdict rule.
+"""Stage ``controller + plant → loop metrics``.
 
 :class:`Plant` is a plant response on a grid plus what the Nyquist count needs to know
 about it: its own open-loop right-half-plane poles (``p_rhp``) and whether it is sampled
 (``ts`` seconds; the contour then ends at the Nyquist frequency π/ts) or continuous
 (``ts=None``).
 
-:func:`loop` closes ``L = P G`` and returns the loop metrics. The verdict rule lives here,
-once (:func:`verdict`): the loop is stable iff the Nyquist count was resolved (per
+:func:`loop` closes ``L = P G`` and returns the loop metrics. Their ``stable`` is the one
+verdict rule of every analysis (:func:`hapid.control.nyquist_verdict`, re-exported as
+:func:`verdict`): the loop is stable iff the Nyquist count was resolved (per
 determinant *and* per characteristic locus), ``I + L`` is nonsingular on the grid, and the
 number of clockwise encirclements equals ``−(p_rhp of the plant + p_rhp of the controller)``
 — the controller's own RHP poles included (positizing can leave roots of det Ẑ_H in the
@@ -27,6 +28,7 @@ from jaxtyping import Array, Complex, Float, Int
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
 from ..control import MetricsSpec, loop_metrics
+from ..control import nyquist_verdict as verdict  # noqa: F401  (re-exported: the one stability rule)
 
 #: What each caller asks for (one spec per use; the verdict is always computed).
 SPEC_SWEEP = MetricsSpec(disk=True)  # the sweep table has the disk margin column
@@ -137,20 +139,6 @@ def frf_plant(frf, ts: float | None = None) -> Plant:
     return Plant(jnp.asarray(frf.omega), jnp.asarray(frf.P), jnp.asarray(0), ts)
 
 
-def verdict(n_encirclements, p_ol, resolved, singular):
-    """THE stability rule: ``resolved & ~singular & (n_encirclements == −p_ol)``.
-
-    ``n_encirclements``: clockwise encirclements of 0 by det(I + L) over the full contour;
-    ``p_ol``: open-loop unstable poles of plant and controller together; ``resolved``: the
-    grid resolved the phase of det(I + L) and of every locus 1 + λᵢ; ``singular``: I + L
-    numerically singular at a grid frequency. Jittable (arrays in, bool array out)."""
-    return (
-        jnp.asarray(resolved)
-        & ~jnp.asarray(singular)
-        & (jnp.asarray(n_encirclements) == -jnp.asarray(p_ol))
-    )
-
-
 def _backend(P, G, omega, p_ol, spec: MetricsSpec, L_fn=None):
     """The ONE call into the loop-analysis numerics: :func:`hapid.control.loop_metrics`
     (refined crossings; ``L_fn`` exact ``L`` off the grid when the plant is known)."""
@@ -182,7 +170,7 @@ def loop(controller, plant: Plant, spec: MetricsSpec = SPEC_REPORT):
 
     Returns :class:`hapid.control.LoopMetrics` (what ``spec`` asks for, crossings refined —
     on the exact ``L`` when ``plant.P_fn`` is known) whose ``stable``
-    is :func:`verdict` with ``p_ol = plant.p_rhp + controller.p_rhp``. Jittable and
+    is :func:`hapid.control.nyquist_verdict` with ``p_ol = plant.p_rhp + controller.p_rhp``. Jittable and
     vmappable (the fs/2 check runs only on concrete grids).
     """
     if controller.n != plant.n:
@@ -194,6 +182,4 @@ def loop(controller, plant: Plant, spec: MetricsSpec = SPEC_REPORT):
     if plant.P_fn is not None:
         c_fn = SystemResponse(controller.discrete()) if controller.ts is not None else None
         L_fn = LoopResponse(plant.P_fn, c_fn or _ControllerResponse(controller))
-    rep = _backend(plant.P, G, plant.omega, p_ol, spec, L_fn)
-    stable = verdict(rep.n_encirclements, p_ol, rep.nyquist_resolved, rep.singular)
-    return eqx.tree_at(lambda r: r.stable, rep, stable)
+    return _backend(plant.P, G, plant.omega, p_ol, spec, L_fn)
