@@ -48,17 +48,34 @@ def _interp_log_omega(omega, k, t):
     return jnp.exp(lw[k] + t * (lw[k + 1] - lw[k]))
 
 
-def _phase_crossings(loci, omega):
-    """Grid candidates: (valid (N−1,n), t, gm_db, omega_c)."""
-    a, b = loci[:-1], loci[1:]
+def phase_crossing(a, b):
+    """Crossing of the negative real axis by loci moving from ``a`` to ``b`` (same shape,
+    complex): ``(valid, t, gm_db)`` — crossing fraction ``t`` ∈ [0, 1] by linear
+    interpolation of Im, ``valid`` where Im changes sign with Re < 0 there, and the gain
+    margin (dB) from the log-interpolated |λ|."""
     ia, ib = jnp.imag(a), jnp.imag(b)
     change = (ia >= 0) != (ib >= 0)
     den = jnp.where(change, ia - ib, 1.0)
     t = jnp.clip(jnp.where(change, ia / den, 0.0), 0.0, 1.0)
     re = jnp.real(a) + t * (jnp.real(b) - jnp.real(a))
-    valid = change & (re < 0)
     la, lb = jnp.log(jnp.abs(a)), jnp.log(jnp.abs(b))
-    gm_db = -_DB * (la + t * (lb - la))
+    return change & (re < 0), t, -_DB * (la + t * (lb - la))
+
+
+def gain_crossing(a, b):
+    """Crossing of the unit circle by loci moving from ``a`` to ``b``: ``(change, t, pm_deg)``
+    — ``t`` by linear interpolation of log|λ|, the phase margin of the interpolated λ."""
+    fa, fb = jnp.log(jnp.abs(a)), jnp.log(jnp.abs(b))
+    change = (fa >= 0) != (fb >= 0)
+    den = jnp.where(change, fa - fb, 1.0)
+    t = jnp.clip(jnp.where(change, fa / den, 0.0), 0.0, 1.0)
+    return change, t, _pm_deg(a + t * (b - a))
+
+
+def _phase_crossings(loci, omega):
+    """Grid candidates: (valid (N−1,n), t, gm_db, omega_c)."""
+    a, b = loci[:-1], loci[1:]
+    valid, t, gm_db = phase_crossing(a, b)
     k = jnp.arange(a.shape[0])[:, None]
     w = _interp_log_omega(omega, k, t)
     return valid, gm_db, w
@@ -66,12 +83,7 @@ def _phase_crossings(loci, omega):
 
 def _gain_crossings(loci, omega):
     a, b = loci[:-1], loci[1:]
-    fa, fb = jnp.log(jnp.abs(a)), jnp.log(jnp.abs(b))
-    change = (fa >= 0) != (fb >= 0)
-    den = jnp.where(change, fa - fb, 1.0)
-    t = jnp.clip(jnp.where(change, fa / den, 0.0), 0.0, 1.0)
-    lam = a + t * (b - a)
-    pm = _pm_deg(lam)
+    change, t, pm = gain_crossing(a, b)
     k = jnp.arange(a.shape[0])[:, None]
     w = _interp_log_omega(omega, k, t)
     return change, pm, w

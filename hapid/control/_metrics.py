@@ -42,7 +42,7 @@ from .. import _config  # noqa: F401  (float64)
 from . import _kernels as K
 from ._lapack import after, lu_det_solve
 from ._loop import loop_arrays, scalar_fields
-from ._margins import disk_margin_from_peak
+from ._margins import _DB, _pm_deg, disk_margin_from_peak, gain_crossing, phase_crossing
 from ._nyquist import (
     _MAX_PERMUTATION_N,
     _match_greedy,
@@ -53,7 +53,6 @@ from ._nyquist import (
 
 TWO_PI = 2.0 * np.pi
 ISO_THRESHOLD = 1.0 - 1.0 / np.sqrt(2.0)
-_DB = 20.0 / np.log(10.0)
 _ROOT_ITERS = 30
 _GOLDEN_ITERS = 48
 _N_REFINE = 4
@@ -276,12 +275,21 @@ def _pair(a, b):
     return jax.vmap(_match_greedy)(a, b)
 
 
-def _pm_deg(lam):
-    return jnp.remainder(jnp.angle(lam, deg=True), 360.0) - 180.0
-
-
 # --------------------------------------------------------------------------------------
 # the analysis
+
+
+def _threshold_crossing(i, j, thr, interp, lw, kernels):
+    """ω (rad/s) in grid interval ``[i, j]`` where σ̄(S) = ``thr``: Illinois on the exact (or
+    interpolated) S over log ω, bracketed by its values at the interval's grid ends."""
+
+    def f(t):
+        x = lw[i] + t * (lw[j] - lw[i])
+        return _sigma_of_S(interp(jnp.broadcast_to(i, x.shape), x), kernels) - thr
+
+    fab = f(jnp.array([0.0, 1.0]))
+    t = _illinois(f, fab[:1], fab[1:])[0]
+    return jnp.exp(lw[i] + t * (lw[j] - lw[i]))
 
 
 def _first_crossing(sig_fn, lo, hi, thr, interp, lw, size, exact_all, kernels):
@@ -303,16 +311,7 @@ def _first_crossing(sig_fn, lo, hi, thr, interp, lw, size, exact_all, kernels):
         overflow = jnp.any(maybe) & (k1 - k0 + 1 > size)
         sig = None
     k = jnp.argmax(above)
-    km = jnp.maximum(k - 1, 0)
-
-    def f(t):
-        x = lw[km] + t * (lw[k] - lw[km])
-        return _sigma_of_S(interp(jnp.broadcast_to(km, x.shape), x), kernels) - thr
-
-    # bracket values from the exact function at the grid ends of the interval
-    fab = f(jnp.array([0.0, 1.0]))
-    t = _illinois(f, fab[:1], fab[1:])[0]
-    w = jnp.exp(lw[km] + t * (lw[k] - lw[km]))
+    w = _threshold_crossing(jnp.maximum(k - 1, 0), k, thr, interp, lw, kernels)
     w = jnp.where(~jnp.any(above), jnp.inf, jnp.where(k == 0, 0.0, w))
     return w, overflow, sig
 
@@ -323,15 +322,7 @@ def _last_crossing(sig, thr, interp, lw, kernels):
     N = sig.shape[0]
     below = sig < thr
     j = N - 1 - jnp.argmax(below[::-1])
-    jp = jnp.minimum(j + 1, N - 1)
-
-    def f(t):
-        x = lw[j] + t * (lw[jp] - lw[j])
-        return _sigma_of_S(interp(jnp.broadcast_to(j, x.shape), x), kernels) - thr
-
-    fab = f(jnp.array([0.0, 1.0]))
-    t = _illinois(f, fab[:1], fab[1:])[0]
-    w = jnp.exp(lw[j] + t * (lw[jp] - lw[j]))
+    w = _threshold_crossing(j, jnp.minimum(j + 1, N - 1), thr, interp, lw, kernels)
     return jnp.where(~jnp.any(below), 0.0, jnp.where(j == N - 1, jnp.inf, w))
 
 
@@ -447,22 +438,10 @@ def _refine_loci(idx, valid, a, b, interp, lw, kind, kernels):
     """Refined worst margin of ``kind`` ("gm"/"pm"): (value, omega)."""
     C, n = a.shape
     if kind == "gm":
-        ia, ib = jnp.imag(a), jnp.imag(b)
-        change = (ia >= 0) != (ib >= 0)
-        den = jnp.where(change, ia - ib, 1.0)
-        t = jnp.clip(jnp.where(change, ia / den, 0.0), 0.0, 1.0)
-        re = jnp.real(a) + t * (jnp.real(b) - jnp.real(a))
-        ok = change & (re < 0)
-        la, lb = jnp.log(jnp.abs(a)), jnp.log(jnp.abs(b))
-        grid_val = -_DB * (la + t * (lb - la))
+        ok, _, grid_val = phase_crossing(a, b)
         f_of = jnp.imag
     else:
-        fa_, fb_ = jnp.log(jnp.abs(a)), jnp.log(jnp.abs(b))
-        change = (fa_ >= 0) != (fb_ >= 0)
-        den = jnp.where(change, fa_ - fb_, 1.0)
-        t = jnp.clip(jnp.where(change, fa_ / den, 0.0), 0.0, 1.0)
-        grid_val = _pm_deg(a + t * (b - a))
-        ok = change
+        ok, _, grid_val = gain_crossing(a, b)
 
         def f_of(lam):
             return jnp.log(jnp.abs(lam))
