@@ -453,7 +453,8 @@ def _check_swept_value(cfg: dict, key: str, text: str, x: float) -> None:
 
 _CROSS = {"simulate": _protocol_cross, "analyze": _analyze_cross, "tune": _tune_cross,
           "robust": _robust_cross, "run": _run_cross, "paper": _paper_cross,
-          "sweep": _sweep_cross, "fit": _band_cross, "frf": _band_cross}  # fmt: skip
+          "sweep": _sweep_cross, "fit": _band_cross, "frf": _band_cross,
+          "predict": _band_cross, "plant": _band_cross}  # fmt: skip
 
 
 def _parse_value(val: str):
