@@ -32,8 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _config  # noqa: F401
-from ._constants import TWO_PI
-from ._linalg import svdvals
+from .fit import pphat_band_db
 
 _MOVE = ("dx", "dy", "dz", "dyaw", "dpitch", "droll")
 _NLS_NUMERIC = ("omega_c_hz", "f_max_hz", "rtol", "atol", "ftol", "patience", "blend_floor",
@@ -151,11 +150,9 @@ def point_fn(cfg: dict, keys: tuple[str, ...], estimator: str = ESTIMATOR_DEFAUL
         out = {k: getattr(rep, k) for k in ("stable", "n_encirclements", "nyquist_resolved", "iso_bandwidth_hz",
                                             "gm_db", "pm_deg", "t_peak_db", "t_peak_hz", "disk_margin")}  # fmt: skip
         out["p_ol"] = jnp.asarray(ctrl.p_rhp)
-        Q = dev.sampled_P(frf.omega) @ f.model.P_inv(1j * frf.omega)
-        db = 20 * jnp.log10(svdvals(Q))
-        inband = (frf.omega <= TWO_PI * c["analysis"]["band_hz"])[:, None]
-        out["pphat_min_db"] = jnp.min(jnp.where(inband, db, jnp.inf))
-        out["pphat_max_db"] = jnp.max(jnp.where(inband, db, -jnp.inf))
+        out["pphat_min_db"], out["pphat_max_db"] = pphat_band_db(
+            dev.sampled_P(frf.omega), f.model, frf.omega, c["analysis"]["band_hz"]
+        )
         out["crhp_hand"], out["crhp_total"], out["fit_ok"] = f.crhp_hand, f.crhp_total, f.ok
         return out
 

@@ -17,6 +17,7 @@ from jaxtyping import Array, Complex, Float
 from .._constants import TWO_PI
 from ..frf import FRF
 from ..impedance import ImpedanceModel, singular_values
+from ._checks import is_concrete
 
 
 class ImpedanceSV(NamedTuple):
@@ -52,7 +53,7 @@ def pphat_singular_values(
 
 def _band(omega, f_max_hz):
     mask = jnp.asarray(omega) <= TWO_PI * f_max_hz * (1 + 1e-12)
-    if isinstance(f_max_hz, int | float) and not np.any(np.asarray(mask)):
+    if is_concrete(omega, f_max_hz) and not np.any(np.asarray(mask)):
         raise ValueError(f"no frequencies at or below f_max_hz={f_max_hz} Hz")
     return mask
 
@@ -63,7 +64,8 @@ def pphat_band_db(
     omega: Float[Array, " N"],
     f_max_hz: float = 30.0,
 ) -> tuple[Array, Array]:
-    """``(min dB, max dB)`` over all singular values of ``P P̂⁻¹`` at frequencies ≤ f_max_hz.
+    """``(min dB, max dB)`` over all singular values of ``P P̂⁻¹`` at frequencies ≤ f_max_hz
+    (jittable; an empty band is an error when ``omega`` and ``f_max_hz`` are concrete).
 
     The paper reports about ±7 dB up to 30 Hz for its WLS model.
     """
