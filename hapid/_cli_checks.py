@@ -192,6 +192,7 @@ COMMON: dict[str, tuple] = {
     "model_floor": ge(0),
     "true_device": (lambda v: v in _presets(), "a preset device (cu5, hexapod6, tripod3)"),
     "model_error": one_of(["white", "gp", "none"]),
+    "gp_hyper": one_of(["map", "sample"]),
     "n_freq": int_between(2, 1_000_000),
     "no_model_error": FLAG,
     "delay": int_between(0, 1000),

@@ -350,7 +350,8 @@ def cmd_posterior(a):
     ps = posterior_from_files(a.frf, a.out, method=a.method, n_samples=a.samples,
                               n_steps=a.steps, seed=a.seed, backend_path=a.hdf5,
                               fit_options={"f_max_hz": a.f_max_hz},
-                              posterior_options={"model_error": a.model_error},
+                              posterior_options={"model_error": a.model_error}
+                              | ({"gp_hyper": a.gp_hyper} if a.model_error == "gp" else {}),
                               sampler_options={"moves": a.moves} | ({"n_walkers": a.walkers} if a.walkers else {}),
                               fix_boundary=not a.free_boundary)  # fmt: skip
     print(ps.summary())
@@ -425,6 +426,9 @@ def _register_stages(sub):
     po.add_argument("--model-error", choices=["white", "gp", "none"], default="white",
                     help="model-error term: white (independent per frequency, default), gp (smooth "
                          "random function of log-frequency, marginalized), none")  # fmt: skip
+    po.add_argument("--gp-hyper", choices=["map", "sample"], default="map",
+                    help="gp hyperparameters: map (default; held at their posterior mode, fast) or "
+                         "sample (sampled with M, B, K; ~100× slower per step)")  # fmt: skip
     po.add_argument("--seed", type=int, default=0)
     po.add_argument("--hdf5", help="emcee HDF5 backend file")
     po.set_defaults(func=cmd_posterior)

@@ -41,12 +41,13 @@ def _matern52_np(x, ell):
 def test_gp_likelihood_matches_scipy_reference(case):
     """The closed-form marginal likelihood equals scipy's multivariate normal density of
     the stacked residuals [r_H; r_T] per element and re/im, with the covariance built in
-    numpy from the documented model (amplitude τ (ω/ω_ref)^β a(ω), Matérn-5/2 in log ω)."""
+    numpy from the documented model (amplitude τ (ω/ω_ref)^β a(ω), Matérn-5/2 in the warped
+    log-frequency (e^{κu} − 1)/κ)."""
     truth, frf, nls = case
     post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp", reference=nls,
-                              parameterization="cholesky", noise_corr=0.3)  # fmt: skip
+                              parameterization="cholesky", noise_corr=0.3, gp_hyper="sample")  # fmt: skip
     x = initial_point(post, nls)
-    x[-6:] = [np.log(0.05), np.log(0.02), np.log(0.4), np.log(0.8), 0.5, -0.3]
+    x[-8:] = [np.log(0.05), np.log(0.02), np.log(0.4), np.log(0.8), 0.5, -0.3, 0.7, -0.4]
     ll = float(post.log_likelihood(x))
 
     m = nls.model
@@ -58,10 +59,10 @@ def test_gp_likelihood_matches_scipy_reference(case):
     n = frf.n
     aH = np.linalg.norm(np.asarray(frf.Z_H), axis=(1, 2)) / n / zr
     aM = np.linalg.norm(np.asarray(frf.Z_T) - np.asarray(frf.Z_H), axis=(1, 2)) / n / zr
-    tau, ell, beta = np.exp(x[-6:-4]), np.exp(x[-4:-2]), x[-2:]
+    tau, ell, beta, kap = np.exp(x[-8:-6]), np.exp(x[-6:-4]), x[-4:-2], x[-2:]
     bH, bM = aH * np.exp(beta[0] * u), aM * np.exp(beta[1] * u)
-    KH = 0.5 * tau[0] ** 2 * np.outer(bH, bH) * _matern52_np(u, ell[0])
-    KM = 0.5 * tau[1] ** 2 * np.outer(bM, bM) * _matern52_np(u, ell[1])
+    KH = 0.5 * tau[0] ** 2 * np.outer(bH, bH) * _matern52_np(np.expm1(kap[0] * u) / kap[0], ell[0])
+    KM = 0.5 * tau[1] ** 2 * np.outer(bM, bM) * _matern52_np(np.expm1(kap[1] * u) / kap[1], ell[1])
     vH = (np.asarray(frf.Z_H_std) / zr) ** 2 / 2
     vT = (np.asarray(frf.Z_T_std) / zr) ** 2 / 2
     ref = 0.0
@@ -84,13 +85,50 @@ def test_gp_tends_to_white_model_for_short_length_scale(case):
     _, frf, nls = case
     kw = dict(f_max_hz=None, parameterization="cholesky", reference=nls)
     white = make_log_posterior(frf, nls.scale, model_error="white", **kw)
-    gp = make_log_posterior(frf, nls.scale, model_error="gp", **kw)
+    gp = make_log_posterior(frf, nls.scale, model_error="gp", gp_hyper="sample", **kw)
     xw = initial_point(white, nls)
     xw[-2:] = [np.log(0.03), np.log(0.01)]
-    xg = np.concatenate([xw, [-30.0, -30.0, 0.0, 0.0]])
+    xg = np.concatenate([xw, [-30.0, -30.0, 0.0, 0.0, 0.0, 0.0]])
     a, b = float(white.log_likelihood(xw)), float(gp.log_likelihood(xg))
     assert abs(a - b) < 1e-6 * abs(a), (a, b)
-    assert gp.names[-4:] == ["log_ell_H", "log_ell_M", "beta_H", "beta_M"]
+    assert gp.names[-6:] == ["log_ell_H", "log_ell_M", "beta_H", "beta_M", "kappa_H", "kappa_M"]
+
+
+@pytest.mark.parametrize("param", ["matrix", "cholesky"])
+def test_fixed_hyper_quadratic_form_equals_full_likelihood(case, param):
+    """With the gp hyperparameters held fixed (empirical Bayes) the log-likelihood is an exact
+    quadratic form in the matrix entries: it equals the direct computation (n² Cholesky
+    factorizations) at those hyperparameters to 1e-10, at points far from its maximum; only
+    θ is sampled and every draw carries the fixed hyperparameters."""
+    _, frf, nls = case
+    h = np.array([np.log(0.05), np.log(0.02), np.log(0.4), np.log(0.8), 0.5, -0.3, 0.7, -0.4])
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp", reference=nls,
+                              noise_corr=0.3, parameterization=param, gp_hyper=h)  # fmt: skip
+    assert post.dim == post.n_theta and post.n_tau == 0
+    x0 = initial_point(post, nls)
+    rng = np.random.default_rng(3)
+    for k in range(4):
+        x = x0 * (1 + 0.2 * k * rng.standard_normal(x0.shape))
+        fast = float(post.log_likelihood(x))
+        full = float(post.log_likelihood_matrices(post.model_matrices(post.full_theta(x)), h))
+        assert abs(fast - full) <= 1e-10 * abs(full), (k, fast, full)
+    theta, hyp = post.split(x0[None])
+    assert np.allclose(hyp, h[None]) and theta.shape == (1, post.n_theta)
+
+
+def test_band_calibration_of_a_calibrated_band():
+    """Truth drawn from the same distribution as the draws (an exactly calibrated band):
+    coverage ≈ 90 %, and the width ratio matches its yardstick and the Gaussian value
+    q90(χ₂)/q50(χ₂) = 1.82 of a circular complex scalar (n = 1)."""
+    rng = np.random.default_rng(0)
+    S, N = 2000, 600
+    sd = np.geomspace(0.1, 10.0, N)[None, :, None, None]  # a band whose width varies 100×
+    cz = lambda *s: (rng.standard_normal(s) + 1j * rng.standard_normal(s)) / np.sqrt(2)  # noqa: E731
+    c = band_calibration(1 + sd * cz(S, N, 1, 1), 1 + sd[0] * cz(N, 1, 1), n_reference=50)
+    assert abs(c["coverage"] - 0.9) < 0.04, c
+    assert abs(c["width_ratio"] - 1.8226) < 0.12, c
+    assert abs(c["width_ratio_calibrated"] - 1.8226) < 0.05, c
+    assert abs(c["coverage_calibrated"] - 0.9) < 0.02, c
 
 
 @pytest.mark.slow
@@ -186,14 +224,16 @@ def test_frf_return_difference_matches_numpy(case):
 
 def test_cli_predict_and_plant(case, tmp_path, capsys):
     _, frf, nls = case
-    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp", reference=nls)
-    # draws near the NLS optimum with fixed GP hyperparameters (no Laplace: keeps this fast)
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp", reference=nls,
+                              gp_hyper="sample")  # fmt: skip
+    # draws near the NLS optimum with fixed GP hyperparameters (no Laplace: keeps this fast),
+    # written in the format before the frequency warp (6 hyperparameter columns, κ = 0)
     rng = np.random.default_rng(0)
     th = np.asarray(fold_theta(np.asarray(nls.theta)))
     th = fold_theta(th + 1e-3 * rng.standard_normal((12, th.shape[0])))
     hyp = np.tile([np.log(0.02), np.log(0.02), np.log(0.5), np.log(0.5), 0.0, 0.0], (12, 1))
     ps = PosteriorSamples(samples=np.concatenate([th, hyp], 1), log_prob=np.zeros(12), scale=nls.scale,
-                          n=2, names=tuple(param_names(2, "gp")),
+                          n=2, names=tuple(param_names(2, "gp")[:-2]),
                           predictive=post.predictive_data())  # fmt: skip
     s = save_samples(tmp_path / "s.npz", ps)
     out = tmp_path / "draws.npz"

@@ -88,7 +88,10 @@ DEFAULT_LOG_TAU_SD = 2.0
 TAU_NAMES = ("log_tau_H", "log_tau_M")
 ELL_NAMES = ("log_ell_H", "log_ell_M")
 SLOPE_NAMES = ("beta_H", "beta_M")
+WARP_NAMES = ("kappa_H", "kappa_M")
 DEFAULT_BETA_SD = 1.0  # prior sd of the amplitude slopes β (per e-fold of frequency)
+DEFAULT_KAPPA_SD = 1.0  # prior sd of the frequency warps κ (mean 0: log-frequency)
+N_GP_HYPER = 8
 MODEL_ERRORS = ("none", "white", "gp")
 DEFAULT_LOG_ELL_MEAN = float(np.log(0.5))  # length scale in natural-log frequency units
 DEFAULT_LOG_ELL_SD = 1.0
@@ -152,6 +155,12 @@ def _vech(A: np.ndarray) -> np.ndarray:
     return A[..., rows, cols].reshape(A.shape[:-3] + (-1,))
 
 
+def _vech_jnp(A: Float[Array, "6 n n"]) -> Float[Array, " q"]:
+    """The six matrices' lower-triangular entries ``(6·n(n+1)/2,)`` (jax)."""
+    rows, cols = np.tril_indices(A.shape[-1])
+    return A[:, rows, cols].reshape(-1)
+
+
 def _psd_clip(A: np.ndarray, floor: float) -> np.ndarray:
     A = 0.5 * (A + np.swapaxes(A, -1, -2))
     lam, V = np.linalg.eigh(A)
@@ -195,9 +204,9 @@ def error_kind(model_error) -> str:
 
 def hyper_names(model_error) -> list[str]:
     """Names of the model-error coordinates after θ: none, ``log_tau_H, log_tau_M`` (white)
-    or those plus ``log_ell_H, log_ell_M, beta_H, beta_M`` (gp)."""
+    or those plus ``log_ell_H, log_ell_M, beta_H, beta_M, kappa_H, kappa_M`` (gp)."""
     kind = error_kind(model_error)
-    gp = list(ELL_NAMES) + list(SLOPE_NAMES) if kind == "gp" else []
+    gp = list(ELL_NAMES) + list(SLOPE_NAMES) + list(WARP_NAMES) if kind == "gp" else []
     return [] if kind == "none" else list(TAU_NAMES) + gp
 
 
@@ -230,6 +239,24 @@ def kernel(x, y, ell):
     return KERNELS[GP_KERNEL](x, y, ell)
 
 
+def warp(u, kappa):
+    """Box–Cox warp of log-frequency ``u = log(ω/ω_ref)``: ``(e^{κu} − 1)/κ`` (``u`` at
+    ``κ = 0``; ``ω/ω_ref − 1`` at ``κ = 1``). The GP is stationary in the warped coordinate:
+    with ``κ > 0`` the model error is smoother (in log-frequency) at low frequency than at high
+    frequency."""
+    small = jnp.abs(kappa) < 1e-6
+    k = jnp.where(small, 1.0, kappa)
+    return jnp.where(small, u + 0.5 * kappa * u**2, jnp.expm1(k * u) / k)
+
+
+def split_hyper(hyper):
+    """``(τ (2,), ℓ (2,), β (2,), κ (2,))`` of gp hyperparameters (6 — files written before
+    the warp, κ = 0 — or :data:`N_GP_HYPER` = 8 numbers)."""
+    tau, ell, beta = jnp.exp(hyper[:2]), jnp.exp(hyper[2:4]), hyper[4:6]
+    kappa = hyper[6:8] if hyper.shape[-1] >= 8 else jnp.zeros(2, dtype=hyper.dtype)
+    return tau, ell, beta, kappa
+
+
 def gp_covariance(logw, a_H, a_M, var_H, var_T, noise_corr, hyper):
     """Per-element covariance of the stacked real residual ``[r_H; r_T]`` (``2N``) under the
     GP model error: ``(E, 2N, 2N)`` with ``E = n²`` elements (row-major), for the real part
@@ -237,16 +264,18 @@ def gp_covariance(logw, a_H, a_M, var_H, var_T, noise_corr, hyper):
 
     ``logw (N,)`` log-frequency ``log(ω/ω_ref)``, ``a_H, a_M (N,)`` RMS element sizes,
     ``var_H, var_T (N, n, n)`` the FRF's ``std²``, ``hyper = (log τ_H, log τ_M, log ℓ_H,
-    log ℓ_M, β_H, β_M)``. The amplitude of ``X ∈ {H, M}`` is ``τ_X (ω/ω_ref)^β_X a_X(ω)``;
-    each of re/im carries half the complex variance (circular): ``K_X = ½ b_X b_Xᵀ ⊙ k(ℓ_X)``
-    with ``b_X`` that amplitude; the blocks are ``[[K_H + D_H, K_H + D_HT], [K_H + D_HT,
+    log ℓ_M, β_H, β_M, κ_H, κ_M)``. The amplitude of ``X ∈ {H, M}`` is
+    ``τ_X (ω/ω_ref)^β_X a_X(ω)``; each of re/im carries half the complex variance (circular):
+    ``K_X = ½ b_X b_Xᵀ ⊙ k(w_X; ℓ_X)`` with ``b_X`` that amplitude and ``w_X`` = :func:`warp`
+    of ``logw`` by ``κ_X``; the blocks are ``[[K_H + D_H, K_H + D_HT], [K_H + D_HT,
     K_H + K_M + D_T]]``.
     """
-    tau, ell = jnp.exp(hyper[:2]), jnp.exp(hyper[2:4])
-    a_H = a_H * jnp.exp(hyper[4] * logw)
-    a_M = a_M * jnp.exp(hyper[5] * logw)
-    KH = 0.5 * tau[0] ** 2 * (a_H[:, None] * a_H[None, :]) * kernel(logw, logw, ell[0])
-    KM = 0.5 * tau[1] ** 2 * (a_M[:, None] * a_M[None, :]) * kernel(logw, logw, ell[1])
+    tau, ell, beta, kappa = split_hyper(hyper)
+    a_H = a_H * jnp.exp(beta[0] * logw)
+    a_M = a_M * jnp.exp(beta[1] * logw)
+    wH, wM = warp(logw, kappa[0]), warp(logw, kappa[1])
+    KH = 0.5 * tau[0] ** 2 * (a_H[:, None] * a_H[None, :]) * kernel(wH, wH, ell[0])
+    KM = 0.5 * tau[1] ** 2 * (a_M[:, None] * a_M[None, :]) * kernel(wM, wM, ell[1])
     N = logw.shape[0]
     n2 = var_H.shape[-1] * var_H.shape[-2]
     dH = 0.5 * jnp.moveaxis(var_H.reshape(N, n2), 0, 1)  # (E, N)
@@ -310,6 +339,12 @@ class LogPosterior(eqx.Module):
     ref_theta: Float[Array, " p"] | None = None  # gp: reference θ (Cholesky) of a_H, a_M
     log_ell_mean: float = eqx.field(static=True, default=DEFAULT_LOG_ELL_MEAN)
     log_ell_sd: float = eqx.field(static=True, default=DEFAULT_LOG_ELL_SD)
+    # gp with fixed hyperparameters (empirical Bayes, :func:`fix_gp_hyper`): the hyperparameters
+    # and the log-likelihood as an exact quadratic form in the six matrices' entries
+    hyper_fixed: Float[Array, " 8"] | None = None
+    quad_R: Float[Array, "q q"] | None = None  # upper Cholesky factor of −∇² log-lik (q = 6t)
+    quad_mu: Float[Array, " q"] | None = None  # its maximizer (scaled matrix entries)
+    quad_ll0: Float[Array, ""] | None = None  # the log-likelihood there
 
     @property
     def n(self) -> int:
@@ -321,8 +356,11 @@ class LogPosterior(eqx.Module):
 
     @property
     def n_tau(self) -> int:
-        """Model-error coordinates after θ: 0 (none), 2 (white: log τ), 4 (gp: log τ, log ℓ)."""
-        return {"none": 0, "white": 2, "gp": 6}[self.kind] if self.model_error else 0
+        """Sampled model-error coordinates after θ: 0 (none, or gp with fixed
+        hyperparameters), 2 (white: log τ), 8 (gp: log τ, log ℓ, β, κ)."""
+        if not self.model_error or self.hyper_fixed is not None:
+            return 0
+        return {"none": 0, "white": 2, "gp": N_GP_HYPER}[self.kind]
 
     @property
     def n_free(self) -> int:
@@ -353,9 +391,10 @@ class LogPosterior(eqx.Module):
         names = param_names(
             self.n, self.kind if self.model_error else "none", self.parameterization
         )
+        hyp = names[self.n_theta : self.n_theta + self.n_tau]
         if not self.free_idx:
-            return names
-        return [names[i] for i in self.free_idx] + names[self.n_theta :]
+            return names[: self.n_theta] + hyp
+        return [names[i] for i in self.free_idx] + hyp
 
     @property
     def fixed_names(self) -> list[str]:
@@ -412,8 +451,17 @@ class LogPosterior(eqx.Module):
         return c11, c12, c22
 
     def log_likelihood(self, x: Float[Array, " d"]) -> Float[Array, ""]:
-        p = self.n_free
         mats = self.model_matrices(self.full_theta(x))
+        if self.quad_R is not None:  # fixed gp hyperparameters: exact quadratic form
+            v = _vech_jnp(mats)
+            z = self.quad_R @ (v - self.quad_mu)
+            return self.quad_ll0 - 0.5 * jnp.sum(z**2)
+        hyper = self.hyper_fixed if self.hyper_fixed is not None else x[self.n_free :]
+        return self.log_likelihood_matrices(mats, hyper)
+
+    def log_likelihood_matrices(self, mats: Float[Array, "6 n n"], hyper) -> Float[Array, ""]:
+        """The log-likelihood of the six scaled matrices ``mats`` and model-error coordinates
+        ``hyper`` (log τ, and for gp log ℓ, β), computed directly (no quadratic form)."""
         # s = jw (w real): Z = (K − w² M) + j w B, so no complex arithmetic is needed
         w = jnp.imag(self.s)[:, None, None]
         w2 = w**2
@@ -423,9 +471,9 @@ class LogPosterior(eqx.Module):
         imT = imH + w * mats[4] + jnp.imag(self.Z_H) - jnp.imag(self.Z_T)
         if self.kind == "gp" and self.model_error:
             C = gp_covariance(jnp.log(w[:, 0, 0]), self.a_H, self.a_M, self.var_H, self.var_T,
-                              self.noise_corr, x[p:])  # fmt: skip
+                              self.noise_corr, hyper)  # fmt: skip
             return gp_log_likelihood(reH, imH, reT, imT, C)
-        c11, c12, c22 = self.covariance_terms(x[p:])
+        c11, c12, c22 = self.covariance_terms(hyper)
         det = c11 * c22 - c12**2
         quad = (
             c22 * (reH**2 + imH**2) - 2.0 * c12 * (reH * reT + imH * imT) + c11 * (reT**2 + imT**2)
@@ -437,14 +485,15 @@ class LogPosterior(eqx.Module):
         lp = -0.5 * jnp.sum((x[:p] / self.prior_scale) ** 2) - p * np.log(
             self.prior_scale * np.sqrt(2 * np.pi)
         )
-        if self.model_error:
+        if self.n_tau > 0:
             z = (x[p : p + 2] - self.log_tau_mean) / self.log_tau_sd
             lp = lp - 0.5 * jnp.sum(z**2) - 2 * np.log(self.log_tau_sd * np.sqrt(2 * np.pi))
-        if self.model_error and self.kind == "gp":
+        if self.n_tau == N_GP_HYPER:
             z = (x[p + 2 : p + 4] - self.log_ell_mean) / self.log_ell_sd
             lp = lp - 0.5 * jnp.sum(z**2) - 2 * np.log(self.log_ell_sd * np.sqrt(2 * np.pi))
-            z = x[p + 4 : p + 6] / DEFAULT_BETA_SD
-            lp = lp - 0.5 * jnp.sum(z**2) - 2 * np.log(DEFAULT_BETA_SD * np.sqrt(2 * np.pi))
+            for lo, sd in ((4, DEFAULT_BETA_SD), (6, DEFAULT_KAPPA_SD)):
+                z = x[p + lo : p + lo + 2] / sd
+                lp = lp - 0.5 * jnp.sum(z**2) - 2 * np.log(sd * np.sqrt(2 * np.pi))
         if self.parameterization == "matrix" and self.psd_constraint:
             mats = self.model_matrices(self.full_theta(x))[np.asarray(self._sampled_blocks())]
             lp = jnp.where(_positive_definite(mats), lp, -jnp.inf)
@@ -466,7 +515,7 @@ class LogPosterior(eqx.Module):
         """Prior means of the model-error coordinates ``(n_tau,)``."""
         if self.n_tau == 0:
             return np.zeros(0)
-        extra = [self.log_ell_mean] * 2 + [0.0, 0.0] if self.n_tau == 6 else []
+        extra = [self.log_ell_mean] * 2 + [0.0] * 4 if self.n_tau == N_GP_HYPER else []
         return np.array([self.log_tau_mean] * 2 + extra)
 
     def predictive_data(self) -> dict:
@@ -492,6 +541,9 @@ class LogPosterior(eqx.Module):
         a factor)."""
         xs = np.asarray(xs)
         th, tau = self.full_theta_numpy(xs), xs[..., self.n_free :]
+        if self.hyper_fixed is not None:  # fixed gp hyperparameters: carried by every draw
+            h = np.asarray(self.hyper_fixed)
+            tau = np.broadcast_to(h, xs.shape[:-1] + h.shape).copy()
         if self.parameterization == "matrix":
             return matrix_to_theta(th, self.n), tau
         return fold_theta(th), tau
@@ -553,6 +605,7 @@ def make_log_posterior(
     reference=None,
     log_ell_mean: float = DEFAULT_LOG_ELL_MEAN,
     log_ell_sd: float = DEFAULT_LOG_ELL_SD,
+    gp_hyper="map",
 ) -> LogPosterior:
     """Build the :class:`LogPosterior` of ``frf`` (module docstring for the model).
 
@@ -572,6 +625,12 @@ def make_log_posterior(
     - ``log_ell_mean``, ``log_ell_sd``: prior of ``log ℓ`` (ℓ in natural-log frequency
       units; default median 0.5, i.e. a factor e^0.5 ≈ 1.65 in frequency, sd 1). The
       amplitude slopes have the prior ``β ~ N(0, 1)``.
+    - ``gp_hyper`` (gp only): ``"map"`` (default, empirical Bayes) — the six hyperparameters
+      are held at their posterior mode (joint with θ, from the NLS start: ``reference`` must
+      then be the NLSResult) and the log-likelihood becomes an exact quadratic form in the
+      matrix entries (:func:`fix_gp_hyper`; ~100× cheaper per evaluation, only θ sampled);
+      ``"sample"`` — the hyperparameters are sampled with θ (``d = p + 8``; each evaluation
+      factors ``n²`` covariances of ``2N × 2N``); or 8 numbers (or 6: κ = 0) — held at those values.
     - ``noise_corr``: correlation ρ ∈ (−1, 1) of the Z_H/Z_T measurement errors per element.
     - ``prior_scale``, ``log_tau_mean``, ``log_tau_sd``: the priors.
     - ``parameterization``: ``"matrix"`` (default; matrix entries on the PSD cone) or
@@ -655,7 +714,7 @@ def make_log_posterior(
     a_H, a_M, ref_theta = rms(Z_H), rms(Z_T - Z_H), None
     if kind == "gp":
         ref_theta = _reference_theta(reference, scale, n)
-    return LogPosterior(
+    post = LogPosterior(
         s=1j * band.omega / scale.omega_ref,
         Z_H=Z_H,
         Z_T=Z_T,
@@ -677,6 +736,20 @@ def make_log_posterior(
         log_ell_mean=float(log_ell_mean),
         log_ell_sd=float(log_ell_sd),
     )
+    if kind != "gp" or (isinstance(gp_hyper, str) and gp_hyper == "sample"):
+        return post
+    if isinstance(gp_hyper, str):
+        if gp_hyper != "map":
+            raise ValueError(f"gp_hyper must be one of {GP_HYPER_MODES} or 8 numbers, got {gp_hyper!r}")
+        from ..fit._result import NLSResult
+        from ._sampler import initial_point, posterior_mode
+
+        if not isinstance(reference, NLSResult):
+            raise ValueError("gp_hyper='map' needs reference= the NLSResult (the start of the "
+                             "mode search); pass gp_hyper='sample' or 6 fixed values otherwise")  # fmt: skip
+        xm, _ = posterior_mode(post, initial_point(post, reference))
+        gp_hyper = xm[post.n_free :]
+    return fix_gp_hyper(post, gp_hyper)
 
 
 def _reference_theta(reference, scale: Scale, n: int):
@@ -738,3 +811,51 @@ def boundary_fixed(nls_result) -> dict:
     mats = dict(zip(MATRIX_NAMES, (m.hand.M, m.hand.B, m.hand.K, m.mechanism.M, m.mechanism.B,
                                    m.mechanism.K), strict=True))  # fmt: skip
     return {name: np.asarray(mats[name]) for name in nls_result.boundary}
+
+
+GP_HYPER_MODES = ("map", "sample")
+
+
+def fix_gp_hyper(post: LogPosterior, hyper) -> LogPosterior:
+    """The gp posterior with its hyperparameters ``hyper = (log τ_H, log τ_M, log ℓ_H,
+    log ℓ_M, β_H, β_M, κ_H, κ_M)`` (κ may be left out: 0) held fixed (empirical Bayes; only θ is then sampled).
+
+    For fixed hyperparameters the GP covariance of every element is a constant, and the model
+    is linear in the six matrices' entries ``v`` (``6·n(n+1)/2`` scaled numbers), so the
+    log-likelihood is *exactly* the quadratic ``ℓ(v) = ℓ(μ) − ½ ‖R (v − μ)‖²``. It is built
+    once here (gradient and Hessian of :meth:`LogPosterior.log_likelihood_matrices` by
+    autodiff, ``−∇²ℓ = RᵀR``, one Newton refinement of ``μ``); each evaluation is then one
+    ``q × q`` triangular matrix-vector product (q = 90 at n = 5) instead of ``n²`` Cholesky
+    factorizations of ``2N × 2N``. Draws carry ``hyper`` in their model-error columns."""
+    if not (post.model_error and post.kind == "gp"):
+        raise ValueError("fix_gp_hyper: the posterior has no gp model error")
+    h = jnp.asarray(hyper, dtype=jnp.float64)
+    if h.shape not in ((6,), (N_GP_HYPER,)) or not bool(jnp.all(jnp.isfinite(h))):
+        raise ValueError(f"fix_gp_hyper: hyper must be 6 or {N_GP_HYPER} finite numbers, got "
+                         f"shape {h.shape}")  # fmt: skip
+    h = jnp.concatenate([h, jnp.zeros(N_GP_HYPER - h.shape[0])])
+    base = dataclasses.replace(post, hyper_fixed=h, quad_R=None, quad_mu=None, quad_ll0=None)
+    R, mu, ll0 = _quadratic_form(base, h)
+    if not (np.all(np.isfinite(np.asarray(R))) and np.isfinite(float(ll0))):
+        raise ValueError("fix_gp_hyper: the likelihood's curvature is not positive definite at "
+                         "these hyperparameters")  # fmt: skip
+    return dataclasses.replace(base, quad_R=R, quad_mu=mu, quad_ll0=ll0)
+
+
+@eqx.filter_jit
+def _quadratic_form(post: LogPosterior, h):
+    n = post.n
+    rows, cols = np.tril_indices(n)
+    t = len(rows)
+
+    def ll(v):
+        A = jnp.zeros((6, n, n), dtype=v.dtype).at[:, rows, cols].set(v.reshape(6, t))
+        return post.log_likelihood_matrices(A + jnp.swapaxes(A, -1, -2) - A * jnp.eye(n), h)
+
+    v0 = jnp.zeros(6 * t)
+    negH = -jax.hessian(ll)(v0)
+    negH = 0.5 * (negH + negH.T)
+    Lc = jnp.linalg.cholesky(negH)
+    mu = jax.scipy.linalg.cho_solve((Lc, True), jax.grad(ll)(v0))
+    mu = mu + jax.scipy.linalg.cho_solve((Lc, True), jax.grad(ll)(mu))  # rounding
+    return Lc.T, mu, ll(mu)

@@ -133,7 +133,7 @@ class PosteriorSamples:
     def __post_init__(self):
         s = np.asarray(self.samples)
         p = n_params(self.n)
-        if s.ndim != 2 or s.shape[1] not in (p, p + 2, p + 6):
+        if s.ndim != 2 or s.shape[1] not in (p, p + 2, p + 6, p + 8):
             raise ValueError(
                 f"PosteriorSamples: samples must be (S, {p}) or (S, {p}+model-error) for n = "
                 f"{self.n}, got shape {s.shape}"
@@ -171,7 +171,7 @@ class PosteriorSamples:
     @property
     def error_kind(self) -> str:
         """``"none"``, ``"white"`` or ``"gp"`` (from the number of model-error columns)."""
-        return {0: "none", 2: "white", 6: "gp"}[self.samples.shape[1] - self.n_theta]
+        return {0: "none", 2: "white", 6: "gp", 8: "gp"}[self.samples.shape[1] - self.n_theta]
 
     def models(self, idx=None) -> ImpedanceModel:
         """Batched :class:`ImpedanceModel` (arrays ``(S, n, n)``; physical units)."""
@@ -342,6 +342,24 @@ def posterior_laplace_samples(post: LogPosterior, n_samples: int, init, key=0) -
         diagnostics={"method": f"laplace_{post.parameterization}", "laplace": info},
         predictive=post.predictive_data(),
     )
+
+
+def posterior_mode(post: LogPosterior, x0, *, max_steps: int = 3000, rtol: float = 1e-9,
+                   atol: float = 1e-9) -> tuple[np.ndarray, bool]:  # fmt: skip
+    """``(x_map (d,), converged)``: BFGS (optimistix) on ``−log p`` of the PSD-unconstrained
+    posterior from ``x0`` — :func:`laplace_posterior` without the Hessian."""
+    x0 = jnp.asarray(x0, dtype=jnp.float64)
+    if x0.shape != (post.dim,) or not np.isfinite(float(post.unconstrained()(x0))):
+        raise ValueError(f"posterior_mode: x0 must be ({post.dim},) with a finite log-posterior")
+    x, ok = _map(post.unconstrained(), x0, max_steps, rtol, atol)
+    return np.asarray(x), bool(ok)
+
+
+@eqx.filter_jit
+def _map(post, x0, max_steps, rtol, atol):
+    nlp = lambda x, args: -post(x)  # noqa: E731
+    sol = optx.minimise(nlp, optx.BFGS(rtol=rtol, atol=atol), x0, max_steps=max_steps, throw=False)
+    return sol.value, sol.result == optx.RESULTS.successful
 
 
 @eqx.filter_jit
@@ -647,10 +665,10 @@ def load_samples(path, n: int | None = None) -> PosteriorSamples:
             f"{path}: samples are for an n = {file_n} rod device, but n = {n} was expected"
         )
     p = n_params(file_n)
-    if s.ndim != 2 or s.shape[1] not in (p, p + 2, p + 6):
+    if s.ndim != 2 or s.shape[1] not in (p, p + 2, p + 6, p + 8):
         raise ValueError(
             f"{path}: samples have shape {s.shape}, which does not fit n = {file_n} "
-            f"(expected (S, {p}), (S, {p + 2}) or (S, {p + 6}))"
+            f"(expected (S, {p}), (S, {p + 2}), (S, {p + 6}) or (S, {p + 8}))"
         )
     if not np.all(np.isfinite(s)):
         raise ValueError(f"{path}: samples contain NaN or inf")
