@@ -1,6 +1,8 @@
 """GP model-error likelihood, predictive plant draws, the margin convention and the tuner's
 never-worse rule (hapid.uncertainty / hapid.tune; issue 14)."""
 
+import warnings
+
 import numpy as np
 import pytest
 from helpers_fit import random_truth, synthetic_frf
@@ -11,6 +13,7 @@ from hapid.fit import fit_nls
 from hapid.uncertainty import (
     PosteriorSamples,
     RobustReport,
+    ShortChainWarning,
     band_calibration,
     fold_theta,
     initial_point,
@@ -19,6 +22,7 @@ from hapid.uncertainty import (
     param_names,
     posterior_laplace_samples,
     predictive_plants,
+    sample_posterior,
     save_samples,
 )
 
@@ -152,6 +156,17 @@ def test_gp_predictive_calibrated_on_second_order_truth(case, tmp_path):
     d0 = predictive_plants(ps2, om, max_samples=300, include_error=False)
     spread = lambda X: np.median(np.std(np.abs(X), axis=0))  # noqa: E731
     assert spread(d["P"]) >= spread(d0["P"])
+    # emcee on the empirical-Bayes gp likelihood (hyperparameters at their mode): 50 τ, and
+    # the same nominal coverage
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ShortChainWarning)
+        pe = sample_posterior(post, nls, seed=2)
+    assert pe.diagnostics["converged_50tau"] and pe.error_kind == "gp"
+    assert np.allclose(pe.samples[:, -8:], np.asarray(post.hyper_fixed)[None])
+    c = band_calibration(
+        predictive_plants(pe, om, max_samples=300)["P"], np.asarray(truth.P(1j * om))
+    )
+    assert c["coverage"] >= 0.85, c
 
 
 def test_robust_report_margin_convention_and_reasons():

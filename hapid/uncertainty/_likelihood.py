@@ -740,7 +740,8 @@ def make_log_posterior(
         return post
     if isinstance(gp_hyper, str):
         if gp_hyper != "map":
-            raise ValueError(f"gp_hyper must be one of {GP_HYPER_MODES} or 8 numbers, got {gp_hyper!r}")
+            raise ValueError(f"gp_hyper must be one of {GP_HYPER_MODES} or 8 numbers, got "
+                             f"{gp_hyper!r}")  # fmt: skip
         from ..fit._result import NLSResult
         from ._sampler import initial_point, posterior_mode
 
