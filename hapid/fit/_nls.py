@@ -45,6 +45,7 @@ from jaxtyping import Array, Complex, Float
 from ..frf import FRF
 from ..impedance import ImpedanceModel, plant
 from ._checks import band_mask, check_fit_input
+from ._compress import compress
 from ._iterate import iterate
 from ._jaxopt_adapter import jaxopt_lm
 from ._pd import (
@@ -242,13 +243,20 @@ def _run_solver(
     )
 
 
-def laplace_covariance(problem: Problem, theta: Float[Array, " p"], noise_weights: bool):
-    """``(σ̂²(JᵀJ)⁺, σ̂², cost)`` at ``theta``; σ̂² = 1 for noise weights else 2·cost/(m−p)."""
+def laplace_covariance(
+    problem: Problem, theta: Float[Array, " p"], noise_weights: bool, n_residuals=None
+):
+    """``(σ̂²(JᵀJ)⁺, σ̂², cost)`` at ``theta``; σ̂² = 1 for noise weights else 2·cost/(m−p).
+
+    ``n_residuals`` (default ``problem.n_residuals``) is ``m``: give the full problem's count
+    when ``problem`` is its :class:`~hapid.fit._compress.CompressedProblem` (same JᵀJ, cost).
+    """
     J = jax.jacfwd(problem)(theta)
     r = problem(theta)
     cost = 0.5 * jnp.sum(r**2)
     p = theta.shape[-1]
-    dof = jnp.maximum(problem.n_residuals - p, 1)
+    m = problem.n_residuals if n_residuals is None else n_residuals
+    dof = jnp.maximum(m - p, 1)
     sigma2 = jnp.asarray(1.0) if noise_weights else 2.0 * cost / dof
     return sigma2 * pinv_psd(J.T @ J), sigma2, cost
 
@@ -316,8 +324,11 @@ def _fit_core(frf, init, dyn, static):
     )
     theta0 = _init_theta(frf, init, problem.scale, d["omega_c"], d["f_max_hz"], d["init_floor"])
     max_steps = d["max_steps"] if jaxopt_steps is None else jaxopt_steps
+    # without the P term the residual is linear in the matrices: the solver and the Laplace
+    # covariance work on its exact 6-rows-per-element compression (same cost and JᵀJ)
+    work = problem if use_P else compress(problem)
     theta, n_steps, code = _run_solver(
-        problem,
+        work,
         theta0,
         solver,
         d["rtol"],
@@ -327,7 +338,7 @@ def _fit_core(frf, init, dyn, static):
         d["ftol"],
         d["patience"],
     )
-    cov, sigma2, cost = laplace_covariance(problem, theta, weight == "noise")
+    cov, sigma2, cost = laplace_covariance(work, theta, weight == "noise", problem.n_residuals)
     free = theta  # the solver's L (matrices L Lᵀ + pd_eps·I)
     theta, G = jax.lax.cond(
         d["pd_eps"] > 0,
