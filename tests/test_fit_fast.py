@@ -66,3 +66,68 @@ def test_wls_batch_on_shared_grid_equals_per_frf_wls():
     for got, want in ((m[:, 0], one.hand.M), (b[:, 1], one.total.B), (k[:, 1], one.total.K)):
         np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-12,
                                    atol=1e-12 * float(jnp.max(jnp.abs(want))))  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "weight,f_max,n",
+    [("relative", 40.0, 3), ("paper", None, 4), ("blend", 30.0, 3)],
+)
+def test_compressed_residual_has_the_full_cost_gradient_and_gauss_newton_matrix(weight, f_max, n):
+    """The QR-compressed residual (what the solver and the Laplace covariance use) against
+    the full weighted residual at a random θ: same ½‖r‖², same Jᵀr and JᵀJ (jax.jacfwd of
+    the full residual), and its own Jacobian equals central finite differences."""
+    from helpers_fit import random_truth, synthetic_frf
+
+    from hapid.fit import make_problem, n_params
+    from hapid.fit._compress import compress
+
+    frf = synthetic_frf(random_truth(n, seed=30 + n), rel_noise=1e-2, seed=31)
+    full = make_problem(frf, weight=weight, f_max_hz=f_max)
+    comp = compress(full)
+    theta = jnp.asarray(np.random.default_rng(n).standard_normal(n_params(n)))
+
+    @jax.jit
+    def both(theta):
+        return full.cost(theta), comp.cost(theta), jax.jacfwd(full)(theta), full(theta)
+
+    @jax.jit
+    def comp_jac(theta):
+        return jax.jacfwd(comp)(theta), comp(theta)
+
+    c_f, c_c, Jf, r_f = both(theta)
+    Jc, r_c = comp_jac(theta)
+    assert r_c.shape == (6 * n * (n + 1) // 2 + 1,)
+    np.testing.assert_allclose(float(c_c), float(c_f), rtol=1e-11)
+    g_f, g_c = Jf.T @ r_f, Jc.T @ r_c
+    np.testing.assert_allclose(
+        np.asarray(g_c), np.asarray(g_f), atol=1e-10 * float(jnp.max(jnp.abs(g_f)))
+    )
+    H_f, H_c = Jf.T @ Jf, Jc.T @ Jc
+    np.testing.assert_allclose(
+        np.asarray(H_c), np.asarray(H_f), atol=1e-10 * float(jnp.max(jnp.abs(H_f)))
+    )
+    h = 1e-6
+    cj = jax.jit(lambda t: comp(t))
+    for q in (0, n_params(n) // 2, n_params(n) - 1):
+        e = jnp.zeros_like(theta).at[q].set(h)
+        fd = (cj(theta + e) - cj(theta - e)) / (2 * h)
+        np.testing.assert_allclose(
+            np.asarray(Jc[:, q]), np.asarray(fd), atol=1e-6 * float(jnp.max(jnp.abs(Jc)))
+        )
+
+
+def test_fit_nls_on_compressed_residual_reaches_the_full_residual_optimum():
+    """The fit (compressed residual) ends where the full residual is stationary: its
+    gradient, by jax.grad of the full cost, is ~0 relative to the starting one; the reported
+    cost is the full cost."""
+    from helpers_fit import random_truth, synthetic_frf
+
+    from hapid.fit import fit_nls, make_problem
+
+    frf = synthetic_frf(random_truth(3, seed=5), rel_noise=1e-2, seed=6)
+    res = fit_nls(frf, f_max_hz=40.0)
+    assert res.ok
+    full = make_problem(frf, f_max_hz=40.0, scale=res.scale)
+    np.testing.assert_allclose(float(full.cost(res.theta)), float(res.cost), rtol=1e-12)
+    g = jax.grad(full.cost)(res.theta)
+    assert float(jnp.linalg.norm(g)) < 1e-6 * max(1.0, float(res.cost))

@@ -28,7 +28,27 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._pd import theta_to_scaled
+
+def _selection(n: int) -> np.ndarray:
+    """``S`` ``(n·n, t)`` 0/1 with ``L.ravel() = S θ_k`` for a lower-triangular factor."""
+    rows, cols = np.tril_indices(n)
+    S = np.zeros((n * n, len(rows)))
+    S[rows * n + cols, np.arange(len(rows))] = 1.0
+    return S
+
+
+def lower_entries(theta: Float[Array, " p"], n: int, eps=0.0) -> Float[Array, "t 6"]:
+    """The lower-triangle entries ``(L_k L_kᵀ + eps·I)[i, j]``, ``i ≥ j``, of the six scaled
+    matrices (:func:`hapid.fit._pd.theta_to_scaled`, same values): ``(t, 6)``.
+
+    Written with constant 0/1 matmuls instead of index scatter/gather (exact: one nonzero
+    term per entry), so its Jacobian and transpose stay dense small matmuls under ``vmap``.
+    """
+    S = jnp.asarray(_selection(n), dtype=theta.dtype)
+    t = S.shape[1]
+    L = (theta.reshape(6, t) @ S.T).reshape(6, n, n)
+    A = L @ jnp.swapaxes(L, -1, -2) + eps * jnp.eye(n, dtype=theta.dtype)
+    return A.reshape(6, n * n) @ S  # (6, t): entries (i, j), i ≥ j, in tril order
 
 
 def _stack_real(x: Array) -> Array:
@@ -50,9 +70,7 @@ class CompressedProblem(eqx.Module):
     n: int = eqx.field(static=True)
 
     def __call__(self, theta: Float[Array, " p"], args=None) -> Float[Array, " m"]:
-        mats = theta_to_scaled(theta, self.n, self.eps)  # (6, n, n)
-        rows, cols = np.tril_indices(self.n)
-        a = jnp.swapaxes(mats[:, rows, cols], 0, 1)  # (t, 6)
+        a = lower_entries(theta, self.n, self.eps).T  # (t, 6)
         r = jnp.einsum("tkl,tl->tk", self.R, a) - self.y
         return jnp.concatenate([r.ravel(), jnp.sqrt(self.c0)[None]])
 
