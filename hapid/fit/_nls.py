@@ -374,26 +374,34 @@ def _fit_core(frf, init, dyn, static):
     )
 
 
-#: fit_nls warns when its dense Jacobian (all frequencies, masked ones included) exceeds this.
+#: fit_nls warns when its largest array (the dense P-residual Jacobian, or the compressed
+#: residual's QR factors without the P term) exceeds this.
 JACOBIAN_WARN_BYTES = 1e9
 
 
 def _warn_jacobian_size(frf: FRF, use_P_residual: bool) -> None:
-    """Warn before a fit whose dense ``m × p`` Jacobian would take more than a gigabyte.
+    """Warn before a fit whose largest array would take more than a gigabyte.
 
-    The fit band is a 0/1 mask (static shapes), so out-of-band frequencies still occupy
-    rows: ``frf.band(...)`` shrinks the problem, ``f_max_hz`` does not.
+    With the P residual the solver and the Laplace covariance materialize the dense
+    ``m × p`` Jacobian, ``m = 12·n²·N`` rows (the fit band is a 0/1 mask, so out-of-band
+    frequencies still occupy rows: ``frf.band(...)`` shrinks the problem, ``f_max_hz`` does
+    not). Without it the residual is compressed (``hapid.fit._compress``) and the largest
+    arrays are the thin QR's ``8N × 6`` blocks of the ``n(n+1)/2`` symmetric elements.
     """
     shape = np.shape(frf.Z_H)
     N, n = shape[-3], shape[-1]
-    m = 2 * (3 if use_P_residual else 2) * n * n * N
-    nbytes = 8.0 * m * n_params(n) * int(np.prod(shape[:-3], dtype=np.int64))
+    batch = int(np.prod(shape[:-3], dtype=np.int64))
+    if use_P_residual:
+        m = 2 * 3 * n * n * N
+        nbytes = 8.0 * m * n_params(n) * batch
+        what = f"a dense {m} × {n_params(n)} Jacobian"
+    else:
+        nbytes = 3 * 8.0 * 8 * N * 6 * (n * (n + 1) // 2) * batch  # M, Q and a copy
+        what = "the compressed residual's QR factors"
     if nbytes > JACOBIAN_WARN_BYTES:
         warnings.warn(
-            f"fit_nls: n = {n} rods × {N} frequencies gives a dense {m} × {n_params(n)} "
-            f"Jacobian of {nbytes / 1e9:.1f} GB (the Laplace covariance and the solver "
-            "materialize it); drop frequencies with frf.band(...) or decimate the grid — "
-            "f_max_hz only masks rows",
+            f"fit_nls: n = {n} rods × {N} frequencies gives {what} of {nbytes / 1e9:.1f} GB; "
+            "drop frequencies with frf.band(...) or decimate the grid — f_max_hz only masks rows",
             UserWarning,
             stacklevel=3,
         )
