@@ -63,7 +63,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _config  # noqa: F401  (float64)
+from .. import _config, _distributed  # noqa: F401  (float64)
 from .._grids import continuous_grid as posterior_omega
 from .._grids import sampled_grid as robust_omega
 from ..control import Compensator, MetricsSpec, analyze_loop, disk_margin_from_peak
@@ -380,8 +380,8 @@ def robust_check(
         if P.ndim != 4 or P.shape[1:] != G.shape:
             raise ValueError(f"plants must be (S, {G.shape[0]}, n, n) matching G, got {P.shape}")
         S = P.shape[0]
-        pol = jnp.broadcast_to(jnp.asarray(0 if p_ol_rhp is None else p_ol_rhp), (S,))
-        get = lambda i, j: (P[i:j], pol[i:j])  # noqa: E731
+        pol_all = jnp.broadcast_to(jnp.asarray(0 if p_ol_rhp is None else p_ol_rhp), (S,))
+        get = lambda i, j: (P[i:j], pol_all[i:j])  # noqa: E731  (not `pol`: the loop rebinds it)
     if S == 0:
         raise ValueError("robust_check: no plants")
     if G.shape[-1] != (
@@ -392,7 +392,7 @@ def robust_check(
         )
     parts = []
     chunk = max(1, min(int(chunk), S))
-    for i in range(0, S, chunk):
+    for i in _distributed.local_chunks(S, chunk):  # all chunks, or this process's block
         j = min(S, i + chunk)
         Pc, pol = get(i, j)
         pol = jnp.asarray(pol, dtype=jnp.float64) + c_rhp
@@ -401,7 +401,7 @@ def robust_check(
         else:
             r = _reference_chunk(Pc, pol, G, om)
         parts.append({k: v[: j - i] for k, v in r.items()})
-    res = {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in parts[0]}
+    res = _distributed.gather(parts)  # every process's chunks, in order (one process: concat)
     if labels is not None and len(labels) != S:
         raise ValueError(f"{len(labels)} labels for {S} plants")
     return RobustReport(
