@@ -19,7 +19,8 @@ How processes meet (docs/distributed.md):
 Gathering uses JAX's own cross-process collective
 (:func:`jax.experimental.multihost_utils.process_allgather`; on CPU it runs over gloo, the
 default ``jax_cpu_collectives_implementation`` of jaxlib 0.10.2, checked with two local CPU
-processes). Each process's results are serialized (``np.savez``, no pickle) to a byte array,
+processes), after a barrier of the coordination service (gloo waits only 30 s for its peers;
+a process may finish its block minutes before another). Each process's results are serialized (``np.savez``, no pickle) to a byte array,
 padded to the longest, all-gathered and decoded — any dtype and shape, exact.
 
 Only process 0 writes files and prints reports; the others compute and exit.
@@ -148,10 +149,25 @@ def _concat(parts: list[dict]) -> dict:
     return {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in parts[0]}
 
 
+def barrier() -> None:
+    """Wait until every process is here (the ``jax.distributed`` coordination service; timeout
+    ``HAPID_GATHER_TIMEOUT_S``, default 24 h). The CPU collective (gloo) itself waits only 30 s
+    for its peers, less than one process may spend on its last chunk while another is done."""
+    from jax._src import distributed
+
+    _STATE["barriers"] = _STATE.get("barriers", 0) + 1
+    timeout_s = float(os.environ.get("HAPID_GATHER_TIMEOUT_S", 86400))
+    distributed.global_state.client.wait_at_barrier(
+        f"hapid_gather_{_STATE['barriers']}", int(1000 * timeout_s)
+    )
+
+
 def allgather_bytes(b: np.ndarray) -> list[np.ndarray]:
-    """Every process's ``uint8`` array, on every process, in rank order (a JAX collective)."""
+    """Every process's ``uint8`` array, on every process, in rank order (a JAX collective,
+    after a :func:`barrier`)."""
     from jax.experimental import multihost_utils
 
+    barrier()
     lens = np.asarray(multihost_utils.process_allgather(np.array([b.size], np.int64))).reshape(-1)
     pad = np.zeros(max(int(lens.max()), 1), np.uint8)
     pad[: b.size] = b

@@ -368,7 +368,7 @@ def cmd_posterior(a):
 _PROCESSES_HELP = (
     "split the work over N local processes joined by jax.distributed (results "
     "identical to one process); on a cluster set HAPID_COORDINATOR, "
-    "HAPID_NUM_PROCESSES, HAPID_PROCESS_ID instead (docs/distributed.md)"
+    "HAPID_NUM_PROCESSES, HAPID_PROCESS_ID instead (docs/distributed.md); default: one process"
 )
 
 

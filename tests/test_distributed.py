@@ -93,6 +93,48 @@ def _run(out, procs, *extra, timeout=600):
         assert p.returncode == 0, e[-3000:]
 
 
+_GATHER = """
+import sys, time
+import numpy as np
+from hapid import _distributed as d
+assert d.initialize()
+rank = d.process_index()
+time.sleep(float(sys.argv[1]) * rank)  # a late process: gloo alone waits only 30 s
+parts = [] if rank == 0 else [{"x": np.arange(3.0) + rank, "b": np.array([True, False, True])}]
+g = d.gather(parts)  # process 0 has nothing: the others' rows, in rank order
+print("GATHERED", g["x"].tolist(), g["b"].tolist())
+"""
+
+
+def _gather_two(delay, timeout):
+    coord = f"127.0.0.1:{_free_port()}"
+    env = dict(
+        os.environ, PYTHONPATH=str(HERE.parent), HAPID_COORDINATOR=coord, HAPID_NUM_PROCESSES="2"
+    )
+    ps = [subprocess.Popen([sys.executable, "-c", _GATHER, str(delay)], env=env | {"HAPID_PROCESS_ID": str(i)},
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+          for i in range(2)]  # fmt: skip
+    try:
+        outs = [p.communicate(timeout=timeout) for p in ps]
+    finally:
+        for p in ps:
+            if p.poll() is None:
+                p.kill()
+    for p, (o, e) in zip(ps, outs, strict=True):
+        assert p.returncode == 0, e[-3000:]
+        assert "GATHERED [1.0, 2.0, 3.0] [True, False, True]" in o, o + e[-2000:]
+
+
+def test_two_processes_gather_when_one_has_no_items():
+    _gather_two(0.0, 120)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_gather_waits_for_a_process_that_arrives_late():
+    _gather_two(40.0, 200)
+
+
 def _check_two_equal_one(tmp_path, prefix, *extra):
     from dist_worker import compute  # one process: this one (same code, flags and cache)
 
