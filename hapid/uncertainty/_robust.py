@@ -380,8 +380,8 @@ def robust_check(
         if P.ndim != 4 or P.shape[1:] != G.shape:
             raise ValueError(f"plants must be (S, {G.shape[0]}, n, n) matching G, got {P.shape}")
         S = P.shape[0]
-        pol_all = jnp.broadcast_to(jnp.asarray(0 if p_ol_rhp is None else p_ol_rhp), (S,))
-        get = lambda i, j: (P[i:j], pol_all[i:j])  # noqa: E731  (not `pol`: the loop rebinds it)
+        pol = jnp.broadcast_to(jnp.asarray(0 if p_ol_rhp is None else p_ol_rhp), (S,))
+        get = lambda i, j: (P[i:j], pol[i:j])  # noqa: E731
     if S == 0:
         raise ValueError("robust_check: no plants")
     if G.shape[-1] != (
@@ -394,12 +394,12 @@ def robust_check(
     chunk = max(1, min(int(chunk), S))
     for i in _distributed.local_chunks(S, chunk):  # all chunks, or this process's block
         j = min(S, i + chunk)
-        Pc, pol = get(i, j)
-        pol = jnp.asarray(pol, dtype=jnp.float64) + c_rhp
+        Pc, pc = get(i, j)  # (not `pol`: the array path's `get` reads that name)
+        pc = jnp.asarray(pc, dtype=jnp.float64) + c_rhp
         if backend == "metrics":
-            r = _analyze_chunk(_pad(Pc, chunk), _pad(pol, chunk), G, om, vectorize)
+            r = _analyze_chunk(_pad(Pc, chunk), _pad(pc, chunk), G, om, vectorize)
         else:
-            r = _reference_chunk(Pc, pol, G, om)
+            r = _reference_chunk(Pc, pc, G, om)
         parts.append({k: v[: j - i] for k, v in r.items()})
     res = _distributed.gather(parts)  # every process's chunks, in order (one process: concat)
     if labels is not None and len(labels) != S:
