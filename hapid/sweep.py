@@ -208,7 +208,9 @@ def run_sweep(cfg: dict, vary: dict[str, list], *, chunk: int = 64, progress: bo
               estimator: str = ESTIMATOR_DEFAULT):  # fmt: skip
     """Evaluate every configuration; returns ``(keys, params (B, k), metrics dict of (B,))``.
 
-    One compiled ``vmap`` per chunk and per distinct combination of static values."""
+    One compiled ``vmap`` per chunk and per distinct combination of static values. Under
+    ``jax.distributed`` (:func:`hapid._distributed.initialize`) each process runs a contiguous
+    block of the chunks and every process returns the whole result, identical to one process."""
     from . import pipeline
 
     if estimator not in pipeline.ESTIMATORS:
