@@ -245,7 +245,7 @@ PER_COMMAND: dict[str, dict] = {
               "estimator": ((lambda v: v in _estimators()),
                             "a registered estimator (hapid.pipeline.ESTIMATORS: wls, wls+positize, nls, …)")},
     "tune": {"model": _In("a model file", ARRAY_EXT),
-             "samples": _In("a posterior-samples file", (".npz",)),
+             "samples": _In("a posterior-samples file", (".npz",)), "frf": _In("an FRF file", RUN_EXT),
              "out": _Out("a design file", (".npz",)), "report": _Out("a JSON report", (".json",))},
     "paper": {"out": _Out("an output folder"), "scene": _In("a scene TOML", (".toml",))},
     "predict": {"samples": _In("a posterior-samples file", (".npz",)), "out": _Out("a draws file", (".npz",)),
