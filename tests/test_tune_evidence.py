@@ -49,6 +49,7 @@ def test_mismatch_bound_and_certificate_match_numpy():
                               compute_uv=False)[:, -1])  # fmt: skip
     cert = certificate(ev, model, g)
     assert cert["frf_min_sigma_I_plus_L"] == pytest.approx(rd, rel=1e-9)
+    assert cert["nominal_stable"]  # a PD model: Ẑ_H has no RHP roots, L = g I is stable
     assert cert["certified"] == bool(rd >= 0.5 and cert["beyond_loop_gain"] <= KAPPA)
     with pytest.raises(ValueError, match="kappa"):
         evidence_from_frf(_frf(model, 1.0), model, kappa=1.5)
@@ -140,7 +141,7 @@ def test_cli_route_tuned_g_is_stable_on_a_device_not_used_for_tuning(tmp_path):
     d = tmp_path
     for argv in (["simulate", "--device", "cu5_soft", "--out", str(d / "run.npz")],
                  ["frf", str(d / "run.npz"), "--out", str(d / "frf.npz")],
-                 ["fit", str(d / "frf.npz"), "--method", "nls", "--out", str(d / "nls.npz")],
+                 ["fit", str(d / "frf.npz"), "--method", "nls", "--f-max-hz", "40", "--out", str(d / "nls.npz")],
                  ["posterior", str(d / "frf.npz"), "--method", "laplace", "--samples", "120",
                   "--out", str(d / "s.npz")],
                  ["tune", "--model", str(d / "nls.npz"), "--samples", str(d / "s.npz"), "--frf",
@@ -152,6 +153,7 @@ def test_cli_route_tuned_g_is_stable_on_a_device_not_used_for_tuning(tmp_path):
         assert main(argv) == 0, argv
     g, info = load_design(d / "design.npz")
     model = io.load_model(d / "nls.npz")
+    assert true_plant_loop(Compensator.paper(), model, cu5_soft())["stable"]  # the start
     t = true_plant_loop(g, model, cu5_soft())
     assert t["stable"], t
     assert json.loads((d / "a.json").read_text())["stable"]

@@ -151,11 +151,28 @@ def frf_return_difference(ev: Evidence, model, g: Compensator) -> float:
     return float(np.min(np.linalg.svd(IL, compute_uv=False)[:, -1]))
 
 
+def nominal_stable(model, g: Compensator) -> bool:
+    """Is the loop stable on the model's own plant ``P̂`` (``L = g I``)? Nyquist on the wide
+    continuous grid with the controller's RHP poles (roots of det Ẑ_H with Re > 0): a model
+    whose Ẑ_H has RHP roots cancels them unstably, and no g fixes that — the Nyquist count
+    inside the evidence band is the model's, so the certificate needs it."""
+    from .. import pipeline
+    from .._grids import continuous_grid
+
+    om = continuous_grid(800)
+    rep = pipeline.loop(pipeline.controller(model, g), pipeline.model_plant(model, om))
+    return bool(rep.summary()["stable"])
+
+
 def certificate(ev: Evidence, model, g: Compensator, floor: float = 0.5) -> dict:
     """The evidence figures of ``g``: ``frf_min_sigma_I_plus_L`` (:func:`frf_return_difference`),
-    ``beyond_loop_gain`` (:func:`beyond_gain`), ``evidence_hz`` (ω_e/2π), ``mismatch_bound``
-    and ``certified`` (return difference ≥ ``floor`` and beyond-band gain ≤ κ)."""
+    ``beyond_loop_gain`` (:func:`beyond_gain`), ``evidence_hz`` (ω_e/2π), ``mismatch_bound``,
+    ``nominal_stable`` (:func:`nominal_stable`) and ``certified`` (nominal loop stable, return
+    difference ≥ ``floor`` and beyond-band gain ≤ κ). The measured FRF is too sparse to count
+    encirclements: the count comes from the model (and the held-out draws), the FRF keeps the
+    measured loop away from −1, and the small gain fixes the count beyond the data."""
     rd, bg = frf_return_difference(ev, model, g), beyond_gain(g, ev)
+    ns = nominal_stable(model, g)
     return {"frf_min_sigma_I_plus_L": rd, "beyond_loop_gain": bg,
             "evidence_hz": ev.omega_e / (2 * np.pi), "mismatch_bound": ev.mismatch,
-            "certified": bool(rd >= floor and bg <= ev.kappa + 1e-9)}  # fmt: skip
+            "nominal_stable": ns, "certified": bool(ns and rd >= floor and bg <= ev.kappa + 1e-9)}  # fmt: skip
