@@ -10,7 +10,8 @@ true sampled plant (Nyquist first, iso-bandwidth, GM, PM) and on held-out poster
 ``cu5`` is the development device; ``cu5_soft`` (1 ms more delay, compliant rods) was never
 used to choose tuning settings.
 
-    python paper_figures/robust_table.py [--devices cu5 cu5_soft] [--quick] [--out out/robust]
+    python paper_figures/robust_table.py [--devices cu5 cu5_soft] [--quick] [--draws nls|white|gp]
+                                         [--out out/robust]
 """
 
 from __future__ import annotations
@@ -20,14 +21,20 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parent.parent
 GOAL_HZ, GM_DB, PM_DEG = 6.0, 6.0, 30.0
 
 
-def design(device: str, *, quick: bool = False, seed: int = 0, cache=None, g0=None,
-           draws: str = "nls", **options):
+def design(
+    device: str,
+    *,
+    quick: bool = False,
+    seed: int = 0,
+    cache=None,
+    g0=None,
+    draws: str = "nls",
+    **options,
+):
     """Simulate → FRF → NLS → Laplace samples → robust_design; returns (row dict, raw)."""
     import hapid  # noqa: F401  (float64 first)
     from hapid import scene
@@ -101,9 +108,11 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--devices", nargs="+", default=["cu5", "cu5_soft"])
     ap.add_argument("--quick", action="store_true", help="fewer draws and steps (smoke run)")
+    ap.add_argument("--draws", default="nls", choices=["nls", "white", "gp"],
+                    help="posterior draws: Laplace of the NLS fit (default) or of the white/gp log-posterior")  # fmt: skip
     ap.add_argument("--out", default=str(ROOT / "out" / "robust"))
     a = ap.parse_args(argv)
-    results = [design(d, quick=a.quick)[0] for d in a.devices]
+    results = [design(d, quick=a.quick, draws=a.draws)[0] for d in a.devices]
     Path(a.out).mkdir(parents=True, exist_ok=True)
     (Path(a.out) / "robust_table.json").write_text(json.dumps(results, indent=1, default=float))
     txt = table(results)

@@ -166,8 +166,9 @@ def robust_design(
     held-out fraction meeting the margins 25 → 87.5 % and the FRF return difference
     0.61 → 1.05, and made the true sampled plant unstable (:func:`.true_plant_loop`: GM
     0.65 dB, PM 9.6°; the start: stable, GM 3.9 dB, PM 28.7°, |T| peak at 53 Hz, above the
-    1–40 Hz fit band). Needs evidence above the band (a device family, or a delay/roll-off
-    prior on the error) before it can be on.
+    1–40 Hz fit band). Needs evidence above the band before it can be on: the evidence
+    constraints below (on by default) now supply it — the measured FRF to 100 Hz and small
+    gain beyond — but this combination has not been measured, so the option stays off.
 
     **Evidence-limited design (default, ``evidence=True``)**: with a measured FRF (``frf``:
     an :class:`~hapid.frf.FRF` or dict with ``omega, Z_H, Z_T``; else the fit data stored with
