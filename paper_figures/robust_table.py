@@ -33,6 +33,7 @@ def design(
     cache=None,
     g0=None,
     draws: str = "nls",
+    sampled: bool = True,
     **options,
 ):
     """Simulate → FRF → NLS → Laplace samples → robust_design; returns (row dict, raw)."""
@@ -59,7 +60,8 @@ def design(
     t0 = time.perf_counter()
     out = robust_design(model, samples=ps, frf=frf, g0=g0, n_train=24 if quick else 60,
                         n_holdout=80 if quick else 200, n_freq=200 if quick else 300,
-                        max_steps=150 if quick else 300, seed=seed, **options)  # fmt: skip
+                        max_steps=150 if quick else 300, seed=seed,
+                        evidence_ts=dev.ts if sampled else None, **options)  # fmt: skip
     wall = time.perf_counter() - t0
     g = out["result"].g
     rows = {}

@@ -145,7 +145,7 @@ def test_cli_route_tuned_g_is_stable_on_a_device_not_used_for_tuning(tmp_path):
                  ["posterior", str(d / "frf.npz"), "--method", "laplace", "--samples", "120",
                   "--out", str(d / "s.npz")],
                  ["tune", "--model", str(d / "nls.npz"), "--samples", str(d / "s.npz"), "--frf",
-                  str(d / "frf.npz"), "--n-train", "24", "--n-holdout", "60", "--max-steps", "120",
+                  str(d / "frf.npz"), "--fs", "1000", "--n-train", "24", "--n-holdout", "60", "--max-steps", "120",
                   "--out", str(d / "design.npz"), "--report", str(d / "tune.json")],
                  ["plant", "--device", "cu5_soft", "--out", str(d / "true.npz")],
                  ["analyze", "--model", str(d / "nls.npz"), "--design", str(d / "design.npz"),

@@ -58,13 +58,17 @@ BEYOND_N = 120
 class Evidence:
     """A measured FRF as evidence: ``omega (N,)`` rad/s, ``P (N, n, n)`` the measured plant
     ``Z_H Z_T⁻¹``; ``mismatch`` the bound ``m`` on ``σ̄(P P̂⁻¹)`` beyond ``omega[-1]``;
-    ``kappa`` the small-gain level; ``source`` a label for reports."""
+    ``kappa`` the small-gain level; ``source`` a label for reports; ``ts`` (s) the sampling
+    period the controller runs at (``None``: continuous controller) — with it the measured
+    loop uses the discretized controller (its phase lag is part of the loop) and the
+    small-gain grid ends at the Nyquist frequency."""
 
     omega: np.ndarray
     P: np.ndarray
     mismatch: float
     kappa: float = KAPPA
     source: str = "frf"
+    ts: float | None = None
 
     @property
     def omega_e(self) -> float:
@@ -104,7 +108,7 @@ def mismatch_bound(P, model, omega, top: float = TOP_BAND) -> float:
 
 
 def evidence_from_frf(frf, model, *, f_max_hz: float | None = None, mismatch: float | None = None,
-                      kappa: float = KAPPA, source: str = "frf") -> Evidence:  # fmt: skip
+                      kappa: float = KAPPA, source: str = "frf", ts: float | None = None) -> Evidence:  # fmt: skip
     """:class:`Evidence` of an FRF (anything with ``omega``, ``Z_H``, ``Z_T``; a dict such as
     :attr:`PosteriorSamples.predictive` too), optionally cut at ``f_max_hz``."""
     get = (lambda k: frf[k]) if isinstance(frf, dict) else (lambda k: getattr(frf, k))  # noqa: E731
@@ -118,26 +122,34 @@ def evidence_from_frf(frf, model, *, f_max_hz: float | None = None, mismatch: fl
     m = mismatch_bound(P, model, om) if mismatch is None else float(mismatch)
     if not (m > 0 and 0 < kappa < 1):
         raise ValueError(f"evidence: need mismatch > 0 and 0 < kappa < 1, got {m}, {kappa}")
-    return Evidence(om, P, m, float(kappa), source)
+    if ts is not None and not om[-1] < np.pi / ts:
+        raise ValueError("evidence: the FRF reaches the Nyquist frequency of the controller's ts")
+    return Evidence(om, P, m, float(kappa), source, None if ts is None else float(ts))
 
 
 def beyond_grid(ev: Evidence, n: int = BEYOND_N) -> np.ndarray:
-    """Log grid (rad/s) on ``[ω_e, ω_e · 10^BEYOND_DECADES]`` where the small-gain condition
-    is imposed."""
-    return np.geomspace(ev.omega_e, ev.omega_e * 10.0**BEYOND_DECADES, n)
+    """Log grid (rad/s) on ``[ω_e, ω_e · 10^BEYOND_DECADES]`` (with ``ev.ts``: up to the
+    Nyquist frequency) where the small-gain condition is imposed."""
+    top = ev.omega_e * 10.0**BEYOND_DECADES
+    if ev.ts is not None:
+        top = np.pi / ev.ts * (1.0 - 1e-9)
+    return np.geomspace(ev.omega_e, top, n)
 
 
-def small_gain_constraint(g: Compensator, omega, g_max: float, beta: float = 60.0):
-    """Smooth ``log max_ω |g(jω)| − log g_max`` (soft maximum, sharpness ``beta``): ≤ 0 when
-    the beyond-evidence small-gain condition holds (the soft maximum is ≥ the maximum)."""
-    lg = jnp.log(jnp.abs(g_response(g, jnp.asarray(omega))))
+def small_gain_constraint(g: Compensator, omega, g_max: float, beta: float = 60.0, ts=None):
+    """Smooth ``log max_ω |g(jω)| − log g_max`` (soft maximum, sharpness ``beta``; ``g`` of the
+    sampled controller with ``ts``): ≤ 0 when the beyond-evidence small-gain condition holds
+    (the soft maximum is ≥ the maximum)."""
+    lg = jnp.log(jnp.abs(g_response(g, jnp.asarray(omega), ts)))
     return jax.nn.logsumexp(beta * lg) / beta - np.log(g_max)
 
 
 def beyond_gain(g: Compensator, ev: Evidence) -> float:
     """``max_{ω ≥ ω_e} |g(jω)| · m`` (on :func:`beyond_grid`): the bound on σ̄(L) beyond the
     evidence; ≤ ``ev.kappa`` certifies it."""
-    return float(np.max(np.abs(np.asarray(g_response(g, beyond_grid(ev, 400))))) * ev.mismatch)
+    return float(
+        np.max(np.abs(np.asarray(g_response(g, beyond_grid(ev, 400), ev.ts)))) * ev.mismatch
+    )
 
 
 def frf_return_difference(ev: Evidence, model, g: Compensator) -> float:
@@ -146,7 +158,7 @@ def frf_return_difference(ev: Evidence, model, g: Compensator) -> float:
     ≥ 1/2 means disk margins of 6 dB / 29° at the measured frequencies."""
     from ..pipeline import controller as make_controller
 
-    G = np.asarray(make_controller(model, g).response(ev.omega))
+    G = np.asarray(make_controller(model, g, ts=ev.ts).response(ev.omega))
     IL = np.eye(ev.P.shape[-1]) + ev.P @ G
     return float(np.min(np.linalg.svd(IL, compute_uv=False)[:, -1]))
 

@@ -76,6 +76,7 @@ class Requirements:
     tau: float = 0.02
     sg_omega: tuple | None = None
     sg_g_max: float | None = None
+    sg_ts: float | None = None
 
     @property
     def ms(self) -> float:
@@ -153,8 +154,8 @@ def aggregate(g, families, u, req: Requirements) -> dict[str, jax.Array]:
     if req.sg_omega is not None:
         from ._evidence import small_gain_constraint
 
-        out["evidence/small_gain"] = small_gain_constraint(g, np.asarray(req.sg_omega),
-                                                           req.sg_g_max, req.beta)  # fmt: skip
+        out["evidence/small_gain"] = small_gain_constraint(g, np.asarray(req.sg_omega), req.sg_g_max,
+                                                           req.beta, req.sg_ts)  # fmt: skip
     for fam in families:
         c = scenario_constraints(g, fam.scenarios, u, req)
         if fam.bandwidth:

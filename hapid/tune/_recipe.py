@@ -148,6 +148,7 @@ def robust_design(
     evidence: bool = True,
     kappa: float = KAPPA,
     mismatch: float | None = None,
+    evidence_ts: float | None = None,
     progress=None,
 ) -> dict:
     """Tune g for ``model`` over posterior ``samples`` and/or ``device`` variants, then
@@ -251,11 +252,12 @@ def robust_design(
     if evidence:
         src = frf if frf is not None else getattr(samples, "predictive", None)
         if src is not None:
-            ev = evidence_from_frf(src, model, mismatch=mismatch, kappa=kappa,
+            ev = evidence_from_frf(src, model, mismatch=mismatch, kappa=kappa, ts=evidence_ts,
                                    source="frf" if frf is not None else "samples' fit data")  # fmt: skip
-            families.append(Family(make_scenarios(ev.P, model, ev.omega), quantile=1.0,
+            families.append(Family(make_scenarios(ev.P, model, ev.omega, ts=ev.ts), quantile=1.0,
                                    bandwidth=False, name="frf"))  # fmt: skip
-            req = dataclasses.replace(req, sg_omega=tuple(beyond_grid(ev)), sg_g_max=ev.g_max)
+            req = dataclasses.replace(req, sg_omega=tuple(beyond_grid(ev)), sg_g_max=ev.g_max,
+                                      sg_ts=ev.ts)  # fmt: skip
             info["evidence"] = {"source": ev.source, "n_freq": int(ev.omega.size),
                                 "evidence_hz": ev.omega_e / TWO_PI, "mismatch_bound": ev.mismatch,
                                 "kappa": ev.kappa}  # fmt: skip
@@ -278,9 +280,10 @@ def robust_design(
             out["table"][name] = table_row(v) | {"validate_s": time.perf_counter() - t0}
         ev_chk = ev
         if ev_chk is None and frf is not None:
-            ev_chk = evidence_from_frf(frf, model, mismatch=mismatch, kappa=kappa)
+            ev_chk = evidence_from_frf(frf, model, mismatch=mismatch, kappa=kappa, ts=evidence_ts)
         if ev_chk is None and getattr(samples, "predictive", None) is not None:
-            ev_chk = evidence_from_frf(samples.predictive, model, mismatch=mismatch, kappa=kappa)
+            ev_chk = evidence_from_frf(samples.predictive, model, mismatch=mismatch, kappa=kappa,
+                                       ts=evidence_ts)  # fmt: skip
         if ev_chk is not None:
             for name, g in (("start", g0), ("tuned", res.g)):
                 out["table"][name] |= certificate(ev_chk, model, g, floor=FRF_SIGMA_FLOOR)
