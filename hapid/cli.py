@@ -540,7 +540,8 @@ def cmd_tune(a):
     import time
 
     t = time.perf_counter()
-    res = tune_from_files(a.model, a.samples, a.out, device=a.device, n_train=a.n_train,
+    res = tune_from_files(a.model, a.samples, a.out, device=a.device, frf=a.frf,
+                          evidence_ts=None if a.fs is None else 1.0 / a.fs, n_train=a.n_train,
                           n_holdout=a.n_holdout, quantile=a.quantile, n_subjects=a.subjects,
                           seed=a.seed, max_steps=a.max_steps, keep_dc_gain=not a.free_dc)  # fmt: skip
     r = res["result"]
@@ -575,6 +576,10 @@ def _register_tune(sub):
     tu.add_argument("--model", required=True, help="nominal model file (the controller inverts it)")
     tu.add_argument("--samples", help="posterior samples file (hapid posterior)")
     tu.add_argument("--device", help="preset device: tune on its pose/subject variants, validate on its true plant")
+    tu.add_argument("--frf", help="the measured FRF file (whole range): the evidence the design must hold on "
+                    "(default: the samples' fit data); beyond its top frequency the loop is kept small-gain")  # fmt: skip
+    tu.add_argument("--fs", type=float, help="sampling rate (Hz) the controller runs at: the measured loop and "
+                    "the small gain beyond it use the discretized controller (default: continuous)")  # fmt: skip
     tu.add_argument("--out", required=True, help="design file (.npz)")
     tu.add_argument("--report", help="JSON report of the re-check")
     tu.add_argument("--n-train", type=int, default=80, help="posterior samples used for tuning")
