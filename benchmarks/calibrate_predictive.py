@@ -153,14 +153,15 @@ def main(argv=None):
     a = ap.parse_args(argv)
     print(f"posterior: {a.method}; 90 % predictive band; held-out frequencies in 1–40 Hz\n")
     print("| device | model error | quantity | coverage | width / error | calibrated | "
-          "element coverage | rel. error of median | eval ms | build s | posterior s | τ | "
-          "steps/τ | predict s |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "element coverage | rel. error of median | rel. radius | eval ms | build s | "
+          "posterior s | τ | steps/τ | predict s |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in a.devices.split(","):
         for r in calibrate(name, kinds=a.kinds.split(","), method=a.method, draws=a.draws):
             print(f"| {r['device']} | {r['error model']} | {r['quantity']} | {r['coverage']:.3f} | "
                   f"{r['width_ratio']:.2f} | {r['width_ratio_calibrated']:.2f} | "
-                  f"{r['element_coverage']:.3f} | {r['rel_error_median']:.4f} | {r['eval_ms']:.2f} | "
+                  f"{r['element_coverage']:.3f} | {r['rel_error_median']:.4f} | "
+                  f"{r['rel_radius_median']:.4f} | {r['eval_ms']:.2f} | "
                   f"{r['build_s']:.1f} | {r['posterior_s']:.1f} | {r['tau']:.0f} | "
                   f"{r['steps_over_tau']:.1f} | {r['predict_s']:.1f} |", flush=True)  # fmt: skip
 

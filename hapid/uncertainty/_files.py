@@ -27,7 +27,8 @@ def posterior_from_files(
     onto the PSD cone: :func:`posterior_laplace_samples`). ``fit_options`` go to ``fit_nls``
     (default relative weights, 40 Hz band); ``posterior_options`` to ``make_log_posterior``
     (its ``f_max_hz`` defaults to the fit's; ``model_error="gp"`` uses the NLS fit as the GP
-    amplitudes' reference; with ``fix_boundary`` the fit's matrices at the
+    amplitudes' reference and as the start of the hyperparameters' mode search, ``gp_hyper``
+    ``"map"`` by default; with ``fix_boundary`` the fit's matrices at the
     PSD boundary are held fixed, :func:`boundary_fixed`); ``sampler_options`` (``n_walkers``, ``moves``,
     ``max_steps``…) to ``sample_posterior``. Returns the :class:`PosteriorSamples`.
     """

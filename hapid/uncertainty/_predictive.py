@@ -124,8 +124,10 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
     """Posterior-predictive draws of the *true* ``Z_H, Z_T, P = Z_H Z_T⁻¹`` on ``omega`` (rad/s,
     any grid), including the model-error term — not only parameter uncertainty.
 
-    Per draw ``(θ, τ, ℓ)``: ``Z(θ)`` of the second-order model plus the model-error function
-    drawn from its posterior *given that draw's fit residuals*:
+    Per draw ``(θ, τ, ℓ, β, κ)``: ``Z(θ)`` of the second-order model plus the model-error
+    function drawn from its posterior *given that draw's fit residuals* (with ``gp_hyper="map"``,
+    the default, the hyperparameters are the same in every draw — their posterior mode — and
+    only θ varies; files with six gp columns are read with κ = 0):
 
     - ``"gp"`` samples: the error functions ``e_H, e_M`` (per element, re and im) are the GP
       of :func:`hapid.uncertainty._likelihood.gp_covariance`; the draw at ``omega`` is the
@@ -292,7 +294,9 @@ def band_calibration(draws, truth, level: float = 0.9, n_reference: int = 20) ->
     - ``width_ratio_of_medians`` — ``median_ω r / median_ω e`` (the earlier definition);
     - ``element_coverage`` — fraction of (frequency, element, re/im) whose central ``level``
       interval holds the truth;
-    - ``rel_error_median`` — median of ``e / ‖X_true‖_F``.
+    - ``rel_error_median`` — median of ``e / ‖X_true‖_F``; ``rel_radius_median`` — median of
+      ``r / ‖X_true‖_F`` (the band's half-width relative to the response itself: a band can
+      meet ``width_ratio`` by being centred badly, this says how wide it is in absolute terms).
     """
     X = np.asarray(draws)
     T = np.asarray(truth)
@@ -317,4 +321,5 @@ def band_calibration(draws, truth, level: float = 0.9, n_reference: int = 20) ->
             "coverage_calibrated": float(np.mean(ref <= r)),
             "width_ratio_of_medians": float(np.median(r) / np.median(e)),
             "element_coverage": float(np.mean(inside)),
-            "rel_error_median": float(np.median(e / np.linalg.norm(T, axis=(-2, -1))))}  # fmt: skip
+            "rel_error_median": float(np.median(e / np.linalg.norm(T, axis=(-2, -1)))),
+            "rel_radius_median": float(np.median(r / np.linalg.norm(T, axis=(-2, -1))))}  # fmt: skip
