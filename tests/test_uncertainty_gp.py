@@ -49,7 +49,7 @@ def test_gp_likelihood_matches_scipy_reference(case):
     log-frequency (e^{κu} − 1)/κ)."""
     truth, frf, nls = case
     post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp", reference=nls,
-                              parameterization="cholesky", noise_corr=0.3, gp_hyper="sample")  # fmt: skip
+                              parameterization="cholesky", noise_corr=0.3, gp_hyper="sample", warp=True)  # fmt: skip
     x = initial_point(post, nls)
     x[-8:] = [np.log(0.05), np.log(0.02), np.log(0.4), np.log(0.8), 0.5, -0.3, 0.7, -0.4]
     ll = float(post.log_likelihood(x))
@@ -107,7 +107,7 @@ def test_fixed_hyper_quadratic_form_equals_full_likelihood(case, param):
     _, frf, nls = case
     h = np.array([np.log(0.05), np.log(0.02), np.log(0.4), np.log(0.8), 0.5, -0.3, 0.7, -0.4])
     post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp", reference=nls,
-                              noise_corr=0.3, parameterization=param, gp_hyper=h)  # fmt: skip
+                              noise_corr=0.3, parameterization=param, gp_hyper=h, warp=True)  # fmt: skip
     assert post.dim == post.n_theta and post.n_tau == 0
     x0 = initial_point(post, nls)
     rng = np.random.default_rng(3)
