@@ -143,6 +143,11 @@ def main(argv=None):
     ap.add_argument("--draws", default="nls", choices=["nls", "white", "gp"],
                     help="posterior draws: Laplace of the NLS fit (default) or of the white/gp log-posterior")  # fmt: skip
     ap.add_argument("--out", default=str(ROOT / "out" / "robust"))
+    ap.add_argument(
+        "--predictive",
+        action="store_true",
+        help="tune on posterior-predictive draws (model error included; with --draws gp)",
+    )
     ap.add_argument("--oracle", action="store_true",
                     help="instead: tune the paper-form g on each true plant (does g's form bind?)")  # fmt: skip
     a = ap.parse_args(argv)
@@ -151,7 +156,8 @@ def main(argv=None):
             for r in oracle(d):
                 print(r)
         return 0
-    results = [design(d, quick=a.quick, draws=a.draws)[0] for d in a.devices]
+    results = [design(d, quick=a.quick, draws=a.draws, model_error_draws=a.predictive)[0]
+               for d in a.devices]  # fmt: skip
     Path(a.out).mkdir(parents=True, exist_ok=True)
     (Path(a.out) / "robust_table.json").write_text(json.dumps(results, indent=1, default=float))
     txt = table(results)
