@@ -214,6 +214,7 @@ COMMON: dict[str, tuple] = {
     "pm_deg": between(0, 180, "°", hi_open=True),
     "max_samples": int_ge(1),
     "chunk": int_ge(1),
+    "processes": int_between(1, 4096),  # sweep, robust: local jax.distributed processes
     "n_train": int_ge(1),
     "n_holdout": int_ge(1),
     "quantile": between(0, 1, lo_open=True),
