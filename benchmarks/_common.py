@@ -167,3 +167,42 @@ def standalone(run, doc: str, argv=None) -> Section:
         print(f"figure: {f}")
     print(f"({sec.title}: {sec.seconds:.0f} s)")
     return sec
+
+
+# ---- issue-13 goals table: the contract with run_all.py (benchmarks/README.md) ------------
+
+ISSUE_ROWS = (  # (id, work, goal, script that writes the row)
+    ("loop_analysis", "loop analysis: Nyquist verdict + σ̄(T − I) bandwidth + loci margins",
+     "≥ 30× numpy, warm", "bench_fast"),
+    ("robust_check", "robust check, 1000 draws × 1000 frequencies",
+     "≤ 2 s warm, same verdicts as the per-plant analysis", "bench_fast"),
+    ("wls_bound", "batched WLS vs the memory-bandwidth bound",
+     "≥ 50 % of the bound measured in the same run", "bench_throughput"),
+    ("nls_scipy", "NLS (LM), paper protocol, equal final cost, vs scipy least_squares (exact Jacobian)",
+     "≥ 10×", "bench_fit"),
+    ("nls_batch", "fit_nls_batch, B = 64, vs a Python loop of fit_nls", "≥ 4× the loop",
+     "bench_throughput"),
+    ("paper_pipeline", "paper pipeline end to end (simulate → FRF → fits → analysis) vs numpy/scipy",
+     "≥ 10×", "bench_pipeline"),
+)  # fmt: skip
+ROW_KEYS = ("id", "work", "reference", "reference_s", "hapid_s", "ratio", "goal", "met", "reason")
+
+
+def write_goal_rows(out: str, script: str, rows: list[dict], quick: bool) -> Path:
+    """Write ``<out>/goals/<script>.json``: this script's rows of the issue-13 goals table.
+
+    Each row has :data:`ROW_KEYS` (``None`` where a value does not exist; ``ratio`` =
+    ``reference_s / hapid_s``); ``run_all.py`` assembles the table from these files."""
+    import json
+
+    ids = {row[0] for row in ISSUE_ROWS}
+    for r in rows:
+        missing = [k for k in ROW_KEYS if k not in r]
+        if missing or r["id"] not in ids:
+            raise ValueError(
+                f"goal row {r.get('id')!r}: missing {missing} or unknown id (known: {sorted(ids)})"
+            )
+    path = Path(out) / "goals" / f"{script}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"script": script, "quick": bool(quick), "rows": rows}, indent=1))
+    return path

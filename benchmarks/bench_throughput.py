@@ -32,7 +32,6 @@ import jax.numpy as jnp  # noqa: E402
 from _common import Section, fg, fs, measure, standalone, table, timeit  # noqa: E402
 
 import hapid  # noqa: E402,F401
-from hapid.fit import OMEGA_C_PAPER as OMEGA_C  # noqa: E402
 from hapid.frf import as_frf  # noqa: E402
 
 
@@ -53,26 +52,6 @@ def bandwidth(nbytes: int = 256 * 2**20):
     return 2 * nbytes / t_np / 1e9, 2 * nbytes / t_j / 1e9
 
 
-def wls_gram_inverse(omega, Z, omega_c=OMEGA_C):
-    """Prototype (benchmark-side, not hapid): ``wls_coefficients`` with the 3×3 normal
-    matrix inverted once (Cholesky of the identity) and applied as one matmul, instead of
-    ``cho_solve`` with all n²·B right-hand sides. Same minimizer."""
-    import jax.scipy.linalg as jsl
-
-    from hapid.fit import paper_weight
-
-    s = 1j * omega
-    h = paper_weight(omega, omega_c)
-    A = h[:, None] * jnp.stack([s**2, s, jnp.ones_like(s)], axis=-1)
-    c = jnp.linalg.norm(A, axis=0)
-    A_s = A / c
-    G = jnp.real(jnp.conj(A_s).T @ A_s)
-    Ginv = jsl.cho_solve(jsl.cho_factor(G, lower=True), jnp.eye(3))
-    flat = Z.reshape(Z.shape[0], -1)
-    rhs = jnp.real(jnp.conj(A_s).T @ (h[:, None] * flat))
-    return ((Ginv @ rhs) / c[:, None]).reshape((3,) + Z.shape[1:])
-
-
 def _wls_batch(B, n=5, seed=0):
     from bench_fit import FREQ_HZ, second_order_device
 
@@ -84,56 +63,87 @@ def _wls_batch(B, n=5, seed=0):
     return w, ZH[None] + noise(), ZT[None] + noise()
 
 
+def _interleaved(fns: dict, repeat: int):
+    """Best wall and CPU (process) seconds per name, the calls interleaved round-robin so that
+    load from other processes hits every contender alike."""
+    wall = {k: float("inf") for k in fns}
+    cpu = dict(wall)
+    for _ in range(repeat):
+        for k, fn in fns.items():
+            t, c = time.perf_counter(), time.process_time()
+            jax.block_until_ready(fn())
+            wall[k] = min(wall[k], time.perf_counter() - t)
+            cpu[k] = min(cpu[k], time.process_time() - c)
+    return wall, cpu
+
+
 def wls_throughput(sec: Section, quick: bool):
-    from hapid.fit import wls, wls_coefficients
+    from hapid.fit import wls, wls_coefficients, wls_operator
 
     B = 512 if quick else 4096
     n, N = 5, 28
     w, ZH, ZT = _wls_batch(B, n)
     frfs = as_frf(np.broadcast_to(w / (2 * np.pi), (B, N)), ZH, ZT)
     vm = jax.jit(jax.vmap(wls))
-    Zf = jnp.asarray(np.stack([ZH, ZT], axis=2).transpose(1, 0, 2, 3, 4))  # (N, B, 2, n, n)
+    Zf_np = np.ascontiguousarray(
+        np.stack([ZH, ZT], axis=2).transpose(1, 0, 2, 3, 4)
+    )  # (N, B, 2, n, n)
+    Zf = jnp.asarray(Zf_np)
     wj = jnp.asarray(w)
     shared = jax.jit(lambda om, Z: wls_coefficients(om, Z))
-    _, c1, t_vm = measure(lambda: vm(frfs), repeat=5)
-    _, c2, t_sh = measure(lambda: shared(wj, Zf), repeat=5)
-    proto = jax.jit(wls_gram_inverse)
-    _, _, t_pr = measure(lambda: proto(wj, Zf), repeat=5)
-    dev_p = float(
-        jnp.max(jnp.abs(proto(wj, Zf) - shared(wj, Zf))) / jnp.max(jnp.abs(shared(wj, Zf)))
-    )
-    # cross-check: the two forms give the same M, B, K
+    K_np = np.asarray(wls_operator(wj))
+    flat_np = Zf_np.reshape(N, -1)
+
+    def numpy_gemm():  # the same operator in numpy (one zgemm): the numpy side of the row
+        return np.real(K_np @ flat_np)
+
+    ref = np.asarray(shared(wj, Zf))
     m1 = vm(frfs)
-    m2 = shared(wj, Zf)
-    dev_ = float(jnp.max(jnp.abs(m1.hand.M - m2[0, :, 0])) / jnp.max(jnp.abs(m2[0, :, 0])))
+    _, c1, _ = measure(lambda: vm(frfs), repeat=1)
+    _, c2, _ = measure(lambda: shared(wj, Zf), repeat=1)
+    wall, _ = _interleaved({"vmap": lambda: vm(frfs), "shared": lambda: shared(wj, Zf),
+                            "numpy": numpy_gemm}, repeat=7)  # fmt: skip
+    dev_np = float(np.max(np.abs(numpy_gemm().reshape(ref.shape) - ref)) / np.max(np.abs(ref)))
+    dev_ = float(jnp.max(jnp.abs(m1.hand.M - ref[0, :, 0])) / np.max(np.abs(ref[0, :, 0])))
     bw_np, bw_j = bandwidth(64 * 2**20 if quick else 256 * 2**20)
     bw = max(bw_np, bw_j)
-    per_fit = {"vmap": 2 * N * n * n * 16 + N * 8 + 6 * n * n * 8,
-               "shared": 2 * N * n * n * 16 + 6 * n * n * 8}  # fmt: skip
-    per_fit["proto"] = per_fit["shared"]
+    shared_bytes = 2 * N * n * n * 16 + 6 * n * n * 8  # read Z_H, Z_T; write 6 n×n matrices
+    per_fit = {"vmap": shared_bytes + N * 8, "shared": shared_bytes, "numpy": shared_bytes}
     rows = []
-    for name, t, key in (("jax.vmap(wls), grid per FRF", t_vm, "vmap"),
-                         ("wls_coefficients, shared grid (N, B, …)", t_sh, "shared"),
-                         ("prototype: 3×3 inverse + one matmul, shared grid", t_pr, "proto")):  # fmt: skip
+    for name, key in (("numpy: Re(K @ Z), one zgemm, shared grid", "numpy"),
+                      ("hapid `wls_coefficients` (one GEMM), shared grid (N, B, …)", "shared"),
+                      ("hapid `jax.vmap(wls)`, grid per FRF", "vmap")):  # fmt: skip
+        t = wall[key]
         rate = B / t
         bound = bw * 1e9 / per_fit[key]
         rows.append({"form": name, "batch": B, "time/batch": fs(t), "fits/s": f"{rate:,.0f}",
-                     "bytes/fit": per_fit[key], "bound fits/s": f"{bound:,.0f}",
-                     "fraction of bound": f"{100 * rate / bound:.1f} %"})  # fmt: skip
+                     "bytes/fit": per_fit[key], "GB/s moved": f"{per_fit[key] * rate / 1e9:.2f}",
+                     "bound fits/s": f"{bound:,.0f}", "fraction of bound": f"{100 * rate / bound:.1f} %"})  # fmt: skip
         sec.rows[f"wls_{key}_fraction"] = rate / bound
     sec.add(f"### 1. Batched WLS (n = {n}, N = {N}) vs the memory-bandwidth bound\n\n"
-            f"Measured bandwidth (read + write): numpy copy {bw_np:.1f} GB/s, jax x+1 {bw_j:.1f} GB/s; "
-            f"bound uses {bw:.1f} GB/s. Max |ΔM_H| between the two forms: {dev_:.1e} (relative). "
-            f"Compile: {fs(max(c1 - t_vm, 0))} (vmap), {fs(max(c2 - t_sh, 0))} (shared).\n\n"
-            + table(rows) + "\n\nThe prototype row is not hapid code: it shows that hapid's "
-            "`wls_coefficients` spends most of its time in `cho_solve` with n²·B right-hand sides "
-            f"(XLA:CPU triangular solve); inverting the 3×3 normal matrix once and applying it as a "
-            f"matmul gives the same coefficients (max rel. diff {dev_p:.1e}).")  # fmt: skip
-    best = max(sec.rows["wls_vmap_fraction"], sec.rows["wls_shared_fraction"])
-    sec.goal("batched WLS ≥ 50 % of the memory-bandwidth bound",
-             f"hapid: vmap {100 * sec.rows['wls_vmap_fraction']:.1f} %, shared grid "
-             f"{100 * sec.rows['wls_shared_fraction']:.1f} % (prototype fix: "
-             f"{100 * sec.rows['wls_proto_fraction']:.1f} %)", best >= 0.5)  # fmt: skip
+            f"Measured bandwidth in this run (read + write): numpy copy {bw_np:.1f} GB/s, jax x+1 "
+            f"{bw_j:.1f} GB/s; the bound uses the larger, {bw:.1f} GB/s, and the bytes a fit must "
+            "move (read its FRF's Z_H, Z_T as complex128, write 6 real n×n matrices). hapid builds "
+            "the 3×N operator K = (Re AᴴA)⁻¹Aᴴdiag(h) once per grid (`wls_operator`) and applies it "
+            f"to all 2n²·B elements as one complex matmul. Max rel. diff: numpy vs hapid {dev_np:.1e}, "
+            f"vmap vs shared form {dev_:.1e}. Compile: {fs(max(c1 - wall['vmap'], 0))} (vmap), "
+            f"{fs(max(c2 - wall['shared'], 0))} (shared). Best of 7 interleaved calls.\n\n"
+            + table(rows))  # fmt: skip
+    frac = sec.rows["wls_shared_fraction"]
+    reason = (
+        ""
+        if frac >= 0.5
+        else (
+            " — not met: the product has only 3 output rows, so the complex GEMM runs at the "
+            "flop rate of a 3×N·N×E zgemm (8 real flops per complex multiply-add, all of Re and Im) "
+            "on one core rather than at memory speed; XLA cannot view complex128 as float64 pairs "
+            "without a copy (bitcast of complex is unsupported), which would halve the flops"
+        )
+    )
+    sec.goal("batched WLS ≥ 50 % of the memory-bandwidth bound (same run)",
+             f"hapid shared grid {100 * frac:.0f} % ({fs(wall['shared'])} per {B} fits; numpy zgemm "
+             f"{100 * sec.rows['wls_numpy_fraction']:.0f} %), vmap {100 * sec.rows['wls_vmap_fraction']:.0f} %"
+             + reason, frac >= 0.5)  # fmt: skip
 
 
 def nls_throughput(sec: Section, quick: bool):
@@ -141,30 +151,52 @@ def nls_throughput(sec: Section, quick: bool):
 
     from hapid.fit import fit_nls, fit_nls_batch
 
-    B = 8 if quick else 32
+    B = 16 if quick else 64
     dev = second_order_device(5)
     frfs = [noisy_frf(dev, 1e-2, seed=200 + k)[0] for k in range(B)]
     batch = jax.tree.map(lambda *a: jnp.stack(a), *frfs)
     opts = dict(f_max_hz=None, max_steps=500)
-    res, cb, tb = measure(lambda: fit_nls_batch(batch, **opts), repeat=1 if quick else 3)
+    _, cb, _ = measure(lambda: fit_nls_batch(batch, **opts), repeat=1)
     fit_nls(frfs[0], **opts)  # warm (same compiled single fit for every FRF)
-    t = time.perf_counter()
-    singles = [fit_nls(f, **opts) for f in frfs]
-    jax.block_until_ready(singles[-1].theta)
-    ts = time.perf_counter() - t
+    box = {}
+
+    def batched():
+        box["b"] = fit_nls_batch(batch, **opts)
+        return box["b"].theta
+
+    def loop():
+        box["s"] = [fit_nls(f, **opts) for f in frfs]
+        return box["s"][-1].theta
+
+    wall, cpu = _interleaved({"batch": batched, "loop": loop}, repeat=2 if quick else 3)
+    res, singles = box["b"], box["s"]
     steps_b = np.asarray(res.n_steps)
     steps_s = np.array([int(r.n_steps) for r in singles])
+    cost_s = np.array([float(r.cost) for r in singles])
+    dcost = float(np.max(np.abs(np.asarray(res.cost) - cost_s) / cost_s))
     agree = float(
         np.max(np.abs(np.asarray(res.theta) - np.stack([np.asarray(r.theta) for r in singles])))
     )
-    rows = [{"form": "fit_nls_batch (one vmap)", "batch": B, "time": fs(tb), "fits/s": fg(B / tb),
-             "steps (mean/max)": f"{steps_b.mean():.1f}/{steps_b.max()}", "compile": fs(max(cb - tb, 0))},
-            {"form": "loop of fit_nls", "batch": B, "time": fs(ts), "fits/s": fg(B / ts),
+    rows = [{"form": "fit_nls_batch (one vmapped program)", "batch": B, "wall": fs(wall["batch"]),
+             "CPU": fs(cpu["batch"]), "fits/s": fg(B / wall["batch"]),
+             "steps (mean/max)": f"{steps_b.mean():.1f}/{steps_b.max()}", "compile": fs(max(cb - wall["batch"], 0))},
+            {"form": "Python loop of fit_nls", "batch": B, "wall": fs(wall["loop"]), "CPU": fs(cpu["loop"]),
+             "fits/s": fg(B / wall["loop"]),
              "steps (mean/max)": f"{steps_s.mean():.1f}/{steps_s.max()}", "compile": "—"}]  # fmt: skip
-    sec.rows["nls_batch_fits_per_s"] = B / tb
+    ratio, ratio_cpu = wall["loop"] / wall["batch"], cpu["loop"] / cpu["batch"]
+    sec.rows["nls_batch_fits_per_s"] = B / wall["batch"]
+    sec.rows["nls_batch_vs_loop"] = ratio
     sec.add("### 2. Batched NLS (LM, relative weights, second-order n = 5 truth, noise 10⁻²)\n\n"
-            + table(rows) + f"\n\nmax |Δθ| batch vs singles: {agree:.1e} (a vmapped while-loop runs "
-            "every member until the slowest converges).")  # fmt: skip
+            + table(rows) + f"\n\nBatch vs loop: {ratio:.1f}× wall, {ratio_cpu:.1f}× CPU time; max relative "
+            f"difference of the final costs {dcost:.1e}, max |Δθ| {agree:.1e}. Best of interleaved "
+            "calls. Both sides solve the same compressed residual and take the same Laplace "
+            "covariance (a 90 × 90 `eigh` per fit), which the batch cannot amortize.")  # fmt: skip
+    met = ratio >= 4 and dcost <= 1e-8
+    sec.goal(f"fit_nls_batch (B = {B}) ≥ 4× a Python loop of fit_nls, equal final costs (rtol 1e-8)",
+             f"{ratio:.1f}× wall ({ratio_cpu:.1f}× CPU), costs equal to {dcost:.1e}"
+             + ("" if met else " — not met: per fit the batch still pays the solver's linear algebra "
+                "(LAPACK Cholesky/eigh run matrix by matrix under vmap) and the per-fit Laplace eigh"),
+             met)  # fmt: skip
 
 
 def logprob_throughput(sec: Section, quick: bool):

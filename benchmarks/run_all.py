@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import os
 import sys
 import time
@@ -21,7 +22,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from _common import Section, header, table  # noqa: E402
+from _common import ISSUE_ROWS, Section, fs, header, table  # noqa: E402
 
 import hapid  # noqa: E402,F401  (before any JAX computation: XLA flags, float64)
 
@@ -36,6 +37,7 @@ SUITE = [
     ("control", "bench_control"),
     ("tune", "bench_tune"),
     ("uncertainty", "bench_uncertainty"),
+    ("paper", "bench_paper"),
 ]
 
 
@@ -47,10 +49,63 @@ def _rel(path: str, out: Path) -> str:
         return str(p)
 
 
+def _num(x, fmt) -> str:
+    return "—" if x is None or not isinstance(x, int | float) else fmt(float(x))
+
+
+def issue_table(out: Path, since: float) -> list[dict]:
+    """The six rows of the issue-13 table from ``<out>/goals/*.json`` written since ``since``
+    (benchmarks/README.md, "Goals table contract"); a row no script wrote in this run is
+    shown as not measured."""
+    fresh, stale, bad = {}, set(), []
+    for f in sorted((out / "goals").glob("*.json")):
+        try:
+            d = json.loads(f.read_text())
+            rows = list(d["rows"])
+        except (OSError, ValueError, KeyError, TypeError):
+            bad.append(f.name)
+            continue
+        for r in rows:
+            if not isinstance(r, dict) or "id" not in r:
+                bad.append(f.name)
+            elif f.stat().st_mtime >= since:
+                fresh[r["id"]] = r | {"_quick": d.get("quick")}
+            else:
+                stale.add(r["id"])
+    table_rows = []
+    for rid, work, goal, script in ISSUE_ROWS:
+        r = fresh.get(rid)
+        if r is None:
+            why = f"{script}.py wrote no row `{rid}` in this run"
+            if rid in stale:
+                why += " (a row from an earlier run exists; ignored)"
+            if bad:
+                why += f"; unreadable: {', '.join(sorted(set(bad)))}"
+            table_rows.append({"work": work, "numpy / scipy": "—", "hapid": "—", "ratio": "—",
+                               "goal": goal, "met": "not measured", "reason": why})  # fmt: skip
+            continue
+        ratio = r.get("ratio")
+        pct = rid == "wls_bound"  # a fraction of the bound, not a speed-up
+        rtxt = _num(ratio, lambda x, pct=pct: f"{100 * x:.1f} % of bound" if pct else f"{x:.3g}×")
+        ref = _num(r.get("reference_s"), fs)
+        if r.get("reference"):
+            ref += f" ({r['reference']})"
+        met = r.get("met")
+        table_rows.append({
+            "work": str(r.get("work") or work) + (" (--quick sizes)" if r.get("_quick") else ""),
+            "numpy / scipy": ref, "hapid": _num(r.get("hapid_s"), fs), "ratio": rtxt,
+            "goal": str(r.get("goal") or goal),
+            "met": "—" if met is None else ("yes" if met else "**no**"),
+            "reason": str(r.get("reason") or "").replace("|", "/").replace("\n", " "),
+        })  # fmt: skip
+    return table_rows
+
+
 def write_report(
-    out: Path, sections: list[Section], head: str, argv, total: float, pending
+    out: Path, sections: list[Section], head: str, argv, total: float, pending, since: float
 ) -> Path:
     goals = [dict(section=s.title, **g) for s in sections for g in s.goals]
+    issue = issue_table(out, since)
     lines = [head.replace("# hapid benchmarks", "# hapid benchmark report", 1), "",
              f"command: `{' '.join([Path(sys.executable).name, 'benchmarks/run_all.py', *argv])}`; "
              f"suite wall time {total:.0f} s" + (f"; **not yet run: {', '.join(pending)}**" if pending else ""),
@@ -58,7 +113,11 @@ def write_report(
              "All times are wall-clock on this (shared, noisy) machine, measured after a warm-up "
              "call unless a column says compile/cold; every ratio compares two implementations "
              "measured side by side in this run. Goals are reported as measured, not asserted.",
-             "", "## Goals (as measured)", "", table(goals) if goals else "(none measured)", "",
+             "", "## Goals of issue 13 (as measured in this run)", "",
+             "Each row: the reference (numpy/scipy or the measured bound) and hapid timed side by "
+             "side in the same script of this run; ratio = reference time / hapid time "
+             "(benchmarks/README.md, \"Goals table contract\").", "", table(issue), "",
+             "## Other goals (per section)", "", table(goals) if goals else "(none measured)", "",
              "## Contents", ""]  # fmt: skip
     for i, s in enumerate(sections, 1):
         lines.append(f"{i}. {s.title} ({s.seconds:.0f} s)")
@@ -96,6 +155,7 @@ def main(argv=None):
     head = header("hapid benchmarks" + (" (--quick)" if args.quick else ""))
     print(head, flush=True)
     t0 = time.perf_counter()
+    since = time.time() - 1.0  # goal files older than this run are not used
     sections: list[Section] = []
     failed = []
     for i, (key, mod) in enumerate(todo):
@@ -111,7 +171,8 @@ def main(argv=None):
         sec.seconds = time.perf_counter() - t
         sections.append(sec)
         pending = [k for k, _ in todo[i + 1 :]]
-        path = write_report(out, sections, head, argv, time.perf_counter() - t0, pending)
+        path = write_report(out, sections, head, argv, time.perf_counter() - t0, pending, since)
+    print("\n## Goals of issue 13 (as measured in this run)\n\n" + table(issue_table(out, since)))
     print(f"\nreport: {path} ({time.perf_counter() - t0:.0f} s)")
     figs = [f for s in sections for f in s.figures]
     missing = [f for f in figs if not os.path.exists(f)]

@@ -152,7 +152,7 @@ def _walkers(v):
 
 # options that mean the same thing in every subcommand that has them
 COMMON: dict[str, tuple] = {
-    "device": (lambda v: v in _presets(), "a preset device (cu5, hexapod6, tripod3)"),
+    "device": (lambda v: v in _presets(), "a preset device (cu5, cu5_soft, hexapod6, tripod3)"),
     "fs": gt(0, " Hz"),
     "freqs": (_freqs, "'paper' or a comma list of frequencies > 0 Hz (e.g. 1,2,5)"),
     "period": int_ge(2),
@@ -190,7 +190,10 @@ COMMON: dict[str, tuple] = {
     "length_unit": ANY,
     "continuous": FLAG,
     "model_floor": ge(0),
-    "true_device": (lambda v: v in _presets(), "a preset device (cu5, hexapod6, tripod3)"),
+    "true_device": (
+        lambda v: v in _presets(),
+        "a preset device (cu5, cu5_soft, hexapod6, tripod3)",
+    ),
     "model_error": one_of(["white", "gp", "none"]),
     "n_freq": int_between(2, 1_000_000),
     "no_model_error": FLAG,
@@ -211,6 +214,7 @@ COMMON: dict[str, tuple] = {
     "pm_deg": between(0, 180, "°", hi_open=True),
     "max_samples": int_ge(1),
     "chunk": int_ge(1),
+    "processes": int_between(1, 4096),  # sweep, robust: local jax.distributed processes
     "n_train": int_ge(1),
     "n_holdout": int_ge(1),
     "quantile": between(0, 1, lo_open=True),
@@ -242,13 +246,13 @@ PER_COMMAND: dict[str, dict] = {
               "estimator": ((lambda v: v in _estimators()),
                             "a registered estimator (hapid.pipeline.ESTIMATORS: wls, wls+positize, nls, …)")},
     "tune": {"model": _In("a model file", ARRAY_EXT),
-             "samples": _In("a posterior-samples file", (".npz",)),
+             "samples": _In("a posterior-samples file", (".npz",)), "frf": _In("an FRF file", RUN_EXT),
              "out": _Out("a design file", (".npz",)), "report": _Out("a JSON report", (".json",))},
     "paper": {"out": _Out("an output folder"), "scene": _In("a scene TOML", (".toml",))},
     "predict": {"samples": _In("a posterior-samples file", (".npz",)), "out": _Out("a draws file", (".npz",)),
                 "f_min_hz": gt(0, " Hz"), "n_freq": int_ge(2), "no_model_error": FLAG},
     "plant": {"out": _Out("an FRF file", (".npz",)), "n_freq": int_ge(2), "delay": int_between(0, 1000),
-              "f_min_hz": gt(0, " Hz")},
+              "f_min_hz": gt(0, " Hz"), "rod_compliance": gt(0, "")},
     "run": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder")},
 }  # fmt: skip
 

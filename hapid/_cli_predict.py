@@ -44,6 +44,7 @@ def cmd_plant(a):
         pose=pose,
         fs_hz=a.fs,
         **({"delay_samples": a.delay} if a.delay is not None else {}),
+        **({"rod_compliance": a.rod_compliance} if a.rod_compliance is not None else {}),
     )
     if f[-1] >= 0.5 * dev.fs_hz:
         raise CommandError(
@@ -106,8 +107,12 @@ def register(sub):
     pl = sub.add_parser("plant", help="write a simulated device's true plant as an FRF file",
                         description="The true sampled Z_H, Z_T (hence P) of a preset device as an FRF "
                         "file without noise, readable by hapid analyze --frf.")  # fmt: skip
-    pl.add_argument("--device", default="cu5", help="preset: cu5 (default), tripod3, hexapod6")
+    pl.add_argument(
+        "--device", default="cu5", help="preset: cu5 (default), tripod3, hexapod6, cu5_soft"
+    )
     pl.add_argument("--delay", type=int, help="actuator delay in samples (default: the preset's)")
+    pl.add_argument("--rod-compliance", type=float,
+                    help="chain compliance factor: traction and sensor springs divided by it (default: the preset's)")  # fmt: skip
     pl.add_argument(
         "--move", type=float, nargs=3, metavar=("DX", "DY", "DZ"), help="stylus offset (m)"
     )

@@ -344,6 +344,14 @@ def cmd_analyze(a):
         print(f"report → {a.out}")
 
 
+def _robust_worker(a):
+    from .uncertainty import robust_from_files
+
+    for m in a.model:
+        robust_from_files(a.samples, m, None, gm_db=a.gm_db, pm_deg=a.pm_deg, max_samples=a.max_samples,
+                          device=a.device, n_subjects=a.subjects)  # fmt: skip
+
+
 def cmd_posterior(a):
     from .uncertainty import posterior_from_files
 
@@ -357,7 +365,23 @@ def cmd_posterior(a):
     print(f"samples → {a.out}")
 
 
+_PROCESSES_HELP = (
+    "split the work over N local processes joined by jax.distributed (results "
+    "identical to one process); on a cluster set HAPID_COORDINATOR, "
+    "HAPID_NUM_PROCESSES, HAPID_PROCESS_ID instead (docs/distributed.md); default: one process"
+)
+
+
+def _is_main() -> bool:
+    from ._distributed import is_main
+
+    return is_main()
+
+
 def cmd_robust(a):
+    if not _is_main():  # jax.distributed: compute this process's share, process 0 reports
+        _robust_worker(a)
+        return
 
     from .io import to_json
     from .uncertainty import robust_from_files
@@ -382,6 +406,14 @@ def cmd_robust(a):
             save_json(a.out, res)
     if a.out:
         print(f"report → {a.out}")
+
+
+def _robust_worker(a):
+    from .uncertainty import robust_from_files
+
+    for m in a.model:
+        robust_from_files(a.samples, m, None, gm_db=a.gm_db, pm_deg=a.pm_deg, max_samples=a.max_samples,
+                          device=a.device, n_subjects=a.subjects)  # fmt: skip
 
 
 def _register_stages(sub):
@@ -441,6 +473,7 @@ def _register_stages(sub):
     ro.add_argument("--gm-db", type=float, default=6.0)
     ro.add_argument("--pm-deg", type=float, default=30.0)
     ro.add_argument("--max-samples", type=int, default=1000)
+    ro.add_argument("--processes", type=int, default=None, help=_PROCESSES_HELP)
     ro.add_argument("--out", help="JSON report")
     ro.set_defaults(func=cmd_robust)
 
@@ -464,6 +497,8 @@ def cmd_sweep(a):
             raise CLIError(f"--vary {key}: values must be numbers, got {vals!r}") from None
     t0 = time.perf_counter()
     keys, rows, metrics = sweep.run_sweep(cfg, vary, chunk=a.chunk, estimator=a.estimator)
+    if not _is_main():
+        return  # jax.distributed: process 0 writes the results (all processes hold them)
     out = Path(a.out)
     csv_path = sweep.write_csv(out / "sweep.csv", keys, rows, metrics)
     fig_path = sweep.plot_sweep(keys, rows, metrics, out / "sweep.png")
@@ -491,6 +526,7 @@ def _register_sweep(sub):
     sw.add_argument("--estimator", default="wls+positize",
                     help="frf → model estimator: wls, wls+positize (default), nls")  # fmt: skip
     sw.add_argument("--chunk", type=int, default=64, help="configurations per compiled call")
+    sw.add_argument("--processes", type=int, default=None, help=_PROCESSES_HELP)
     sw.add_argument("--out", default="out/sweep")
     sw.set_defaults(func=cmd_sweep)
 
@@ -504,7 +540,8 @@ def cmd_tune(a):
     import time
 
     t = time.perf_counter()
-    res = tune_from_files(a.model, a.samples, a.out, device=a.device, n_train=a.n_train,
+    res = tune_from_files(a.model, a.samples, a.out, device=a.device, frf=a.frf,
+                          evidence_ts=None if a.fs is None else 1.0 / a.fs, n_train=a.n_train,
                           n_holdout=a.n_holdout, quantile=a.quantile, n_subjects=a.subjects,
                           seed=a.seed, max_steps=a.max_steps, keep_dc_gain=not a.free_dc)  # fmt: skip
     r = res["result"]
@@ -539,6 +576,10 @@ def _register_tune(sub):
     tu.add_argument("--model", required=True, help="nominal model file (the controller inverts it)")
     tu.add_argument("--samples", help="posterior samples file (hapid posterior)")
     tu.add_argument("--device", help="preset device: tune on its pose/subject variants, validate on its true plant")
+    tu.add_argument("--frf", help="the measured FRF file (whole range): the evidence the design must hold on "
+                    "(default: the samples' fit data); beyond its top frequency the loop is kept small-gain")  # fmt: skip
+    tu.add_argument("--fs", type=float, help="sampling rate (Hz) the controller runs at: the measured loop and "
+                    "the small gain beyond it use the discretized controller (default: continuous)")  # fmt: skip
     tu.add_argument("--out", required=True, help="design file (.npz)")
     tu.add_argument("--report", help="JSON report of the re-check")
     tu.add_argument("--n-train", type=int, default=80, help="posterior samples used for tuning")
@@ -590,6 +631,13 @@ def main(argv=None) -> int:
         from ._cli_checks import check_args
 
         check_args(parser, a)  # every option and scene key, before any work
+        if getattr(a, "processes", None) is not None:  # sweep, robust: hapid._distributed
+            from . import _distributed
+
+            if _distributed.local_launch_needed(a.processes):
+                args = sys.argv[1:] if argv is None else list(argv)
+                return _distributed.launch_local(args, a.processes)
+            _distributed.initialize()
         a.func(a)
     except (ValueError, FileNotFoundError, CLIError, OSError) as e:
         if os.environ.get("HAPID_DEBUG"):

@@ -17,7 +17,9 @@ traced values (:data:`TRACED`): one compile serves all of them. The others
 (:data:`STATIC`: grid sizes, the NLS step budget, the excitation amplitude, …) change shapes
 or Python-level structure; each distinct value gets its own compile. The batch is split in
 equal chunks (the last padded) for a progress bar, each chunk sharded over the JAX devices
-when there are several (``XLA_FLAGS=--xla_force_host_platform_device_count=2`` emulates two).
+when there are several (``XLA_FLAGS=--xla_force_host_platform_device_count=2`` emulates two),
+and the chunks split over processes when run with ``jax.distributed`` (:mod:`hapid._distributed`,
+``hapid sweep --processes N``): results identical to one process.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _config  # noqa: F401
+from . import _config, _distributed  # noqa: F401
 from .fit import pphat_band_db
 
 _MOVE = ("dx", "dy", "dz", "dyaw", "dpitch", "droll")
@@ -206,7 +208,9 @@ def run_sweep(cfg: dict, vary: dict[str, list], *, chunk: int = 64, progress: bo
               estimator: str = ESTIMATOR_DEFAULT):  # fmt: skip
     """Evaluate every configuration; returns ``(keys, params (B, k), metrics dict of (B,))``.
 
-    One compiled ``vmap`` per chunk and per distinct combination of static values."""
+    One compiled ``vmap`` per chunk and per distinct combination of static values. Under
+    ``jax.distributed`` (:func:`hapid._distributed.initialize`) each process runs a contiguous
+    block of the chunks and every process returns the whole result, identical to one process."""
     from . import pipeline
 
     if estimator not in pipeline.ESTIMATORS:
@@ -222,49 +226,58 @@ def run_sweep(cfg: dict, vary: dict[str, list], *, chunk: int = 64, progress: bo
     tcols = [j for j, c in enumerate(kinds) if c == "traced"]
     scols = [j for j, c in enumerate(kinds) if c == "static"]
     B = rows.shape[0]
-    ndev = jax.device_count()
+    ndev = jax.local_device_count()  # this process's devices (jax.distributed: each has its own)
     chunk = max(ndev, min(chunk, B))
     chunk += (-chunk) % ndev
     sharding = None
     if ndev > 1:
         from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-        sharding = NamedSharding(Mesh(np.array(jax.devices()), ("b",)), PartitionSpec("b"))
+        sharding = NamedSharding(Mesh(np.array(jax.local_devices()), ("b",)), PartitionSpec("b"))
     groups: dict[tuple, list[int]] = {}
     for i in range(B):
         groups.setdefault(tuple(rows[i, scols]), []).append(i)
+    # the one-process plan: (static values, row indices, offset) per chunk; with several
+    # processes (hapid._distributed) each runs a contiguous block of it, results gathered
+    tasks = [(sv, idx, s) for sv, idx in groups.items() for s in range(0, len(idx), chunk)]
+    mine = [tasks[t] for t in _distributed.block(len(tasks))]
     bar = None
-    if progress:
+    if progress and _distributed.is_main():
         from tqdm.auto import tqdm
 
-        n_chunks = sum(-(-len(ix) // chunk) for ix in groups.values())
-        bar = tqdm(total=n_chunks, desc=f"sweep ({B} configurations, {len(groups)} compile(s), {ndev} device(s))",
-                   unit="chunk")  # fmt: skip
-    out = {m: np.empty(B, dtype=float) for m in METRICS}
-    for svals, idx in groups.items():
-        c = copy.deepcopy(cfg)
-        for j, v in zip(scols, svals, strict=True):
-            _set(
-                c, keys[j], int(v) if keys[j] in ("fit.max_steps", "analysis.n_freq") else float(v)
-            )
-        fn = jax.jit(jax.vmap(point_fn(c, traced, estimator)))
+        procs = _distributed.process_count()
+        bar = tqdm(total=len(mine), desc=f"sweep ({B} configurations, {len(groups)} compile(s), {ndev} device(s)"
+                   + (f", {procs} processes" if procs > 1 else "") + ")", unit="chunk")  # fmt: skip
+    fns: dict[tuple, object] = {}
+    parts = []
+    for svals, idx, s in mine:
+        if svals not in fns:
+            c = copy.deepcopy(cfg)
+            for j, v in zip(scols, svals, strict=True):
+                _set(
+                    c,
+                    keys[j],
+                    int(v) if keys[j] in ("fit.max_steps", "analysis.n_freq") else float(v),
+                )
+            fns[svals] = jax.jit(jax.vmap(point_fn(c, traced, estimator)))
         sub = rows[np.ix_(idx, tcols)] if tcols else np.zeros((len(idx), 0))
-        for s in range(0, len(idx), chunk):
-            part = sub[s : s + chunk]
-            pad = chunk - part.shape[0]
-            x = np.concatenate([part, np.repeat(part[-1:], pad, axis=0)]) if pad else part
-            x = jnp.asarray(x)
-            if sharding is not None:
-                x = jax.device_put(x, sharding)
-            res = fn(x)
-            for m in METRICS:
-                out[m][idx[s : s + part.shape[0]]] = np.asarray(res[m], dtype=float)[
-                    : part.shape[0]
-                ]
-            if bar is not None:
-                bar.update(1)
+        part = sub[s : s + chunk]
+        pad = chunk - part.shape[0]
+        x = np.concatenate([part, np.repeat(part[-1:], pad, axis=0)]) if pad else part
+        x = jnp.asarray(x)
+        if sharding is not None:
+            x = jax.device_put(x, sharding)
+        res = fns[svals](x)
+        parts.append({m: np.asarray(res[m], dtype=float)[: part.shape[0]] for m in METRICS})
+        if bar is not None:
+            bar.update(1)
     if bar is not None:
         bar.close()
+    res = _distributed.gather(parts)
+    order = np.concatenate([np.asarray(idx[s : s + chunk], dtype=int) for _, idx, s in tasks])
+    out = {m: np.empty(B, dtype=float) for m in METRICS}
+    for m in METRICS:
+        out[m][order] = res[m]
     out["stable"] = out["stable"].astype(bool)
     out["nyquist_resolved"] = out["nyquist_resolved"].astype(bool)
     out["fit_ok"] = out["fit_ok"].astype(bool)

@@ -20,6 +20,7 @@ from ._parts import nominal_mechanism as nominal_mechanism
 from ._parts import virtual_subject as virtual_subject
 from ._presets import PRESETS as PRESETS
 from ._presets import cu5 as cu5
+from ._presets import cu5_soft as cu5_soft
 from ._presets import hexapod6 as hexapod6
 from ._presets import preset as preset
 from ._presets import tripod3 as tripod3

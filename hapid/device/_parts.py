@@ -141,6 +141,16 @@ def nominal_mechanism(n: int, light_damping: bool = False) -> Mechanism:
     )  # fmt: skip
 
 
+def compliant_rods(mech: Mechanism, factor: float = 1.0) -> Mechanism:
+    """``mech`` with its chain ``factor`` times as compliant: traction and sensor stiffness
+    ``k_t``, ``k_s`` divided by ``factor`` (> 0; 1 leaves ``mech`` unchanged)."""
+    if not float(factor) > 0.0:
+        raise ValueError(f"rod compliance factor must be > 0, got {factor!r}")
+    if float(factor) == 1.0:
+        return mech
+    return eqx.tree_at(lambda m: (m.k_t, m.k_s), mech, (mech.k_t / factor, mech.k_s / factor))
+
+
 class ExtraModes(eqx.Module):
     """Unmodeled resonances: per mode a mass attached to every rod's motor (``node = 0``) or
     rod (``node = 1``) through a spring-damper tuned to ``f_hz`` with damping ratio ``zeta``.

@@ -1,19 +1,20 @@
-"""Preset devices: ``cu5`` (docs/device.md), a 3-rod tripod and a 6-rod hexapod."""
+"""Preset devices: ``cu5`` (docs/device.md), a 3-rod tripod, a 6-rod hexapod and
+``cu5_soft`` (cu5 with 1 ms more delay and compliant rods)."""
 
 from __future__ import annotations
 
 from ._device import ParallelDevice
 from ._geometry import Pose, cu5_geometry, hexapod_geometry, tripod_geometry
-from ._parts import default_modes, no_modes, nominal_hand, nominal_mechanism
+from ._parts import compliant_rods, default_modes, no_modes, nominal_hand, nominal_mechanism
 
 
 def _parallel(geometry, hand, pose, extra_modes, delay_samples, fs_hz, light_damping=False,
-              encoder="motor") -> ParallelDevice:  # fmt: skip
+              encoder="motor", rod_compliance=1.0) -> ParallelDevice:  # fmt: skip
     return ParallelDevice(
         geometry=geometry,
         pose=pose if pose is not None else Pose(),
         hand=hand,
-        mechanism=nominal_mechanism(geometry.n, light_damping),
+        mechanism=compliant_rods(nominal_mechanism(geometry.n, light_damping), rod_compliance),
         modes=default_modes() if extra_modes else no_modes(),
         fs_hz=fs_hz,
         delay_samples=delay_samples,
@@ -23,35 +24,54 @@ def _parallel(geometry, hand, pose, extra_modes, delay_samples, fs_hz, light_dam
 
 def cu5(pose: Pose | None = None, *, extra_modes: bool = True, delay_samples: int = 1,
         fs_hz: float = 1000.0, light_damping: bool = False,
-        encoder: str = "motor") -> ParallelDevice:  # fmt: skip
+        encoder: str = "motor", rod_compliance: float = 1.0) -> ParallelDevice:  # fmt: skip
     """The default 5-rod device of docs/device.md (3 translations + 2 rotations of the stylus).
 
     ``encoder="motor"`` (default) reads rod length at the motor/roller, so the measured Z_H
     includes the traction and sensor compliance; ``"rod"`` reads the rod itself.
+    ``rod_compliance`` multiplies the chain's compliances (traction and sensor springs
+    divided by it, :func:`compliant_rods`).
     """
     return _parallel(cu5_geometry(), nominal_hand(3, (1, 2)), pose, extra_modes, delay_samples,
-                     fs_hz, light_damping, encoder)  # fmt: skip
+                     fs_hz, light_damping, encoder, rod_compliance)  # fmt: skip
+
+
+CU5_SOFT_DELAY = 2  # samples at 1 kHz: 1 ms more than cu5
+CU5_SOFT_COMPLIANCE = 2.0
+
+
+def cu5_soft(pose: Pose | None = None, *, extra_modes: bool = True,
+             delay_samples: int = CU5_SOFT_DELAY, fs_hz: float = 1000.0,
+             rod_compliance: float = CU5_SOFT_COMPLIANCE) -> ParallelDevice:  # fmt: skip
+    """cu5 with 1 ms more actuator delay (2 samples at 1 kHz) and compliant rods (traction
+    and sensor springs halved: traction resonance ≈ 80 → 56 Hz). The held-out device of the
+    robust-design check (issue 14): never used to choose tuning settings."""
+    return cu5(pose, extra_modes=extra_modes, delay_samples=delay_samples, fs_hz=fs_hz,
+               rod_compliance=rod_compliance)  # fmt: skip
 
 
 def tripod3(pose: Pose | None = None, *, extra_modes: bool = True, delay_samples: int = 1,
-            fs_hz: float = 1000.0) -> ParallelDevice:  # fmt: skip
+            fs_hz: float = 1000.0, rod_compliance: float = 1.0) -> ParallelDevice:  # fmt: skip
     """A 3-rod translational device with cu5's chain and the nominal hand's translations."""
-    return _parallel(tripod_geometry(), nominal_hand(3, ()), pose, extra_modes, delay_samples, fs_hz)
+    return _parallel(tripod_geometry(), nominal_hand(3, ()), pose, extra_modes, delay_samples, fs_hz,
+                     rod_compliance=rod_compliance)  # fmt: skip
 
 
 def hexapod6(pose: Pose | None = None, *, extra_modes: bool = True, delay_samples: int = 1,
-             fs_hz: float = 1000.0) -> ParallelDevice:  # fmt: skip
+             fs_hz: float = 1000.0, rod_compliance: float = 1.0) -> ParallelDevice:  # fmt: skip
     """A 6-rod, 6-DOF device (roll about the stylus controlled too)."""
     return _parallel(hexapod_geometry(), nominal_hand(3, (0, 1, 2)), pose, extra_modes,
-                     delay_samples, fs_hz)  # fmt: skip
+                     delay_samples, fs_hz, rod_compliance=rod_compliance)  # fmt: skip
 
 
-PRESETS = {"cu5": cu5, "tripod3": tripod3, "hexapod6": hexapod6}
+PRESETS = {"cu5": cu5, "tripod3": tripod3, "hexapod6": hexapod6, "cu5_soft": cu5_soft}
 
 
 def preset(name: str, **kwargs) -> ParallelDevice:
-    """A preset device by name (``cu5``, ``tripod3``, ``hexapod6``)."""
+    """A preset device by name (``cu5``, ``tripod3``, ``hexapod6``, ``cu5_soft``)."""
     try:
         return PRESETS[name](**kwargs)
     except KeyError:
-        raise ValueError(f"unknown device preset {name!r}; choose one of {sorted(PRESETS)}") from None
+        raise ValueError(
+            f"unknown device preset {name!r}; choose one of {sorted(PRESETS)}"
+        ) from None

@@ -45,6 +45,7 @@ from jaxtyping import Array, Complex, Float
 from ..frf import FRF
 from ..impedance import ImpedanceModel, plant
 from ._checks import band_mask, check_fit_input
+from ._compress import compress
 from ._iterate import iterate
 from ._jaxopt_adapter import jaxopt_lm
 from ._pd import (
@@ -242,13 +243,20 @@ def _run_solver(
     )
 
 
-def laplace_covariance(problem: Problem, theta: Float[Array, " p"], noise_weights: bool):
-    """``(σ̂²(JᵀJ)⁺, σ̂², cost)`` at ``theta``; σ̂² = 1 for noise weights else 2·cost/(m−p)."""
+def laplace_covariance(
+    problem: Problem, theta: Float[Array, " p"], noise_weights: bool, n_residuals=None
+):
+    """``(σ̂²(JᵀJ)⁺, σ̂², cost)`` at ``theta``; σ̂² = 1 for noise weights else 2·cost/(m−p).
+
+    ``n_residuals`` (default ``problem.n_residuals``) is ``m``: give the full problem's count
+    when ``problem`` is its :class:`~hapid.fit._compress.CompressedProblem` (same JᵀJ, cost).
+    """
     J = jax.jacfwd(problem)(theta)
     r = problem(theta)
     cost = 0.5 * jnp.sum(r**2)
     p = theta.shape[-1]
-    dof = jnp.maximum(problem.n_residuals - p, 1)
+    m = problem.n_residuals if n_residuals is None else n_residuals
+    dof = jnp.maximum(m - p, 1)
     sigma2 = jnp.asarray(1.0) if noise_weights else 2.0 * cost / dof
     return sigma2 * pinv_psd(J.T @ J), sigma2, cost
 
@@ -316,8 +324,11 @@ def _fit_core(frf, init, dyn, static):
     )
     theta0 = _init_theta(frf, init, problem.scale, d["omega_c"], d["f_max_hz"], d["init_floor"])
     max_steps = d["max_steps"] if jaxopt_steps is None else jaxopt_steps
+    # without the P term the residual is linear in the matrices: the solver and the Laplace
+    # covariance work on its exact 6-rows-per-element compression (same cost and JᵀJ)
+    work = problem if use_P else compress(problem)
     theta, n_steps, code = _run_solver(
-        problem,
+        work,
         theta0,
         solver,
         d["rtol"],
@@ -327,7 +338,7 @@ def _fit_core(frf, init, dyn, static):
         d["ftol"],
         d["patience"],
     )
-    cov, sigma2, cost = laplace_covariance(problem, theta, weight == "noise")
+    cov, sigma2, cost = laplace_covariance(work, theta, weight == "noise", problem.n_residuals)
     free = theta  # the solver's L (matrices L Lᵀ + pd_eps·I)
     theta, G = jax.lax.cond(
         d["pd_eps"] > 0,
@@ -363,26 +374,34 @@ def _fit_core(frf, init, dyn, static):
     )
 
 
-#: fit_nls warns when its dense Jacobian (all frequencies, masked ones included) exceeds this.
+#: fit_nls warns when its largest array (the dense P-residual Jacobian, or the compressed
+#: residual's QR factors without the P term) exceeds this.
 JACOBIAN_WARN_BYTES = 1e9
 
 
 def _warn_jacobian_size(frf: FRF, use_P_residual: bool) -> None:
-    """Warn before a fit whose dense ``m × p`` Jacobian would take more than a gigabyte.
+    """Warn before a fit whose largest array would take more than a gigabyte.
 
-    The fit band is a 0/1 mask (static shapes), so out-of-band frequencies still occupy
-    rows: ``frf.band(...)`` shrinks the problem, ``f_max_hz`` does not.
+    With the P residual the solver and the Laplace covariance materialize the dense
+    ``m × p`` Jacobian, ``m = 12·n²·N`` rows (the fit band is a 0/1 mask, so out-of-band
+    frequencies still occupy rows: ``frf.band(...)`` shrinks the problem, ``f_max_hz`` does
+    not). Without it the residual is compressed (``hapid.fit._compress``) and the largest
+    arrays are the thin QR's ``8N × 6`` blocks of the ``n(n+1)/2`` symmetric elements.
     """
     shape = np.shape(frf.Z_H)
     N, n = shape[-3], shape[-1]
-    m = 2 * (3 if use_P_residual else 2) * n * n * N
-    nbytes = 8.0 * m * n_params(n) * int(np.prod(shape[:-3], dtype=np.int64))
+    batch = int(np.prod(shape[:-3], dtype=np.int64))
+    if use_P_residual:
+        m = 2 * 3 * n * n * N
+        nbytes = 8.0 * m * n_params(n) * batch
+        what = f"a dense {m} × {n_params(n)} Jacobian"
+    else:
+        nbytes = 3 * 8.0 * 8 * N * 6 * (n * (n + 1) // 2) * batch  # M, Q and a copy
+        what = "the compressed residual's QR factors"
     if nbytes > JACOBIAN_WARN_BYTES:
         warnings.warn(
-            f"fit_nls: n = {n} rods × {N} frequencies gives a dense {m} × {n_params(n)} "
-            f"Jacobian of {nbytes / 1e9:.1f} GB (the Laplace covariance and the solver "
-            "materialize it); drop frequencies with frf.band(...) or decimate the grid — "
-            "f_max_hz only masks rows",
+            f"fit_nls: n = {n} rods × {N} frequencies gives {what} of {nbytes / 1e9:.1f} GB; "
+            "drop frequencies with frf.band(...) or decimate the grid — f_max_hz only masks rows",
             UserWarning,
             stacklevel=3,
         )

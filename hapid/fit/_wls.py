@@ -9,9 +9,11 @@ data is ``z̃_k = h(jω_k) z_ij(jω_k)``. The real 3-vector ``θ_ij = [m_ij, b_i
     θ_ij = Re(Aᴴ A)⁻¹ Re(Aᴴ z̃),
 
 which is the paper's ``(Re(φ̃ φ̃ᴴ))⁻¹ Re(φ̃ Z̃_ij)`` with ``φ̃ = Aᴴ`` (3 × N). ``A`` is shared by
-all ``2n²`` elements, so this is one 3×3 normal matrix and one matmul. Internally the columns
-of ``A`` are scaled to unit norm before the (Cholesky) solve and the scaling is undone after:
-the same minimizer, computed with a normal matrix of condition ~10 instead of ~10¹⁰.
+all ``2n²`` elements (and by every FRF on the same grid), so the fit is the ``3 × N`` complex
+operator ``K = (Re AᴴA)⁻¹ Aᴴ diag(h)`` built once and ``θ = Re(K Z)`` as one matmul over every
+element (:func:`wls_operator`). Internally the columns of ``A`` are scaled to unit norm before
+the (Cholesky) inversion and the scaling is undone after: the same minimizer, computed with a
+normal matrix of condition ~10 instead of ~10¹⁰.
 """
 
 from __future__ import annotations
@@ -34,16 +36,18 @@ def paper_weight(omega: Float[Array, " N"], omega_c: float = OMEGA_C_PAPER) -> C
     return 1.0 / (1j * omega + omega_c) ** 2
 
 
-def wls_coefficients(
+def wls_operator(
     omega: Float[Array, " N"],
-    Z: Complex[Array, "N ..."],
     omega_c: float = OMEGA_C_PAPER,
     mask: Float[Array, " N"] | None = None,
-) -> Float[Array, "3 ..."]:
-    """Per-element paper WLS: ``(3, ...)`` real ``[m, b, k]`` for every trailing element of Z.
+) -> Complex[Array, "3 N"]:
+    """The paper WLS as a linear map: ``K`` ``(3, N)`` complex with ``θ = Re(K z)``.
 
-    ``omega`` (rad/s) is ``(N,)``, ``Z`` is ``(N, ...)`` complex (any trailing shape);
-    ``mask`` (``(N,)``, 0/1) drops frequencies, equivalent to removing those rows.
+    ``θ = [m, b, k]`` of any element ``z`` ``(N,)`` of an FRF on the grid ``omega`` (rad/s);
+    ``K = diag(1/c)·G⁻¹·A_sᴴ·diag(h)`` with ``A_s`` the column-scaled weighted regressor and
+    ``G = Re(A_sᴴ A_s)`` its (3 × 3, condition ~10) normal matrix. ``K`` depends only on the
+    grid, ``ω_c`` and the band ``mask`` (``(N,)``, 0/1): one ``K`` serves all ``2n²`` elements of
+    every FRF on that grid.
     """
     s = 1j * omega
     h = paper_weight(omega, omega_c)
@@ -53,10 +57,26 @@ def wls_coefficients(
     c = jnp.linalg.norm(A, axis=0)  # column norms
     A_s = A / c
     G = jnp.real(jnp.conj(A_s).T @ A_s)  # (3, 3) real, SPD
+    G_inv = jsl.cho_solve(jsl.cho_factor(G, lower=True), jnp.eye(3, dtype=G.dtype))
+    return (G_inv @ (jnp.conj(A_s).T * h[None, :])) / c[:, None]
+
+
+def wls_coefficients(
+    omega: Float[Array, " N"],
+    Z: Complex[Array, "N ..."],
+    omega_c: float = OMEGA_C_PAPER,
+    mask: Float[Array, " N"] | None = None,
+) -> Float[Array, "3 ..."]:
+    """Per-element paper WLS: ``(3, ...)`` real ``[m, b, k]`` for every trailing element of Z.
+
+    ``omega`` (rad/s) is ``(N,)``, ``Z`` is ``(N, ...)`` complex (any trailing shape: the
+    elements of one FRF, or of a batch of FRFs on the same grid, frequency first);
+    ``mask`` (``(N,)``, 0/1) drops frequencies, equivalent to removing those rows. One
+    ``(3, N) × (N, E)`` complex matmul with :func:`wls_operator` for all ``E`` elements.
+    """
+    K = wls_operator(omega, omega_c, mask)
     flat = Z.reshape(Z.shape[0], -1)
-    rhs = jnp.real(jnp.conj(A_s).T @ (h[:, None] * flat))  # (3, E)
-    theta_s = jsl.cho_solve(jsl.cho_factor(G, lower=True), rhs)
-    theta = theta_s / c[:, None]
+    theta = jnp.real(K @ flat)
     return theta.reshape((3,) + Z.shape[1:])
 
 

@@ -62,12 +62,16 @@ def design_info(out: dict) -> dict:
             "table": out.get("table", {})}  # fmt: skip
 
 
-def tune_from_files(model_path, samples_path=None, out=None, *, device=None, **options) -> dict:
-    """Load a model (and samples), run :func:`.robust_design`, write the design file."""
+def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf=None,
+                    **options) -> dict:  # fmt: skip
+    """Load a model (and samples, and the measured FRF ``frf`` — the evidence), run
+    :func:`.robust_design`, write the design file."""
     from .. import io
     from ._recipe import robust_design
 
     model = io.load_model(model_path)
+    if frf is not None:
+        options["frf"] = io.load_frf(frf)
     samples = None
     if samples_path is not None:
         from ..uncertainty import load_samples

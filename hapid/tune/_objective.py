@@ -63,7 +63,9 @@ class Requirements:
     ``|g(0)| = k Π z_j/p_j``: the static force error of the loop is ≈ 1/(1 + |g(0)|) along
     each direction, which the isotropic bandwidth alone does not constrain), soft-max
     sharpness ``beta`` (log units) and bandwidth window width ``tau`` (natural-log
-    frequency)."""
+    frequency). ``sg_omega`` (rad/s, a tuple) with ``sg_g_max``: the beyond-evidence
+    small-gain condition ``|g(jω)| ≤ sg_g_max`` on those frequencies
+    (:mod:`hapid.tune._evidence`)."""
 
     gm_db: float = 6.0
     pm_deg: float = 30.0
@@ -72,6 +74,9 @@ class Requirements:
     min_dc_gain: float | None = None
     beta: float = 60.0
     tau: float = 0.02
+    sg_omega: tuple | None = None
+    sg_g_max: float | None = None
+    sg_ts: float | None = None
 
     @property
     def ms(self) -> float:
@@ -141,11 +146,16 @@ def cvar(c, k: int):
 
 def aggregate(g, families, u, req: Requirements) -> dict[str, jax.Array]:
     """``{"<family>/<constraint>": CVaR}`` over every family (the constraints of the problem),
-    plus ``"g/dc"`` with ``min_dc_gain``."""
+    plus ``"g/dc"`` with ``min_dc_gain`` and ``"evidence/small_gain"`` with ``sg_omega``."""
     out = {}
     if req.min_dc_gain is not None:
         log_dc = jnp.log(g.k) + jnp.sum(jnp.log(g.lag_zeros)) - jnp.sum(jnp.log(g.lag_poles))
         out["g/dc"] = np.log(req.min_dc_gain) - log_dc
+    if req.sg_omega is not None:
+        from ._evidence import small_gain_constraint
+
+        out["evidence/small_gain"] = small_gain_constraint(g, np.asarray(req.sg_omega), req.sg_g_max,
+                                                           req.beta, req.sg_ts)  # fmt: skip
     for fam in families:
         c = scenario_constraints(g, fam.scenarios, u, req)
         if fam.bandwidth:

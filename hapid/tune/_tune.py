@@ -58,8 +58,13 @@ class TuneResult:
         """Every smooth constraint met (to 1e-3 in log units) on the training scenarios."""
         return all(v <= 1e-3 for v in self.constraints.values())
 
-    ok = property(lambda self: self.feasible, doc="The smooth constraints are met (:attr:`feasible`).")
-    status = property(lambda self: "feasible" if self.feasible else "infeasible", doc="``feasible``/``infeasible``.")
+    ok = property(
+        lambda self: self.feasible, doc="The smooth constraints are met (:attr:`feasible`)."
+    )
+    status = property(
+        lambda self: "feasible" if self.feasible else "infeasible",
+        doc="``feasible``/``infeasible``.",
+    )
 
     def summary(self) -> dict:
         """Plain-python summary: verdict, claimed bandwidths (Hz), constraints, parameters."""

@@ -58,7 +58,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _config  # noqa: F401  (float64)
+from .. import _config, _distributed  # noqa: F401  (float64)
 from .._grids import continuous_grid as posterior_omega
 from .._grids import sampled_grid as robust_omega
 from ..control import Compensator, MetricsSpec, analyze_loop, disk_margin_from_peak
@@ -380,7 +380,7 @@ def robust_check(
         )
     parts = []
     chunk = max(1, min(int(chunk), S))
-    for i in range(0, S, chunk):
+    for i in _distributed.local_chunks(S, chunk):  # all chunks, or this process's block
         j = min(S, i + chunk)
         Pc, pc = get(i, j)  # (not `pol`: the array path's `get` reads that name)
         pc = jnp.asarray(pc, dtype=jnp.float64) + c_rhp
@@ -389,7 +389,7 @@ def robust_check(
         else:
             r = _reference_chunk(Pc, pc, G, om)
         parts.append({k: v[: j - i] for k, v in r.items()})
-    res = {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in parts[0]}
+    res = _distributed.gather(parts)  # every process's chunks, in order (one process: concat)
     if labels is not None and len(labels) != S:
         raise ValueError(f"{len(labels)} labels for {S} plants")
     return RobustReport(

@@ -1,0 +1,171 @@
+"""Evidence-limited design (hapid.tune._evidence): the small-gain condition beyond the
+measured band against numpy, its invariant (the Nyquist count beyond ω_e is the same for
+every plant within the mismatch bound), the never-worse rule on the evidence, the cu5_soft
+device variant, and (slow) the whole CLI route on a
+device never used for tuning choices: the tuned g is stable on its true plant."""
+
+import numpy as np
+import pytest
+
+from hapid._constants import TWO_PI
+from hapid.control import Compensator, inverse_model_response
+from hapid.tune._evidence import (
+    KAPPA,
+    beyond_gain,
+    beyond_grid,
+    certificate,
+    evidence_from_frf,
+    small_gain_constraint,
+)
+from hapid.tune._recipe import no_worse
+from tests.test_tune import _model
+
+F_HZ = np.array([1.0, 2.0, 4.0, 8.0, 15.0, 30.0, 50.0, 80.0, 100.0])
+
+
+def _frf(model, scale):
+    """A 'measured' FRF whose plant is ``scale·P̂``: Z_H = scale·Ẑ_H, Z_T = Ẑ_T."""
+    om = TWO_PI * F_HZ
+    s = 1j * om
+    return {"omega": om, "Z_H": scale * np.asarray(model.Z_H(s)), "Z_T": np.asarray(model.Z_T(s))}
+
+
+def test_mismatch_bound_and_certificate_match_numpy():
+    model = _model(2, 0)
+    ev = evidence_from_frf(_frf(model, 1.7), model)
+    assert ev.mismatch == pytest.approx(1.7, rel=1e-9)  # σ̄(1.7 P̂ P̂⁻¹) = 1.7
+    assert ev.omega_e == pytest.approx(TWO_PI * 100.0) and ev.g_max == pytest.approx(KAPPA / 1.7)
+    g = Compensator.paper()
+    om = np.geomspace(ev.omega_e, ev.omega_e * 10**1.5, 4000)
+    ref = np.max(np.abs(np.asarray(g(1j * om)))) * 1.7
+    assert beyond_gain(g, ev) == pytest.approx(ref, rel=2e-3)
+    # the soft maximum bounds the true maximum from above, within log(N)/β
+    c = float(small_gain_constraint(g, beyond_grid(ev), ev.g_max))
+    hard = np.log(np.max(np.abs(np.asarray(g(1j * beyond_grid(ev)))))) - np.log(ev.g_max)
+    assert hard <= c <= hard + np.log(beyond_grid(ev).size) / 60.0 + 1e-12
+    # return difference of the measured loop: numpy reference, P = 1.7 P̂, G = g Ẑ_T Ẑ_H⁻¹
+    G = np.asarray(inverse_model_response(model, g, ev.omega))
+    rd = np.min(np.linalg.svd(np.eye(2) + 1.7 * np.asarray(model.P(1j * ev.omega)) @ G,
+                              compute_uv=False)[:, -1])  # fmt: skip
+    cert = certificate(ev, model, g)
+    assert cert["frf_min_sigma_I_plus_L"] == pytest.approx(rd, rel=1e-9)
+    assert cert["nominal_stable"]  # a PD model: Ẑ_H has no RHP roots, L = g I is stable
+    assert cert["certified"] == bool(rd >= 0.5 and cert["beyond_loop_gain"] <= KAPPA)
+    with pytest.raises(ValueError, match="kappa"):
+        evidence_from_frf(_frf(model, 1.0), model, kappa=1.5)
+
+
+def test_small_gain_fixes_the_nyquist_phase_beyond_the_evidence():
+    """The invariant behind the method: any two loops with σ̄(L) ≤ κ < 1 on ω ≥ ω_e collect
+    the same net phase of det(I + L) there, however their phases differ (a delay, a mode)."""
+    rng = np.random.default_rng(3)
+    om = np.geomspace(1.0, 50.0, 3000)
+    n = 3
+    for _ in range(20):
+        phase = []
+        for _ in range(2):
+            A = rng.normal(size=(n, n)) + 1j * rng.normal(size=(n, n))
+            B = rng.normal(size=(n, n)) + 1j * rng.normal(size=(n, n))
+            tau = rng.uniform(0.0, 0.5)  # an unknown delay: any amount of phase
+            L = (A[None] + B[None] / (1 + 1j * om[:, None, None])) * np.exp(-1j * om * tau)[
+                :, None, None
+            ]
+            L *= KAPPA / np.linalg.svd(L, compute_uv=False)[:, :1, None]  # σ̄(L) = κ exactly
+            d = np.linalg.det(np.eye(n) + L)
+            phase.append(np.unwrap(np.angle(d))[-1] - np.unwrap(np.angle(d))[0])
+        # each 1 + λ_i stays in the disc of radius κ around 1: |net phase| < n·π, and both
+        # loops' phases differ by less than one winding
+        assert all(abs(p) < n * np.arcsin(KAPPA) * 2 + 1e-9 for p in phase)
+        assert abs(phase[0] - phase[1]) < 2 * np.pi
+
+
+def test_never_worse_decides_on_the_evidence_first():
+    base = {"true_stable": True, "posterior_frac_meeting_margins": 0.8,
+            "posterior_iso_bandwidth_hz_q50": 4.0, "evidence_hz": 100.0}  # fmt: skip
+    good = {"certified": True, "frf_min_sigma_I_plus_L": 0.6, "beyond_loop_gain": 0.4}
+    bad = {"certified": False, "frf_min_sigma_I_plus_L": 0.3, "beyond_loop_gain": 0.7}
+    better_draws = {"posterior_frac_meeting_margins": 0.95, "posterior_iso_bandwidth_hz_q50": 6.0}
+    ok, why = no_worse(base | good, base | bad | better_draws)
+    assert not ok and "holds on the evidence" in why
+    ok, why = no_worse(base | bad, base | good | {"posterior_iso_bandwidth_hz_q50": 3.0})
+    assert ok and "the start does not" in why
+    # neither certified: the tuned g may not raise the beyond-band gain bound
+    ok, why = no_worse(base | bad, base | bad | better_draws | {"beyond_loop_gain": 0.9})
+    assert not ok and "beyond the evidence" in why
+    assert no_worse(base | good, base | good | better_draws)[0]
+
+
+def test_cu5_soft_is_cu5_with_more_delay_and_compliant_rods(tmp_path):
+    from hapid.cli import main
+    from hapid.device import cu5, cu5_soft
+
+    a, b = cu5(), cu5_soft()
+    assert b.delay_samples == a.delay_samples + 1
+    np.testing.assert_allclose(np.asarray(b.mechanism.k_t), np.asarray(a.mechanism.k_t) / 2)
+    np.testing.assert_allclose(np.asarray(b.mechanism.k_s), np.asarray(a.mechanism.k_s) / 2)
+    np.testing.assert_array_equal(np.asarray(b.mechanism.m2), np.asarray(a.mechanism.m2))
+    assert main(["plant", "--rod-compliance", "0", "--out", str(tmp_path / "x.npz")]) == 2
+    assert not (tmp_path / "x.npz").exists()
+    with pytest.raises(ValueError, match="compliance"):
+        cu5(rod_compliance=-1.0)
+
+
+@pytest.mark.slow
+def test_cli_plant_rod_compliance_matches_the_preset(tmp_path):
+    from hapid.cli import main
+    from hapid.device import preset
+    from hapid.io import load_frf
+
+    fp = tmp_path / "p.npz"
+    assert main(["plant", "--device", "cu5", "--delay", "2", "--rod-compliance", "2", "--n-freq", "12",
+                 "--out", str(fp)]) == 0  # fmt: skip
+    f = load_frf(fp)
+    np.testing.assert_allclose(np.asarray(f.P), np.asarray(preset("cu5_soft").sampled_P(np.asarray(f.omega))),
+                               rtol=1e-10, atol=1e-12)  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(3600)
+def test_cli_route_tuned_g_is_stable_on_a_device_not_used_for_tuning(tmp_path):
+    """cu5_soft (never used to choose tuning settings): simulate → frf → nls → Laplace
+    posterior → ``hapid tune --frf`` → ``hapid analyze --design --frf true_plant
+    --continuous``. Whatever the tuner returns, it is stable on the true plant, and the route
+    runs end to end."""
+    import json
+
+    from hapid import io
+    from hapid.cli import main
+    from hapid.device import cu5_soft
+    from hapid.tune import load_design, true_plant_loop
+
+    d = tmp_path
+    for argv in (["simulate", "--device", "cu5_soft", "--out", str(d / "run.npz")],
+                 ["frf", str(d / "run.npz"), "--out", str(d / "frf.npz")],
+                 ["fit", str(d / "frf.npz"), "--method", "nls", "--f-max-hz", "40", "--out", str(d / "nls.npz")],
+                 ["posterior", str(d / "frf.npz"), "--method", "laplace", "--samples", "120",
+                  "--out", str(d / "s.npz")],
+                 ["tune", "--model", str(d / "nls.npz"), "--samples", str(d / "s.npz"), "--frf",
+                  str(d / "frf.npz"), "--fs", "1000", "--n-train", "24", "--n-holdout", "60", "--max-steps", "120",
+                  "--out", str(d / "design.npz"), "--report", str(d / "tune.json")],
+                 ["plant", "--device", "cu5_soft", "--out", str(d / "true.npz")],
+                 ["analyze", "--model", str(d / "nls.npz"), "--design", str(d / "design.npz"),
+                  "--frf", str(d / "true.npz"), "--continuous", "--out", str(d / "a.json")]):  # fmt: skip
+        assert main(argv) == 0, argv
+    g, info = load_design(d / "design.npz")
+    model = io.load_model(d / "nls.npz")
+    assert true_plant_loop(Compensator.paper(), model, cu5_soft())["stable"]  # the start
+    t = true_plant_loop(g, model, cu5_soft())
+    assert t["stable"], t
+    assert json.loads((d / "a.json").read_text())["stable"]
+    assert "evidence" in info["families"] and info["families"]["evidence"]["source"] == "frf"
+    # the default evidence without --frf: the samples' fit data (1–40 Hz); small gain from 40 Hz
+    assert main(["tune", "--model", str(d / "nls.npz"), "--samples", str(d / "s.npz"), "--n-train", "24",
+                 "--n-holdout", "60", "--max-steps", "120", "--out", str(d / "d2.npz"),
+                 "--report", str(d / "t2.json")]) == 0  # fmt: skip
+    g2, _ = load_design(d / "d2.npz")
+    assert true_plant_loop(g2, model, cu5_soft())["stable"]
+    assert json.loads((d / "t2.json").read_text())["tuned"]["evidence_hz"] == pytest.approx(
+        40.0, rel=0.01
+    )
+    rep = json.loads((d / "tune.json").read_text())
+    assert {"certified", "beyond_loop_gain", "frf_min_sigma_I_plus_L"} <= set(rep["tuned"])
