@@ -9,9 +9,11 @@ paper's g, Laplace posterior draws of the NLS fit.
    ``inv``, ``eigvals``, ``svd`` on the stack — the ingredients of the verdict, σ̄(T − I)
    and the loci margins), :func:`hapid.control.analyze_loop` (LAPACK reference, grid
    values) and :func:`hapid.control.loop_metrics` (XLA kernels, screened, refined).
-2. Robust check, S draws × 1000 frequencies: :func:`hapid.uncertainty.robust_check` (now
-   loop_metrics, vmapped over padded chunks) against the per-plant reference
-   (``analyze_loop`` on every draw, jitted once): time and verdict agreement.
+   Also the breakdown: each part of loop_metrics timed on its own.
+2. Robust check, S draws × 1000 frequencies: :func:`hapid.uncertainty.robust_check` with
+   ``backend="metrics"`` (loop_metrics once per draw, or vmapped over padded chunks), the
+   per-plant reference (``backend="reference"``: ``analyze_loop`` on every draw) and a plain
+   numpy per-draw loop, on the same plant arrays: time, ratios and verdict agreement.
 """
 
 from __future__ import annotations
@@ -51,6 +53,44 @@ def _numpy_loop(P, G):
     return det, lam, sv_S, sv_T
 
 
+def _breakdown(P, G, w, p_ol):
+    """Warm time of each part of loop_metrics on this loop (each its own jitted program)."""
+    from hapid.control import MetricsSpec
+    from hapid.control import _kernels as K
+    from hapid.control._metrics import metrics_screened
+
+    L = jnp.einsum("wij,wjk->wik", P, G)
+    Le = K.to_entries(L)
+    n = L.shape[-1]
+    e = jax.jit(K.eigvals)(Le)
+    parts = {
+        "L = P G (einsum)": (jax.jit(lambda P, G: jnp.einsum("wij,wjk->wik", P, G)), (P, G)),
+        "det(I+L), (I+L)⁻¹ (unrolled Gauss–Jordan)": (
+            jax.jit(lambda A: K.det_inv(A + jnp.eye(n)[:, :, None], unroll=True)), (Le,)),
+        "eigenvalues of L, every ω (XLA QR kernel)": (jax.jit(K.eigvals), (Le,)),
+        "eigenvalues of L, every ω (LAPACK eigvals)": (jax.jit(jnp.linalg.eigvals), (L,)),
+        "pairing of loci, every interval (subset DP)": (
+            jax.jit(K.pair_optimal), (e[:, :-1], e[:, 1:])),
+        "σ̄ bounds (Frobenius/trace), every ω": (jax.jit(K.sigma_bounds), (Le,)),
+        "σ̄ by Jacobi, every ω (not used: for scale)": (jax.jit(K.sigma_max), (Le,)),
+    }  # fmt: skip
+    base = dict(bandwidth=False, margins=False, t_peak=False, disk=False)
+    for name, fl in (("loop_metrics: verdict only", {}),
+                     ("loop_metrics: verdict + bandwidth", dict(bandwidth=True)),
+                     ("loop_metrics: verdict + margins", dict(margins=True)),
+                     ("loop_metrics: verdict + T peak + disk", dict(t_peak=True, disk=True))):  # fmt: skip
+        sp = MetricsSpec(**(base | fl))
+        parts[name] = (
+            jax.jit(lambda P, G, sp=sp: metrics_screened(P, G, w, p_ol, None, sp)[0]["stable"]),
+            (P, G),
+        )
+    rows = []
+    for name, (f, args) in parts.items():
+        _, first, best = measure(lambda f=f, args=args: f(*args), repeat=5)
+        rows.append({"part": name, "warm": fs(best), "first call": fs(first)})
+    return rows
+
+
 def loop_row(sec: Section, nls, N: int = 3000):
     from hapid.control import (
         Compensator,
@@ -75,79 +115,108 @@ def loop_row(sec: Section, nls, N: int = 3000):
     _, _, t_np = measure(lambda: _numpy_loop(Pn, Gn), repeat=5)
     r, c_ref, t_ref = measure(lambda: ref(P, G), repeat=5)
     q, c_new, t_new = measure(lambda: loop_metrics(P, G, w, p_ol=p_ol, spec=spec), repeat=5)
+    lspec = MetricsSpec(disk=True, kernels="lapack")
+    ql, c_lap, t_lap = measure(lambda: loop_metrics(P, G, w, p_ol=p_ol, spec=lspec), repeat=5)
     rows = [
-        {"implementation": "numpy det+inv+eigvals+2 svd", "run": fs(t_np), "vs numpy": "1×",
-         "first call": "", "exact fallback": ""},
-        {"implementation": "analyze_loop (LAPACK, grid)", "run": fs(t_ref), "vs numpy": f"{t_np / t_ref:.2f}×",
-         "first call": fs(c_ref), "exact fallback": ""},
-        {"implementation": "loop_metrics (XLA kernels, refined)", "run": fs(t_new),
-         "vs numpy": f"{t_np / t_new:.2f}×", "first call": fs(c_new),
-         "exact fallback": bool(q.exact_fallback)},
+        {"implementation": "numpy det+inv+eigvals+2 svd", "warm": fs(t_np), "vs numpy": "1×",
+         "first call (compile)": ""},
+        {"implementation": "analyze_loop (LAPACK, grid)", "warm": fs(t_ref), "vs numpy": f"{t_np / t_ref:.2f}×",
+         "first call (compile)": fs(c_ref)},
+        {"implementation": "loop_metrics (XLA kernels, refined)", "warm": fs(t_new),
+         "vs numpy": f"{t_np / t_new:.2f}×", "first call (compile)": fs(c_new)},
+        {"implementation": "loop_metrics (kernels='lapack', the reference path)", "warm": fs(t_lap),
+         "vs numpy": f"{t_np / t_lap:.2f}×", "first call (compile)": fs(c_lap)},
     ]  # fmt: skip
     sec.add(
         f"### 1. One loop: cu5 posterior draw under the NLS design, n = 5, N = {N}\n\n"
         + table(rows)
     )
-    a, b = r.summary(), q.summary()
-    agree = [{"field": k, "analyze_loop (grid)": fg(a[k], 7), "loop_metrics (refined)": fg(b[k], 7)}
+    a, b, c = r.summary(), q.summary(), ql.summary()
+    agree = [{"field": k, "analyze_loop (grid)": fg(a[k], 10), "loop_metrics xla": fg(b[k], 12),
+              "loop_metrics lapack": fg(c[k], 12)}
              for k in ("stable", "iso_bandwidth_hz", "gm_db", "pm_deg", "t_peak_db", "disk_margin")]  # fmt: skip
     sec.add(table(agree))
+    bd = _breakdown(P, G, w, p_ol)
+    sec.add("Where the time goes (same loop, same run; each part its own jitted program):\n\n"
+            + table(bd))  # fmt: skip
     sec.rows["loop_vs_numpy"] = t_np / t_new
+    eig = next(x["warm"] for x in bd if x["part"].startswith("eigenvalues of L, every ω (XLA"))
     sec.goal("loop analysis ≥ 30× numpy (warm)",
-             f"{t_np / t_new:.2f}× (numpy {fs(t_np)}, loop_metrics {fs(t_new)}, analyze_loop {fs(t_ref)})",
+             f"{t_np / t_new:.2f}× (numpy {fs(t_np)}, loop_metrics {fs(t_new)}, analyze_loop {fs(t_ref)})"
+             + ("" if t_np / t_new >= 30 else
+                f"; not met: the loci need eigenvalues at every ω (XLA QR kernel alone {eig}), "
+                "and the refinement loops (Illinois/golden, ~30–48 sequential steps each) cost "
+                "more than numpy's whole stack — see the breakdown"),
              t_np / t_new >= 30)  # fmt: skip
 
 
+def _numpy_robust(Ps, G):
+    """A plain numpy per-draw loop: the ingredients of the verdict, σ̄ and loci per draw."""
+    for P in Ps:
+        _numpy_loop(P, G)
+
+
 def robust_row(sec: Section, nls, S: int):
-    from hapid.control import (
-        Compensator,
-        analyze_loop,
-        controller_unstable_poles,
-        inverse_model_response,
-    )
+    from hapid.control import Compensator, controller_unstable_poles, inverse_model_response
     from hapid.uncertainty import laplace_samples, posterior_omega, robust_check
 
     g = Compensator.paper()
     omega = posterior_omega(1000)
     samples = laplace_samples(nls, S, key=0)
     chunk = min(S, 250)
-    t = time.perf_counter()
-    robust_check(samples, (nls.model, g), omega, max_samples=chunk, chunk=chunk, backend="metrics")
-    first = time.perf_counter() - t
-    t = time.perf_counter()
-    rep = robust_check(
-        samples, (nls.model, g), omega, max_samples=S, chunk=chunk, backend="metrics"
-    )
-    dt = time.perf_counter() - t
-    # the per-plant reference: analyze_loop on every draw (one jitted program, a python loop)
     w = jnp.asarray(omega)
     G = inverse_model_response(nls.model, g, w)
-    p_ol = float(controller_unstable_poles(nls.model, g))
-    ref = jax.jit(lambda P: analyze_loop(P, G, w, p_ol))
+    c_rhp = int(controller_unstable_poles(nls.model, g))
     models = samples.models(np.arange(S))
     Ps = jax.jit(jax.vmap(lambda mm: mm.P(1j * w)))(models)
-    jax.block_until_ready(ref(Ps[0]))
+    # every backend on the same plant arrays (the plants' own RHP poles: none, PD models)
+    runs = {}
+    for name, kw in (("metrics, one program per draw", dict(backend="metrics", vectorize=False)),
+                     ("metrics, vmapped chunks", dict(backend="metrics", vectorize=True)),
+                     ("reference (analyze_loop per draw)", dict(backend="reference"))):  # fmt: skip
+        t = time.perf_counter()
+        robust_check(Ps[:chunk], G, omega, controller_rhp=c_rhp, chunk=chunk, **kw)
+        first = time.perf_counter() - t
+        t = time.perf_counter()
+        rep = robust_check(Ps, G, omega, controller_rhp=c_rhp, chunk=chunk, **kw)
+        runs[name] = (rep, time.perf_counter() - t, first)
+    Pn, Gn = np.asarray(Ps), np.asarray(G)
     t = time.perf_counter()
-    reps = [ref(Ps[i]) for i in range(S)]
-    st_ref = np.array([bool(x.stable) for x in reps])
-    t_ref = time.perf_counter() - t
-    gm_ref = np.array([float(x.gm_db) for x in reps])
-    same = int(np.sum(st_ref == rep.stable))
-    both = st_ref & rep.stable
-    dgm = float(np.max(np.abs(gm_ref[both] - rep.gm_db[both]))) if both.any() else float("nan")
+    _numpy_robust(Pn, Gn)
+    t_np = time.perf_counter() - t
+    ref = runs["reference (analyze_loop per draw)"][0]
+    rows = []
+    for name, (rep, dt, first) in runs.items():
+        same = int(np.sum(ref.stable == rep.stable))
+        rows.append({"implementation": f"robust_check: {name}", "time": fs(dt), "per draw": fs(dt / S),
+                     "per 1000 draws": fs(dt / S * 1000), "vs reference": f"{runs['reference (analyze_loop per draw)'][1] / dt:.2f}×",
+                     "vs numpy loop": f"{t_np / dt:.2f}×", f"first call ({chunk} draws, incl. compile)": fs(first),
+                     "P(stable)": fg(rep.p_stable), "verdicts = reference": f"{same}/{S}"})  # fmt: skip
+    rows.append({"implementation": "numpy per-draw loop (det+inv+eigvals+2 svd, no decisions)", "time": fs(t_np),
+                 "per draw": fs(t_np / S), "per 1000 draws": fs(t_np / S * 1000), "vs reference": "",
+                 "vs numpy loop": "1×"})  # fmt: skip
+    best_name = min(
+        ("metrics, one program per draw", "metrics, vmapped chunks"), key=lambda k: runs[k][1]
+    )
+    rep, dt, _ = runs[best_name]
+    both = ref.stable & rep.stable
+    dgm = float(np.nanmax(np.abs(np.where(np.isfinite(ref.gm_db) & np.isfinite(rep.gm_db),
+                                          ref.gm_db - rep.gm_db, np.nan))[both])) if both.any() else float("nan")  # fmt: skip
+    same = int(np.sum(ref.stable == rep.stable))
     sec.add(f"### 2. Robust check: {S} Laplace draws of cu5 × 1000 frequencies (posterior grid)\n\n"
-            + table([{"implementation": "robust_check(backend='metrics'): loop_metrics, vmapped chunks", "time": fs(dt),
-                      "per draw": fs(dt / S), f"first call ({chunk} draws, incl. compile)": fs(first),
-                      "P(stable)": fg(rep.p_stable)},
-                     {"implementation": "analyze_loop per draw (reference)", "time": fs(t_ref),
-                      "per draw": fs(t_ref / S), "P(stable)": fg(float(np.mean(st_ref)))}])
-            + f"\n\nverdicts identical: {same}/{S}; max |GM(refined) − GM(grid)| over stable draws: "
-            f"{dgm:.3g} dB")  # fmt: skip
+            + table(rows)
+            + f"\n\nbest fast path: {best_name}; verdicts identical to the reference: {same}/{S}; "
+            f"max |GM(refined) − GM(grid)| over stable draws with finite GM in both: {dgm:.3g} dB "
+            "(the refined crossing against the grid reading; where these differ by more than a grid "
+            "step's interpolation error the two pick different crossings — not investigated here)")  # fmt: skip
     per_1000 = dt / S * 1000
     sec.rows["robust_1000_s"] = per_1000
     sec.goal("robust check 1000 draws × 1000 freq ≤ 2 s warm, same verdicts",
-             f"{fs(per_1000)} per 1000 draws (measured {S}: {fs(dt)}; reference {fs(t_ref / S * 1000)}); "
-             f"verdicts {same}/{S}", per_1000 <= 2 and same == S)  # fmt: skip
+             f"{fs(per_1000)} per 1000 draws ({best_name}; reference {fs(runs['reference (analyze_loop per draw)'][1] / S * 1000)}, "
+             f"numpy loop {fs(t_np / S * 1000)}); verdicts {same}/{S}"
+             + ("" if per_1000 <= 2 else "; not met: per draw the same work as row 1 at N = 1000 "
+                "(eigenvalues at every ω + sequential refinement loops), see row 1's breakdown"),
+             per_1000 <= 2 and same == S)  # fmt: skip
 
 
 def run(quick: bool = False, out: str = "out/bench") -> Section:

@@ -53,10 +53,25 @@ def _num(x, fmt) -> str:
     return "—" if x is None or not isinstance(x, int | float) else fmt(float(x))
 
 
-def issue_table(out: Path, since: float) -> list[dict]:
+# fallback while a script writes no JSON row: its Section.goal line, matched by these prefixes
+_GOAL_PREFIX = {"loop_analysis": ("loop analysis",), "robust_check": ("robust check",),
+                "wls_bound": ("batched wls",), "nls_scipy": ("nls (lm)",),
+                "nls_batch": ("fit_nls_batch",), "paper_pipeline": ("paper pipeline",)}  # fmt: skip
+
+
+def _goal_line(rid: str, sections) -> dict | None:
+    hits = [g for s in sections for g in s.goals
+            if g["goal"].lower().startswith(_GOAL_PREFIX[rid])]  # fmt: skip
+    if rid == "nls_scipy":  # the exact-Jacobian comparison, as the issue states it
+        hits = [g for g in hits if "exact" in g["goal"] or "analytic" in g["goal"]] or hits
+    return hits[-1] if hits else None
+
+
+def issue_table(out: Path, since: float, sections=()) -> list[dict]:
     """The six rows of the issue-13 table from ``<out>/goals/*.json`` written since ``since``
-    (benchmarks/README.md, "Goals table contract"); a row no script wrote in this run is
-    shown as not measured."""
+    (benchmarks/README.md, "Goals table contract"). A row no script wrote in this run is
+    taken from the matching ``Section.goal`` line of this run's ``sections`` (its measured
+    text in the ratio column), else shown as not measured."""
     fresh, stale, bad = {}, set(), []
     for f in sorted((out / "goals").glob("*.json")):
         try:
@@ -75,6 +90,13 @@ def issue_table(out: Path, since: float) -> list[dict]:
     table_rows = []
     for rid, work, goal, script in ISSUE_ROWS:
         r = fresh.get(rid)
+        g = None if r is not None else _goal_line(rid, sections)
+        if g is not None:
+            table_rows.append({"work": work, "numpy / scipy": "(in ratio)", "hapid": "(in ratio)",
+                               "ratio": g["measured"].replace("|", "/"), "goal": g["goal"],
+                               "met": g["met"], "reason": f"from {script}.py's goal line (no goals "
+                               "JSON row written)"})  # fmt: skip
+            continue
         if r is None:
             why = f"{script}.py wrote no row `{rid}` in this run"
             if rid in stale:
@@ -105,7 +127,7 @@ def write_report(
     out: Path, sections: list[Section], head: str, argv, total: float, pending, since: float
 ) -> Path:
     goals = [dict(section=s.title, **g) for s in sections for g in s.goals]
-    issue = issue_table(out, since)
+    issue = issue_table(out, since, sections)
     lines = [head.replace("# hapid benchmarks", "# hapid benchmark report", 1), "",
              f"command: `{' '.join([Path(sys.executable).name, 'benchmarks/run_all.py', *argv])}`; "
              f"suite wall time {total:.0f} s" + (f"; **not yet run: {', '.join(pending)}**" if pending else ""),
@@ -172,7 +194,10 @@ def main(argv=None):
         sections.append(sec)
         pending = [k for k, _ in todo[i + 1 :]]
         path = write_report(out, sections, head, argv, time.perf_counter() - t0, pending, since)
-    print("\n## Goals of issue 13 (as measured in this run)\n\n" + table(issue_table(out, since)))
+    print(
+        "\n## Goals of issue 13 (as measured in this run)\n\n"
+        + table(issue_table(out, since, sections))
+    )
     print(f"\nreport: {path} ({time.perf_counter() - t0:.0f} s)")
     figs = [f for s in sections for f in s.figures]
     missing = [f for f in figs if not os.path.exists(f)]

@@ -635,10 +635,10 @@ def main(argv=None) -> int:
         from ._cli_checks import check_args
 
         check_args(parser, a)  # every option and scene key, before any work
-        if getattr(a, "processes", None) is not None:  # sweep, robust: hapid._distributed
+        if hasattr(a, "processes"):  # sweep, robust: hapid._distributed (HAPID_* or --processes)
             from . import _distributed
 
-            if _distributed.local_launch_needed(a.processes):
+            if a.processes is not None and _distributed.local_launch_needed(a.processes):
                 args = sys.argv[1:] if argv is None else list(argv)
                 return _distributed.launch_local(args, a.processes)
             _distributed.initialize()

@@ -45,6 +45,10 @@ def compute(with_sweep=False) -> dict:
                                         chunk=2, progress=False)  # fmt: skip
         res |= {f"sweep_{k}": np.asarray(v) for k, v in m.items()}
         res["sweep_rows"] = rows
+    # a gather where process 0 has nothing: the others' rows, in rank order
+    rank = _distributed.process_index()
+    g = _distributed.gather([] if rank == 0 else [{"x": np.arange(3.0) + rank}])
+    res["empty0_x"] = g.get("x", np.zeros(0))
     res["rank"] = np.asarray(_distributed.process_index())
     res["count"] = np.asarray(_distributed.process_count())
     return res

@@ -49,3 +49,13 @@ def test_write_goal_rows_rejects_an_incomplete_or_unknown_row(tmp_path):
         _common.write_goal_rows(str(tmp_path), "x", [{"id": "loop_analysis"}], quick=False)
     with pytest.raises(ValueError, match="unknown id"):
         _common.write_goal_rows(str(tmp_path), "x", [_row("loop")], quick=False)
+
+
+def test_a_section_goal_line_fills_a_row_without_json(tmp_path):
+    sec = _common.Section("throughput")
+    sec.goal("fit_nls_batch (B = 64) ≥ 4× a Python loop of fit_nls", "5.1× wall | x", True)
+    sec.goal("log-prob ≥ 20× numpy", "3×", False)  # not an issue row
+    rows = run_all.issue_table(tmp_path, time.time(), [sec])
+    assert rows[4]["met"] == "yes" and rows[4]["ratio"] == "5.1× wall / x"
+    assert "goal line" in rows[4]["reason"]
+    assert sum(r["met"] == "not measured" for r in rows) == 5

@@ -245,17 +245,19 @@ def test_robust_aggressive_vs_conservative(case):
             G = inverse_model_response(ctrl[0], ctrl[1], omega)
             direct = analyze_loop(m.P(1j * omega), G, omega, controller_unstable_poles(*ctrl))
             assert bool(direct.stable) == bool(rep.stable[k * 60])
-            np.testing.assert_allclose(float(direct.gm_db), rep.gm_db[k * 60], rtol=1e-9)
+            # the default backend refines the crossing; the reference reads it on the grid
+            assert abs(float(direct.gm_db) - rep.gm_db[k * 60]) < 0.05
 
 
 @pytest.mark.slow
 def test_robust_vectorized_matches_loop(case):
-    """backend="metrics" (loop_metrics vmapped over chunks) gives the reference's verdicts."""
+    """The default backend (loop_metrics, here vmapped over chunks) gives the reference's
+    verdicts."""
     _, _, nls = case
     ps = laplace_samples(nls, 40, key=3)
     omega = robust_omega(300)
-    a = robust_check(ps, (nls.model, _lowpass_g(6.0)), omega)
-    b = robust_check(ps, (nls.model, _lowpass_g(6.0)), omega, chunk=16, backend="metrics")
+    a = robust_check(ps, (nls.model, _lowpass_g(6.0)), omega, backend="reference")
+    b = robust_check(ps, (nls.model, _lowpass_g(6.0)), omega, chunk=16, vectorize=True)
     np.testing.assert_array_equal(a.stable, b.stable)  # same verdicts as the reference
     # refined margins against loop_metrics on one plant and the reference's grid values
     m = jax.tree.map(lambda x: x[5], ps.models(np.arange(40)))

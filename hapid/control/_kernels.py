@@ -19,6 +19,10 @@ batch, run the same on GPU and cannot meet the LAPACK hang.
   eigenvalue of ``A`` (Schur's inequality).
 * :func:`eig_newton` — the eigenvalue of ``A`` nearest a guess, by Newton on ``det(A − zI)``
   (``z ← z + 1/tr((A − zI)⁻¹)``).
+* :func:`eigvals` — all eigenvalues (Householder → Hessenberg, Wilkinson-shifted QR with
+  deflation, ``n ≤ MAX_EIG_N`` unrolled; LAPACK's ``eigvals`` above).
+* :func:`pair_nearest` — nearest-neighbour pairing of eigenvalues between two frequencies,
+  with the test that proves it equals the optimal permutation.
 
 Entry-major layout: ``to_entries`` / ``from_entries`` move ``(..., n, n)`` ↔ ``(n, n, ...)``.
 """
@@ -32,6 +36,7 @@ import numpy as np
 from .. import _config  # noqa: F401  (float64)
 
 MAX_UNROLLED_N = 12
+MAX_EIG_N = 6  # unrolled QR compiles in ~25 s at n = 6, minutes at n = 8
 _JACOBI_SWEEPS = {2: 3, 3: 5, 4: 6, 5: 6, 6: 7}
 
 
@@ -147,14 +152,20 @@ def _jacobi_rotate(h, p, q):
     return h.at[p, q].set(0.0).at[q, p].set(0.0)
 
 
-def hermitian_eigvals(H, sweeps: int | None = None):
+def hermitian_eigvals(H, sweeps: int | None = None, unroll: bool = False):
     """Eigenvalues ``(n, ...)`` (unsorted, real) of Hermitian ``H (n, n, ...)`` by cyclic
-    Jacobi (``sweeps`` default by ``n``; quadratic convergence, rounding-level results)."""
+    Jacobi (``sweeps`` default by ``n``; quadratic convergence, rounding-level results).
+    ``unroll``: every rotation inlined (static indices; for small batches, where the
+    per-step cost of a loop dominates)."""
     n = H.shape[0]
     if sweeps is None:
         sweeps = _JACOBI_SWEEPS.get(n, 8)
     pairs = np.array([(p, q) for p in range(n - 1) for q in range(p + 1, n)], dtype=np.int32)
-    if len(pairs):
+    if unroll:
+        for _ in range(sweeps):
+            for p, q in pairs:
+                H = _jacobi_rotate(H, int(p), int(q))
+    elif len(pairs):
         P, Q = jnp.asarray(pairs[:, 0]), jnp.asarray(pairs[:, 1])
         m = len(pairs)
         H = jax.lax.fori_loop(0, sweeps * m, lambda i, h: _jacobi_rotate(h, P[i % m], Q[i % m]), H)
@@ -166,9 +177,9 @@ def gram(A):
     return jnp.einsum("ki...,kj...->ij...", jnp.conj(A), A)
 
 
-def sigma_max(A, sweeps: int | None = None):
+def sigma_max(A, sweeps: int | None = None, unroll: bool = False):
     """σ̄(A) for ``A (n, n, ...)``: the largest eigenvalue of ``AᴴA`` by Jacobi, square-rooted."""
-    ev = hermitian_eigvals(gram(A), sweeps)
+    ev = hermitian_eigvals(gram(A), sweeps, unroll)
     return jnp.sqrt(jnp.maximum(jnp.max(ev, axis=0), 0.0))
 
 
@@ -179,9 +190,200 @@ def eig_newton(A, z0, iters: int = 6):
     eye = jnp.eye(n, dtype=A.dtype).reshape((n, n) + (1,) * (A.ndim - 2))
 
     def body(_, z):
-        _, Ai = det_inv(A - eye * z)
+        _, Ai = det_inv(A - eye * z, unroll=True)
         tr = sum(Ai[i, i] for i in range(n))
         step = jnp.where(jnp.isfinite(tr) & (tr != 0), 1.0 / jnp.where(tr != 0, tr, 1.0), 0.0)
         return z + step
 
     return jax.lax.fori_loop(0, iters, body, z0)
+
+
+# --------------------------------------------------------------------------------------
+# eigenvalues of small complex matrices: Hessenberg reduction + shifted QR, batch last
+
+
+def _rows(A):
+    """``(n, n, ...)`` → list of lists of ``(...)`` entries (Python-unrolled algebra)."""
+    n = A.shape[0]
+    return [[A[i, j] for j in range(n)] for i in range(n)]
+
+
+def hessenberg(A):
+    """Upper Hessenberg ``H`` unitarily similar to ``A (n, n, ...)`` complex (Householder
+    reflections, unrolled; returns the entry lists of :func:`_rows`)."""
+    n = A.shape[0]
+    H = _rows(A)
+    for k in range(n - 2):
+        x = [H[i][k] for i in range(k + 1, n)]
+        xn = jnp.sqrt(sum(jnp.real(v) ** 2 + jnp.imag(v) ** 2 for v in x))
+        ax = jnp.abs(x[0])
+        ph = jnp.where(ax > 0, x[0] / jnp.where(ax > 0, ax, 1.0), 1.0)
+        v = [x[0] + ph * xn] + x[1:]
+        vn2 = sum(jnp.real(u) ** 2 + jnp.imag(u) ** 2 for u in v)
+        beta = jnp.where(vn2 > 0, 2.0 / jnp.where(vn2 > 0, vn2, 1.0), 0.0)
+        rr = range(k + 1, n)
+        # rows k+1..n−1: H ← (I − β v vᴴ) H
+        for j in range(k, n):
+            w = beta * sum(jnp.conj(v[a]) * H[i][j] for a, i in enumerate(rr))
+            for a, i in enumerate(rr):
+                H[i][j] = H[i][j] - v[a] * w
+        # columns k+1..n−1: H ← H (I − β v vᴴ)
+        for i in range(n):
+            w = beta * sum(H[i][j] * v[a] for a, j in enumerate(rr))
+            for a, j in enumerate(rr):
+                H[i][j] = H[i][j] - w * jnp.conj(v[a])
+        for i in range(k + 2, n):
+            H[i][k] = jnp.zeros_like(H[i][k])
+    return H
+
+
+_ULP = float(np.finfo(np.float64).eps)
+_SAFMIN = float(np.finfo(np.float64).tiny)
+
+
+def _wilkinson(a, b, c, d):
+    """Eigenvalue of ``[[a, b], [c, d]]`` nearest ``d``."""
+    t = 0.5 * (a + d)
+    disc = jnp.sqrt((0.5 * (a - d)) ** 2 + b * c)
+    e1, e2 = t + disc, t - disc
+    return jnp.where(_cabs1(e1 - d) <= _cabs1(e2 - d), e1, e2)
+
+
+def _qr_step(H, mu):
+    """One explicit shifted QR step ``H − μI = QR → RQ + μI`` on the Hessenberg entry lists
+    (Givens rotations with real cosines)."""
+    m = len(H)
+    H = [row[:] for row in H]
+    for i in range(m):
+        H[i][i] = H[i][i] - mu
+    rots = []
+    for k in range(m - 1):
+        a, b = H[k][k], H[k + 1][k]
+        aa = jnp.abs(a)
+        r = jnp.sqrt(aa * aa + jnp.real(b) ** 2 + jnp.imag(b) ** 2)
+        ok = r > 0
+        rs = jnp.where(ok, r, 1.0)
+        ph = jnp.where(aa > 0, a / jnp.where(aa > 0, aa, 1.0), 1.0)
+        c = jnp.where(ok, aa / rs, 1.0)
+        s = jnp.where(ok, ph * jnp.conj(b) / rs, 0.0)
+        rots.append((c, s))
+        for j in range(k, m):
+            hk, hk1 = H[k][j], H[k + 1][j]
+            H[k][j] = c * hk + s * hk1
+            H[k + 1][j] = c * hk1 - jnp.conj(s) * hk
+        H[k + 1][k] = jnp.zeros_like(H[k + 1][k])
+    for k, (c, s) in enumerate(rots):
+        for i in range(min(k + 2, m - 1) + 1):
+            hk, hk1 = H[i][k], H[i][k + 1]
+            H[i][k] = c * hk + jnp.conj(s) * hk1
+            H[i][k + 1] = c * hk1 - s * hk
+    for i in range(m):
+        H[i][i] = H[i][i] + mu
+    return H
+
+
+def eigvals(A, max_iter: int = 40):
+    """Eigenvalues ``(n, ...)`` of complex ``A (n, n, ...)`` (batch last), no LAPACK.
+
+    Householder reduction to Hessenberg form, then single-shift (Wilkinson) QR on the active
+    leading block, deflating one eigenvalue at the bottom when its subdiagonal entry falls
+    below ``ulp·(|h_{m−1,m−1}| + |h_{m,m}|)`` (LAPACK ``zlahqr``'s test), with an
+    exceptional shift every 10 iterations. Each deflation stage is a ``while_loop`` that runs
+    until every matrix of the batch has deflated (at most ``max_iter`` steps). Backward
+    stable like LAPACK's ``zgeev``; the order is the deflation order (no sorting).
+    """
+    n = A.shape[0]
+    A = jnp.asarray(A, dtype=jnp.complex128)
+    if n == 1:
+        return A[0]
+    if n > MAX_EIG_N:
+        return to_entries(jnp.linalg.eigvals(from_entries(A))[..., None])[:, 0]
+    H = hessenberg(A)
+    out = [None] * n
+    for m in range(n, 1, -1):
+        Hm = [row[:m] for row in H[:m]]
+        flat = [x for row in Hm for x in row]
+
+        def unflat(f, m=m):
+            return [list(f[i * m : (i + 1) * m]) for i in range(m)]
+
+        def done_of(Hm, m=m):
+            sub = _cabs1(Hm[m - 1][m - 2])
+            tst = _cabs1(Hm[m - 1][m - 1]) + _cabs1(Hm[m - 2][m - 2])
+            return (sub <= _ULP * tst) | (sub <= _SAFMIN) | ~jnp.isfinite(sub)
+
+        def cond(c, done_of=done_of, unflat=unflat):
+            it, f = c
+            return (it < max_iter) & ~jnp.all(done_of(unflat(f)))
+
+        def body(c, done_of=done_of, unflat=unflat, m=m):
+            it, f = c
+            Hm = unflat(f)
+            done = done_of(Hm)
+            mu = _wilkinson(Hm[m - 2][m - 2], Hm[m - 2][m - 1], Hm[m - 1][m - 2], Hm[m - 1][m - 1])
+            exc = Hm[m - 1][m - 1] + 0.75 * jnp.abs(jnp.real(Hm[m - 1][m - 2]))
+            mu = jnp.where((it % 10) == 9, exc, mu)
+            new = _qr_step(Hm, mu)
+            nf = [x for row in new for x in row]
+            return it + 1, tuple(jnp.where(done, o, x) for o, x in zip(f, nf, strict=True))
+
+        _, flat = jax.lax.while_loop(cond, body, (jnp.asarray(0), tuple(flat)))
+        Hm = unflat(flat)
+        out[m - 1] = Hm[m - 1][m - 1]
+        H = [row[: m - 1] for row in Hm[: m - 1]]
+    out[0] = H[0][0]
+    return jnp.stack(out)
+
+
+def pair_nearest(a, b):
+    """Order eigenvalues ``b (n, ...)`` to continue ``a (n, ...)`` by nearest neighbour.
+
+    Returns ``(b_paired (n, ...), ambiguous (...))``. Where not ``ambiguous`` the pairing is
+    the unique minimizer of ``Σ|a_i − b_σ(i)|²`` over all permutations (the reference
+    tracker's choice): every ``a_i``'s nearest ``b`` is closer than half the smallest
+    distance between two ``b``'s, so any other permutation moves some ``a_i`` farther.
+    Elsewhere ``b_paired`` is a placeholder (the caller pairs those by permutations).
+    """
+    n = a.shape[0]
+    d = jnp.abs(a[:, None] - b[None, :]) ** 2  # (n, n, ...)
+    sig = jnp.argmin(d, axis=1)  # (n, ...)
+    dmin = jnp.min(d, axis=1)
+    sep = jnp.full(a.shape[1:], jnp.inf)
+    for j in range(n):
+        for k in range(j + 1, n):
+            sep = jnp.minimum(sep, jnp.abs(b[j] - b[k]) ** 2)
+    onto = jnp.ones(a.shape[1:], dtype=bool)
+    for j in range(n):
+        onto = onto & (jnp.sum(sig == j, axis=0) == 1)
+    ok = onto & (4.0 * jnp.max(dmin, axis=0) < sep)
+    return jnp.take_along_axis(b, sig, axis=0), ~ok
+
+
+def pair_optimal(a, b):
+    """Order eigenvalues ``b (n, ...)`` to continue ``a (n, ...)``: the permutation σ that
+    minimizes ``Σ|a_i − b_σ(i)|²`` (the reference tracker's choice, ties aside), by dynamic
+    programming over subsets (``n·2ⁿ⁻¹`` elementwise steps instead of ``n·n!``)."""
+    n = a.shape[0]
+    d = [[jnp.abs(a[i] - b[j]) ** 2 for j in range(n)] for i in range(n)]
+    f = {0: jnp.zeros(a.shape[1:], dtype=jnp.float64)}
+    choice = {}
+    for S in sorted(range(1, 1 << n), key=lambda s: (bin(s).count("1"), s)):
+        i = bin(S).count("1") - 1
+        best, arg = None, None
+        for j in range(n):
+            if S >> j & 1:
+                c = f[S ^ (1 << j)] + d[i][j]
+                if best is None:
+                    best, arg = c, jnp.full(c.shape, j, dtype=jnp.int32)
+                else:
+                    lt = c < best
+                    best, arg = jnp.where(lt, c, best), jnp.where(lt, j, arg)
+        f[S], choice[S] = best, arg
+    tab = jnp.stack([choice.get(S, jnp.zeros_like(choice[1])) for S in range(1 << n)])
+    S = jnp.full(a.shape[1:], (1 << n) - 1, dtype=jnp.int32)
+    sig = [None] * n
+    for i in range(n - 1, -1, -1):
+        j = jnp.take_along_axis(tab, S[None], axis=0)[0]
+        sig[i] = j
+        S = S - jnp.left_shift(1, j)
+    return jnp.take_along_axis(b, jnp.stack(sig), axis=0)

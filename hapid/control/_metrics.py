@@ -11,12 +11,14 @@
 * σ̄ of ``S``, ``T`` (and ``S − T``) is *bounded* cheaply at every frequency and computed
   exactly (Jacobi on ``AᴴA``) only where the bounds do not decide — around the first
   crossing of ``1 − 1/√2`` and around the peaks;
-* eigenvalues of ``L`` (the loci) only in grid intervals where a disc containing them
-  (centre ``tr L/n``, radius ``‖L − cI‖_F``) allows a gain crossover, a phase crossover or a
-  phase step of ``1 + λ`` near ``max_phase_step``; elsewhere the disc proves there is none.
-  When more intervals (or frequencies) than ``spec.n_candidates`` need the exact values —
-  loops far from "scalar", such as random test loops — the whole grid is computed exactly
-  instead (same answers, the reference cost).
+* eigenvalues of ``L`` (the loci) at every frequency by the XLA QR kernel
+  (:func:`._kernels.eigvals`: Hessenberg + Wilkinson-shifted QR, no LAPACK), paired between
+  neighbouring frequencies by the reference tracker's rule (optimal permutation, by dynamic
+  programming over subsets: :func:`._kernels.pair_optimal`);
+* one path, no whole-grid fallback: where the cheap bounds do not decide (singularity,
+  bandwidth, peaks), exact values are computed for the undecided points ``n_candidates`` at
+  a time in a ``while_loop`` — the work follows the count of undecided points, and under
+  ``vmap`` nothing is computed twice (``exact_fallback`` is always false; kept for callers).
 
 Crossings are **refined**, not read on the grid: the iso-bandwidth (σ̄(T − I) = σ̄(S)
 reaching ``1 − 1/√2``), gain/phase crossovers of the loci and the peak of σ̄(T) are solved
@@ -69,8 +71,8 @@ class MetricsSpec:
     - ``arrays``: also the per-frequency ``freq_hz``, ``sv_T_minus_I`` (σ̄ only, ``(N,)``)
       and tracked ``loci`` ``(N, n)`` (costs the full eigenvalue stack).
     - ``singular_rtol``, ``max_phase_step``: as :func:`~hapid.control.analyze_loop`.
-    - ``n_candidates``: how many grid points/intervals may need exact values before the
-      whole grid is computed exactly.
+    - ``n_candidates``: how many undecided grid points get exact values per step of the
+      refinement loops (a work-size knob; results do not depend on it).
     - ``kernels``: ``"xla"`` (default) or ``"lapack"`` (LU/SVD custom calls; the reference
       the kernels are tested against).
     """
@@ -122,7 +124,7 @@ class LoopMetrics(eqx.Module):
     point, inf: never reached), ``t_peak_db``/``t_peak_hz``. Margins (any loop, NaN when not
     asked; inf/NaN-frequency when no crossing): ``gm_db``/``gm_freq_hz``, ``pm_deg``/
     ``pm_freq_hz``. ``disk_margin`` (0 when not stable, NaN when not asked).
-    ``exact_fallback``: the screen did not decide and the whole grid was computed exactly.
+    ``exact_fallback``: always false (there is no whole-grid fallback any more; kept for callers).
     Arrays (``spec.arrays``, else ``None``): ``freq_hz (N,)``, ``sv_T_minus_I (N,)`` (σ̄),
     ``loci (N, n)``.
     """
@@ -245,11 +247,11 @@ class _Interp:
         return jnp.clip(k, 0, self.N - 2)
 
 
-def _sigma_exact(A, kernels):
-    """σ̄ of ``(..., n, n)`` matrices."""
+def _sigma_exact(A, kernels, unroll=False):
+    """σ̄ of ``(..., n, n)`` matrices (``unroll``: for the few matrices of a refinement step)."""
     if kernels == "lapack":
         return jnp.linalg.svd(A, compute_uv=False)[..., 0]
-    return K.sigma_max(K.to_entries(A))
+    return K.sigma_max(K.to_entries(A), unroll=unroll)
 
 
 def _det_inv(IL, kernels, unroll=False):
@@ -260,10 +262,27 @@ def _det_inv(IL, kernels, unroll=False):
     return det, K.from_entries(S)
 
 
-def _gather(flag, size):
-    """First ``size`` indices where ``flag`` (padded with the last index), count."""
-    idx = jnp.nonzero(flag, size=size, fill_value=flag.shape[0] - 1)[0]
-    return idx, jnp.sum(flag)
+def _fill_where(flag, fn, out, size, stop=None):
+    """``out`` with ``out[i] = fn(idx)[j]`` for every ``i`` where ``flag`` (``idx`` the flagged
+    indices in increasing order, ``size`` at a time in a ``while_loop``: the work follows the
+    count, no fallback; under ``vmap`` the loop runs to the largest count of the batch).
+    ``stop(vals) → bool``: end after the first chunk where it holds (ascending scans)."""
+    N = flag.shape[0]
+    idx = jnp.nonzero(flag, size=N, fill_value=N)[0]
+    idx = jnp.concatenate([idx, jnp.full(size, N, dtype=idx.dtype)])
+    count = jnp.sum(flag)
+
+    def body(c):
+        j, out, _ = c
+        sl = jax.lax.dynamic_slice(idx, (j * size,), (size,))
+        vals = fn(jnp.minimum(sl, N - 1))
+        found = jnp.asarray(False) if stop is None else jnp.any(stop(vals) & (sl < N))
+        return j + 1, out.at[sl].set(vals.astype(out.dtype), mode="drop"), found
+
+    def cond(c):
+        return (c[0] * size < count) & ~c[2]
+
+    return jax.lax.while_loop(cond, body, (jnp.asarray(0), out, jnp.asarray(False)))[1]
 
 
 def _pair(a, b):
@@ -302,13 +321,10 @@ def _first_crossing(sig_fn, lo, hi, thr, interp, lw, size, exact_all, kernels):
     else:
         maybe = hi >= thr
         sure = lo >= thr
-        k0 = jnp.argmax(maybe)
         k1 = jnp.where(jnp.any(sure), jnp.argmax(sure), N - 1)
-        idx = jnp.clip(k0 + jnp.arange(size), 0, N - 1)
-        sig_w = sig_fn(idx)
-        above = sure.at[idx].set(sig_w >= thr)
-        above = jnp.where(jnp.any(maybe), above, jnp.zeros_like(above))
-        overflow = jnp.any(maybe) & (k1 - k0 + 1 > size)
+        amb = maybe & ~sure & (jnp.arange(N) <= k1)
+        above = _fill_where(amb, lambda i: sig_fn(i) >= thr, sure, size, stop=lambda v: v)
+        overflow = jnp.asarray(False)
         sig = None
     k = jnp.argmax(above)
     w = _threshold_crossing(jnp.maximum(k - 1, 0), k, thr, interp, lw, kernels)
@@ -329,49 +345,64 @@ def _last_crossing(sig, thr, interp, lw, kernels):
 def _sigma_of_S(L, kernels):
     n = L.shape[-1]
     IL = L + jnp.eye(n, dtype=L.dtype)
-    _, S = _det_inv(IL, kernels)
+    _, S = _det_inv(IL, kernels, unroll=True)
     return _sigma_exact(S, kernels)
 
 
 def _sigma_of_T(L, kernels, kind):
     n = L.shape[-1]
     eye = jnp.eye(n, dtype=L.dtype)
-    _, S = _det_inv(L + eye, kernels)
+    _, S = _det_inv(L + eye, kernels, unroll=True)
     M = eye - S if kind == "T" else 2.0 * S - eye  # T = I − S; S − T = 2S − I
     return _sigma_exact(M, kernels)
 
 
-def _peak(M_grid, L, interp, lw, kind, size, exact_all, kernels):
-    """Refined maximum over ω of σ̄(M), M = T or S − T: (value, omega, overflow)."""
-    N = L.shape[0]
+def _peak_grid(M_grid, size, exact_all, kernels):
+    """Grid maximum of σ̄(M): exact σ̄ in a window around the largest lower bound and at
+    every other point whose upper bound exceeds the window's maximum: (index, value)."""
+    N = M_grid.shape[0]
     if exact_all:
         sig = _sigma_exact(M_grid, kernels)
         kpk = jnp.argmax(sig)
-        vpk = sig[kpk]
-        overflow = jnp.asarray(False)
-    else:
-        lo, hi = K.sigma_bounds(K.to_entries(M_grid))
-        W = min(size, N)
-        start = jnp.clip(jnp.argmax(lo) - W // 2, 0, N - W)
-        idx = start + jnp.arange(W)
-        sig = _sigma_exact(M_grid[idx], kernels)
-        j = jnp.argmax(sig)
-        kpk, vpk = idx[j], sig[j]
-        # points outside the window that could exceed the peak found in it: exact too
-        outside = (jnp.arange(N) < start) | (jnp.arange(N) >= start + W)
-        idx2, count = _gather(outside & (hi > vpk), W)
-        sig2 = jnp.where(jnp.arange(W) < count, _sigma_exact(M_grid[idx2], kernels), -jnp.inf)
-        j2 = jnp.argmax(sig2)
-        better = sig2[j2] > vpk
-        kpk, vpk = jnp.where(better, idx2[j2], kpk), jnp.where(better, sig2[j2], vpk)
-        overflow = count > W
-    # golden-section search on [x_{k-1}, x_{k+1}] (piecewise-cubic L between the nodes)
+        return kpk, sig[kpk]
+    lo, hi = K.sigma_bounds(K.to_entries(M_grid))
+    W = min(size, N)
+    start = jnp.clip(jnp.argmax(lo) - W // 2, 0, N - W)
+    idx = start + jnp.arange(W)
+    sig = _sigma_exact(M_grid[idx], kernels)
+    j = jnp.argmax(sig)
+    kpk, vpk = idx[j], sig[j]
+    # points outside the window that could exceed the peak found in it: exact too
+    outside = (jnp.arange(N) < start) | (jnp.arange(N) >= start + W)
+    sig2 = _fill_where(
+        outside & (hi > vpk), lambda i: _sigma_exact(M_grid[i], kernels), jnp.full(N, -jnp.inf), W
+    )
+    j2 = jnp.argmax(sig2)
+    better = sig2[j2] > vpk
+    return jnp.where(better, j2, kpk), jnp.where(better, sig2[j2], vpk)
+
+
+def _peaks(grid_peaks, kinds, interp, lw, kernels):
+    """Refined maxima of σ̄(M) (``kinds``: "T" → T = I − S, "SmT" → S − T = 2S − I) from
+    their grid maxima ``[(index, value), ...]``: golden-section searches on
+    ``[x_{k−1}, x_{k+1}]`` (piecewise-cubic L between the nodes), all kinds in one loop.
+    Returns ``[(value, omega), ...]``."""
+    N = lw.shape[0]
+    nk = len(kinds)
+    kpk = jnp.stack([k for k, _ in grid_peaks])
+    vpk = jnp.stack([v for _, v in grid_peaks])
     a = lw[jnp.maximum(kpk - 1, 0)]
     b = lw[jnp.minimum(kpk + 1, N - 1)]
 
-    def val(x):
-        x = jnp.atleast_1d(x)
-        return _sigma_of_T(interp(interp.interval(x), x), kernels, kind)
+    def val(x):  # x (r·nk,): the searches in order, repeated r times
+        Lx = interp(interp.interval(x), x)
+        n = Lx.shape[-1]
+        eye = jnp.eye(n, dtype=Lx.dtype)
+        _, S = _det_inv(Lx + eye, kernels, unroll=True)
+        M = jnp.stack(
+            [eye - S[i] if kinds[i % nk] == "T" else 2.0 * S[i] - eye for i in range(x.shape[0])]
+        )
+        return _sigma_exact(M, kernels)
 
     gr = (np.sqrt(5.0) - 1.0) / 2.0
     c = b - gr * (b - a)
@@ -385,75 +416,65 @@ def _peak(M_grid, L, interp, lw, kind, size, exact_all, kernels):
         c2 = jnp.where(left, b2 - gr * (b2 - a2), d)
         d2 = jnp.where(left, c, a2 + gr * (b2 - a2))
         x_new = jnp.where(left, c2, d2)
-        f_new = val(x_new)[0]
+        f_new = val(x_new)
         fc2 = jnp.where(left, f_new, fd)
         fd2 = jnp.where(left, fc, f_new)
         return a2, b2, c2, d2, fc2, fd2
 
-    fcd = val(jnp.stack([c, d]))
-    s = jax.lax.fori_loop(0, _GOLDEN_ITERS, body, (a, b, c, d, fcd[0], fcd[1]))
+    fcd = val(jnp.concatenate([c, d]))
+    s = jax.lax.fori_loop(0, _GOLDEN_ITERS, body, (a, b, c, d, fcd[:nk], fcd[nk:]))
     xm = jnp.where(s[4] >= s[5], s[2], s[3])
     vm = jnp.maximum(s[4], s[5])
     better = vm > vpk
-    return jnp.where(better, vm, vpk), jnp.where(better, jnp.exp(xm), jnp.exp(lw[kpk])), overflow
+    v = jnp.where(better, vm, vpk)
+    w = jnp.where(better, jnp.exp(xm), jnp.exp(lw[kpk]))
+    return [(v[i], w[i]) for i in range(nk)]
 
 
 def _loci_intervals(L, omega, spec, size, exact_all):
-    """Paired loci at the ends of the intervals that need them: (idx, valid, a, b, overflow)."""
+    """Paired loci at the ends of every grid interval: (idx, valid, a, b, overflow).
+
+    Eigenvalues of ``L`` at every frequency by the XLA QR kernel (:func:`._kernels.eigvals`;
+    LAPACK with ``kernels="lapack"``), paired between neighbours as the reference tracker
+    does (optimal permutation for ``n ≤ 6`` by :func:`._kernels.pair_optimal`, greedy
+    above)."""
     N = L.shape[0]
-    if exact_all:
-        idx = jnp.arange(N - 1)
-        valid = jnp.ones(N - 1, dtype=bool)
-        overflow = jnp.asarray(False)
+    if spec.kernels == "lapack":
+        e = jnp.linalg.eigvals(L).T  # the reference
     else:
-        c, r = K.eig_disc(K.to_entries(L))
-        r = r * (1.0 + 1e-9) + 1e-12 * (1.0 + jnp.abs(c))
-        ca, cb, ra, rb = c[:-1], c[1:], r[:-1], r[1:]
-        one = 1.0 + c
-        d1 = jnp.abs(one)
-        alpha = jnp.where(
-            d1 > r, jnp.arcsin(jnp.clip(r / jnp.where(d1 > 0, d1, 1.0), 0.0, 1.0)), jnp.inf
-        )
-        dth = jnp.abs(jnp.angle(one[1:] / one[:-1]))
-        sus = ~(dth + alpha[:-1] + alpha[1:] < spec.max_phase_step * (1.0 - 1e-9))
-        if spec.margins:
-            ma, mb = jnp.abs(ca), jnp.abs(cb)
-            gain = ((ma + ra >= 1.0) & (mb - rb < 1.0)) | ((ma - ra < 1.0) & (mb + rb >= 1.0))
-            ia, ib = jnp.imag(ca), jnp.imag(cb)
-            ph = ((ia + ra >= 0) & (ib - rb < 0)) | ((ia - ra < 0) & (ib + rb >= 0))
-            ph = ph & ((jnp.real(ca) - ra < 0) | (jnp.real(cb) - rb < 0))
-            sus = sus | gain | ph
-        sus = sus | ~jnp.isfinite(ra) | ~jnp.isfinite(rb)
-        idx, count = _gather(sus, min(size, N - 1))
-        valid = jnp.arange(idx.shape[0]) < count
-        overflow = count > idx.shape[0]
-    ends = jnp.concatenate([idx, idx + 1])
-    e = jnp.linalg.eigvals(L[ends])  # the only LAPACK call: a few matrices, or the fallback
-    a, b = e[: idx.shape[0]], e[idx.shape[0] :]
-    b = _pair(a, b)
-    return idx, valid, a, b, overflow
+        e = K.eigvals(K.to_entries(L))  # (n, N)
+    a, b = e[:, :-1], e[:, 1:]
+    if L.shape[-1] <= _MAX_PERMUTATION_N:
+        bp = K.pair_optimal(a, b).T
+    else:
+        bp = jax.vmap(_match_greedy)(a.T, b.T)
+    a = a.T  # (N − 1, n)
+    return jnp.arange(N - 1), jnp.ones(N - 1, dtype=bool), a, bp, jnp.asarray(False)
 
 
-def _refine_loci(idx, valid, a, b, interp, lw, kind, kernels):
-    """Refined worst margin of ``kind`` ("gm"/"pm"): (value, omega)."""
+def _refine_loci(idx, valid, a, b, interp, lw, kernels):
+    """Refined worst gain and phase margins: ``((gm_db, omega), (pm_deg, omega))``; the
+    ``_N_REFINE`` best grid candidates of each kind refined together (one Illinois loop on
+    ``Im λ`` resp. ``log|λ|`` of the locus followed by Newton, :func:`._kernels.eig_newton`)."""
     C, n = a.shape
-    if kind == "gm":
-        ok, _, grid_val = phase_crossing(a, b)
-        f_of = jnp.imag
-    else:
-        ok, _, grid_val = gain_crossing(a, b)
-
-        def f_of(lam):
-            return jnp.log(jnp.abs(lam))
-
-    ok = ok & valid[:, None]
-    score = jnp.where(ok, jnp.abs(grid_val), jnp.inf).ravel()
-    nr = min(_N_REFINE, score.shape[0])
-    sel = jnp.argsort(score)[:nr]
+    okg, _, gval = phase_crossing(a, b)
+    okp, _, pval = gain_crossing(a, b)
+    nr = min(_N_REFINE, C * n)
+    sels, oks = [], []
+    for ok, grid_val in ((okg, gval), (okp, pval)):
+        score = jnp.where(ok & valid[:, None], jnp.abs(grid_val), jnp.inf).ravel()
+        neg, sel = jax.lax.top_k(-score, nr)  # the nr smallest (lowest index first on ties)
+        sels.append(sel)
+        oks.append(jnp.isfinite(neg))
+    sel = jnp.concatenate(sels)
+    sel_ok = jnp.concatenate(oks)
+    is_gm = jnp.arange(2 * nr) < nr
     ci, li = sel // n, sel % n
     k = idx[ci]
     la, lb = a[ci, li], b[ci, li]
-    sel_ok = jnp.isfinite(score[sel])
+
+    def f_of(lam):
+        return jnp.where(is_gm, jnp.imag(lam), jnp.log(jnp.abs(lam)))
 
     def eig_at(t):
         x = lw[k] + t * (lw[k + 1] - lw[k])
@@ -461,21 +482,16 @@ def _refine_loci(idx, valid, a, b, interp, lw, kind, kernels):
         guess = la + t * (lb - la)
         return K.eig_newton(K.to_entries(Lm), guess)
 
-    def f(t):
-        return f_of(eig_at(t))
-
-    fa, fb = f_of(la), f_of(lb)
-    ts = _illinois(f, fa, fb)
+    ts = _illinois(lambda t: f_of(eig_at(t)), f_of(la), f_of(lb))
     lam = eig_at(ts)
     w = jnp.exp(lw[k] + ts * (lw[k + 1] - lw[k]))
-    if kind == "gm":
-        val = -_DB * jnp.log(jnp.abs(lam))
-        sel_ok = sel_ok & (jnp.real(lam) < 0)
-    else:
-        val = _pm_deg(lam)
-    val = jnp.where(sel_ok, val, jnp.inf)
-    j = jnp.argmin(jnp.abs(val))
-    return val[j], jnp.where(sel_ok[j], w[j], jnp.nan)
+    gm = jnp.where(sel_ok & (jnp.real(lam) < 0), -_DB * jnp.log(jnp.abs(lam)), jnp.inf)[:nr]
+    pm = jnp.where(sel_ok, _pm_deg(lam), jnp.inf)[nr:]
+    out = []
+    for val, ww, okk in ((gm, w[:nr], jnp.isfinite(gm)), (pm, w[nr:], sel_ok[nr:])):
+        j = jnp.argmin(jnp.abs(val))
+        out.append((val[j], jnp.where(okk[j], ww[j], jnp.nan)))
+    return out
 
 
 def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec, exact_all: bool):
@@ -503,15 +519,13 @@ def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec, exact_all: bool):
     sure_not = finS & (1.0 / fS > rtol * jnp.maximum(1.0, fIL))
     sure = ~finS | (rn / fS <= rtol * jnp.maximum(1.0, fIL / rn))
     amb = finite_IL & ~sure_not & ~sure
-    ks = min(N, 256) if exact_all else 4
-    ia, ca = _gather(amb, ks)
-    s2 = _sigma_exact(jnp.concatenate([S[ia], IL[ia]]), kern)
-    sS, sIL = s2[:ks], s2[ks:]
-    s_amb = jnp.isfinite(sS) & (1.0 / sS <= rtol * jnp.maximum(1.0, sIL)) & (jnp.arange(ks) < ca)
-    sing_k = finite_IL & sure
-    sing_k = sing_k.at[ia].set(sing_k[ia] | s_amb)
-    if not exact_all:
-        overflow = overflow | (ca > ks)
+
+    def amb_test(i):
+        s2 = _sigma_exact(jnp.concatenate([S[i], IL[i]]), kern)
+        sS, sIL = s2[: i.shape[0]], s2[i.shape[0] :]
+        return jnp.isfinite(sS) & (1.0 / sS <= rtol * jnp.maximum(1.0, sIL))
+
+    sing_k = _fill_where(amb, amb_test, finite_IL & sure, 4)
     singular = jnp.any(sing_k)
 
     n_enc, _, resolved = nyquist_encirclements(det, spec.max_phase_step)
@@ -544,8 +558,7 @@ def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec, exact_all: bool):
         disk_pm_deg=nan,
     )
     if spec.margins:
-        g, gw = _refine_loci(idx, valid, la, lb, interp, lw, "gm", kern)
-        p, pw = _refine_loci(idx, valid, la, lb, interp, lw, "pm", kern)
+        (g, gw), (p, pw) = _refine_loci(idx, valid, la, lb, interp, lw, kern)
         out.update(gm_db=g, gm_freq_hz=gw / TWO_PI, pm_deg=p, pm_freq_hz=pw / TWO_PI)
 
     sig_S_all = None
@@ -564,14 +577,21 @@ def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec, exact_all: bool):
         )
         overflow = overflow | ovb
         out["iso_bandwidth_hz"] = jnp.where(stable, bw / TWO_PI, nan)
+    kinds, grid = [], []
     if spec.t_peak:
-        v, w, ovp = _peak(eye - S, L, interp, lw, "T", size, exact_all, kern)
-        overflow = overflow | ovp
+        kinds.append("T")
+        grid.append(_peak_grid(eye - S, size, exact_all, kern))
+    if spec.disk:
+        kinds.append("SmT")
+        grid.append(_peak_grid(2.0 * S - eye, size, exact_all, kern))
+    if kinds:
+        res = dict(zip(kinds, _peaks(grid, tuple(kinds), interp, lw, kern), strict=True))
+    if spec.t_peak:
+        v, w = res["T"]
         out["t_peak_db"] = jnp.where(stable, _DB * jnp.log(v), nan)
         out["t_peak_hz"] = jnp.where(stable, w / TWO_PI, nan)
     if spec.disk:
-        v, _, ovd = _peak(2.0 * S - eye, L, interp, lw, "SmT", size, exact_all, kern)
-        overflow = overflow | ovd
+        v, _ = res["SmT"]
         out["disk_margin"] = jnp.where(stable, 2.0 / v, 0.0)
         dm = disk_margin_from_peak(v)
         out["disk_gm_db"] = jnp.where(stable, dm["disk_gm_db"], 0.0)
@@ -600,13 +620,14 @@ def _check(P, G, omega):
 
 
 def metrics_screened(P, G, omega, p_ol, L_fn, spec):
-    """The screened analysis: ``(fields dict, overflow)``; pure, jit/vmap-able. When
-    ``overflow`` is true the result must be replaced by :func:`metrics_exact`'s."""
+    """The analysis: ``(fields dict, overflow)``; pure, jit/vmap-able (``overflow`` is always
+    false: kept for callers)."""
     return _metrics(P, G, omega, p_ol, L_fn, spec, exact_all=False)
 
 
 def metrics_exact(P, G, omega, p_ol, L_fn, spec):
-    """Every grid point exact (the fallback; same rules, no screen)."""
+    """Every grid point exact (σ̄ by Jacobi everywhere; same rules, no bounds): a check of
+    the bounds' screening, not needed by any caller."""
     return _metrics(P, G, omega, p_ol, L_fn, spec, exact_all=True)[0]
 
 
@@ -623,14 +644,9 @@ def _exact_jit(P, G, omega, p_ol, L_fn, spec):
 def _loop_metrics(P, G, omega, p_ol, L_fn, spec):
     if isinstance(P, jax.core.Tracer) or isinstance(p_ol, jax.core.Tracer):
         out, overflow = metrics_screened(P, G, omega, p_ol, L_fn, spec)
-        res = jax.lax.cond(
-            overflow, lambda: metrics_exact(P, G, omega, p_ol, L_fn, spec), lambda: out
-        )
-        return LoopMetrics(**res, exact_fallback=overflow)
-    out, overflow = _screened_jit(P, G, omega, p_ol, L_fn, spec)
-    if bool(overflow):  # the screen did not decide: the whole grid exactly (compiled on demand)
-        out = _exact_jit(P, G, omega, p_ol, L_fn, spec)
-    return LoopMetrics(**out, exact_fallback=jnp.asarray(overflow))
+    else:
+        out, overflow = _screened_jit(P, G, omega, p_ol, L_fn, spec)
+    return LoopMetrics(**out, exact_fallback=overflow)
 
 
 def loop_metrics(
@@ -655,9 +671,8 @@ def loop_metrics(
         L_fn: optional ``omega (M,) → L(jω) (M, n, n)`` for exact refinement of crossings
             (static; otherwise a local cubic interpolant of the grid).
 
-    Returns :class:`LoopMetrics`. Called on arrays it runs two jit-compiled programs (the
-    screened one; the exact one only when the screen did not decide); called under ``jit``/
-    ``vmap`` both are traced and joined by ``lax.cond`` (a ``select`` when vmapped).
+    Returns :class:`LoopMetrics`. Called on arrays it runs one jit-compiled program per
+    (shapes, spec, L_fn); under ``jit``/``vmap`` it is traced inline (one path).
     """
     P, G, omega = _check(P, G, omega)
     if spec.kernels not in ("xla", "lapack"):

@@ -38,20 +38,15 @@ calls stable, the margin is the size of the smallest perturbation that reaches �
 ``|GM|`` and ``|PM|``. Quantiles and ``passed`` therefore use ``|GM|``, ``|PM|`` of stable
 plants (unstable: ``−inf``); :meth:`RobustReport.rows` keeps the signed values.
 
-Compute path. By default every plant is analysed by :func:`hapid.control.analyze_loop` (the
-LAPACK reference, one plant per call of one jitted program: ≈ 54 ms per plant at n = 5,
-N = 1000 on the loaded 2-core machine). ``backend="metrics"``: each chunk of plants is
-analysed by :func:`hapid.control.loop_metrics`'s
-screened program, ``vmap``-ed over the chunk (the last chunk padded, so one compile): XLA
-small-matrix kernels for det/inverse/σ̄, exact values only where the cheap bounds do not
-decide, refined crossings. Plants whose screen did not decide are re-analysed on the whole
-grid (same rules). The only LAPACK call left in the batched program is ``eigvals`` on the
-few grid intervals that need loci, so the XLA:CPU hang of concurrent LAPACK kernels (which
-forced one plant per call before) does not arise; ``vectorize=False`` still runs one plant
-per call. Measured on cu5 Laplace draws (benchmarks/bench_fast.py): identical verdicts, but
-the screen does not decide for these draws (their loops are far from g·I: eigenvalue spread
-≈ 4× |tr L/n|), so the exact whole-grid path runs and is ≈ 6× slower than the reference —
-hence not the default yet.
+Compute path. ``backend="metrics"`` (the default): every plant is analysed by
+:func:`hapid.control.loop_metrics`'s program (XLA small-matrix kernels for det/inverse/σ̄ and
+the eigenvalues of the loci, no LAPACK inside; exact values only where the cheap bounds do
+not decide; refined crossings), once per plant (``vectorize=False``, the default: measured
+faster on the 2-core machine than ``vmap`` over large chunks, whose working set leaves the
+cache) or ``vmap``-ed over chunks of ``chunk`` plants (the last chunk padded, ``p_ol`` an
+array: one compile). Same verdicts as the reference on 1000 cu5 posterior draws
+(benchmarks/bench_fast.py, tests/test_control_metrics.py). ``backend="reference"``:
+:func:`hapid.control.analyze_loop` (the LAPACK reference, grid values) once per plant.
 """
 
 from __future__ import annotations
@@ -67,12 +62,20 @@ from .. import _config, _distributed  # noqa: F401  (float64)
 from .._grids import continuous_grid as posterior_omega
 from .._grids import sampled_grid as robust_omega
 from ..control import Compensator, MetricsSpec, analyze_loop, disk_margin_from_peak
-from ..control._metrics import metrics_exact, metrics_screened
+from ..control._metrics import metrics_screened
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
 from ._sampler import PosteriorSamples
 
-FIELDS = ("gm_db", "pm_deg", "disk_margin", "disk_gm_db", "disk_pm_deg", "iso_bandwidth_hz", "t_peak_db")
+FIELDS = (
+    "gm_db",
+    "pm_deg",
+    "disk_margin",
+    "disk_gm_db",
+    "disk_pm_deg",
+    "iso_bandwidth_hz",
+    "t_peak_db",
+)
 _WORST = {"gm_db": -np.inf, "pm_deg": -np.inf, "disk_margin": 0.0, "disk_gm_db": 0.0,
           "disk_pm_deg": 0.0, "iso_bandwidth_hz": 0.0, "t_peak_db": np.inf}  # fmt: skip
 
@@ -148,7 +151,9 @@ class RobustReport:
             q = self.quantile(name, 0.05)
             if not q >= req:
                 frac = float(np.mean(self.penalized(name) < req))
-                short = "unstable plants" if not np.isfinite(q) else f"short by {req - q:.3g} {unit}"
+                short = (
+                    "unstable plants" if not np.isfinite(q) else f"short by {req - q:.3g} {unit}"
+                )
                 out.append(f"{label} 5 % quantile {q:.4g} {unit} < required {req:g} {unit} ({short}; "
                            f"{100 * frac:.1f} % of plants below {req:g} {unit})")  # fmt: skip
         return out
@@ -223,42 +228,21 @@ def _reference_chunk(P, p_ol, G, omega):
 
 
 @eqx.filter_jit
-def _screened_chunk(P, p_ol, G, omega):
+def _metrics_chunk(P, p_ol, G, omega):
     def one(P_, p_):
-        m, overflow = metrics_screened(P_, G, omega, p_, None, _SPEC)
-        return _fields(m), overflow
+        return _fields(metrics_screened(P_, G, omega, p_, None, _SPEC)[0])
 
     return jax.vmap(one)(P, p_ol)
 
 
-@eqx.filter_jit
-def _exact_chunk(P, p_ol, G, omega):
-    return jax.vmap(lambda P_, p_: _fields(metrics_exact(P_, G, omega, p_, None, _SPEC)))(P, p_ol)
-
-
 def _analyze_chunk(P, p_ol, G, omega, vectorize):
-    """Per-plant fields of a (padded) chunk: the screened analysis vmapped over the chunk
-    (one compile for every chunk), then the exact whole-grid analysis — vmapped over the
-    undecided plants, padded to the chunk size — for the plants whose screen did not decide
-    (:mod:`hapid.control._metrics`)."""
+    """Per-plant fields of a (padded) chunk: :func:`~hapid.control.loop_metrics`'s program
+    vmapped over the chunk (one compile for every chunk: same shapes, ``p_ol`` an array),
+    or once per plant (``vectorize=False``)."""
     if vectorize:
-        res, overflow = _screened_chunk(P, p_ol, G, omega)
-        res = {k: np.array(v) for k, v in res.items()}
-        overflow = np.asarray(overflow)
-    else:
-        outs = [_screened_chunk(P[i : i + 1], p_ol[i : i + 1], G, omega) for i in range(P.shape[0])]
-        res = {k: np.concatenate([np.asarray(o[0][k]) for o in outs]) for k in _KEYS}
-        overflow = np.concatenate([np.asarray(o[1]) for o in outs])
-    idx = np.flatnonzero(overflow)
-    if idx.size:
-        size = P.shape[0] if vectorize else 1
-        for s in range(0, idx.size, size):
-            sel = idx[s : s + size]
-            pad = np.concatenate([sel, np.full(size - sel.size, sel[-1])])
-            ex = _exact_chunk(P[pad], p_ol[pad], G, omega)
-            for k in _KEYS:
-                res[k][sel] = np.asarray(ex[k])[: sel.size]
-    return res
+        return {k: np.asarray(v) for k, v in _metrics_chunk(P, p_ol, G, omega).items()}
+    outs = [_metrics_chunk(P[i : i + 1], p_ol[i : i + 1], G, omega) for i in range(P.shape[0])]
+    return {k: np.concatenate([np.asarray(o[k]) for o in outs]) for k in _KEYS}
 
 
 def _pad(x, size):
@@ -297,7 +281,9 @@ def controller_response(controller, omega):
     if isinstance(controller, tuple) and len(controller) == 2:
         model, g = controller
         if not isinstance(model, ImpedanceModel) or not isinstance(g, Compensator):
-            raise ValueError("controller must be (nominal ImpedanceModel, Compensator) or G (N, n, n)")
+            raise ValueError(
+                "controller must be (nominal ImpedanceModel, Compensator) or G (N, n, n)"
+            )
         from ..pipeline import controller as make_controller
 
         ctrl = make_controller(model, g)  # continuous inverse-model controller (hapid.pipeline)
@@ -322,8 +308,8 @@ def robust_check(
     max_samples: int | None = 1000,
     seed: int = 0,
     labels=None,
-    vectorize: bool = True,
-    backend: str = "reference",
+    vectorize: bool = False,
+    backend: str = "metrics",
 ) -> RobustReport:
     """Analyse the loop of a fixed controller with every plant of a batch.
 
@@ -338,14 +324,16 @@ def robust_check(
       model plants; :func:`robust_omega`, 0.05–450 Hz, for sampled plant arrays).
     - ``gm_db``, ``pm_deg``, ``p_stable_required``: requirements for ``passed``.
     - ``chunk``: plants per vmapped batch (memory: chunk × N × n² complex per array).
-    - ``backend``: ``"reference"`` (default): :func:`~hapid.control.analyze_loop` once per
-      plant (grid values, the numbers every other command reports today); ``"metrics"``:
-      :func:`~hapid.control.loop_metrics` (refined crossings), see "Compute path".
-    - ``vectorize`` (``backend="metrics"``): ``True`` vmaps the analysis over each chunk;
-      ``False`` runs it once per plant.
+    - ``backend``: ``"metrics"`` (default): :func:`~hapid.control.loop_metrics` (XLA
+      kernels, refined crossings); ``"reference"``: :func:`~hapid.control.analyze_loop` once
+      per plant (LAPACK, grid values). See "Compute path".
+    - ``vectorize`` (``backend="metrics"``): ``False`` (default) runs the analysis once per
+      plant; ``True`` vmaps it over each chunk (slower on CPU for large chunks).
 
     Returns a :class:`RobustReport`.
     """
+    if backend not in ("metrics", "reference"):
+        raise ValueError(f"robust_check: backend must be 'metrics' or 'reference', got {backend!r}")
     if omega is None:
         omega = (
             posterior_omega()

@@ -1,0 +1,104 @@
+"""XLA small-matrix kernels (hapid.control._kernels) against numpy/LAPACK."""
+
+import itertools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hapid  # noqa: F401  (float64)
+from hapid.control import _kernels as K
+
+
+def _cases(n, rng, B=64):
+    """Random complex, clustered (g·I + small), defective-ish (Jordan blocks of 2 under a
+    random similarity) and triangular/diagonal matrices, ``(B, n, n)``."""
+    A = rng.standard_normal((B, n, n)) + 1j * rng.standard_normal((B, n, n))
+    g = rng.standard_normal((B, 1, 1)) + 1j * rng.standard_normal((B, 1, 1))
+    clustered = g * np.eye(n) + 1e-6 * A
+    J = np.zeros((B, n, n), complex)
+    lam = rng.standard_normal((B, (n + 1) // 2)) + 1j * rng.standard_normal((B, (n + 1) // 2))
+    for i in range(n):
+        J[:, i, i] = lam[:, i // 2]
+        if i % 2 == 1:
+            J[:, i - 1, i] = 1.0
+    R = rng.standard_normal((B, n, n)) + np.eye(n) * 3
+    defective = R @ J @ np.linalg.inv(R)
+    tri = np.triu(A)
+    diag = A * np.eye(n)
+    return {"random": A, "clustered": clustered, "defective": defective, "triangular": tri,
+            "diagonal": diag}  # fmt: skip
+
+
+def _match_err(e, r):
+    """Largest distance from an eigenvalue of ``r`` to its optimally matched one of ``e``
+    (per matrix, rows ``(B, n)``)."""
+    n = e.shape[1]
+    perms = np.array(list(itertools.permutations(range(n))))
+    d = np.abs(e[:, perms] - r[:, None, :])  # (B, P, n)
+    return np.min(np.max(d, axis=2), axis=1)
+
+
+def _check_eigvals(n, seed):
+    rng = np.random.default_rng(seed)
+    cases = _cases(n, rng)
+    A = np.concatenate(list(cases.values()))
+    e = np.asarray(jax.jit(lambda A: K.eigvals(K.to_entries(A)))(jnp.asarray(A))).T
+    r = np.linalg.eigvals(A)
+    scale = np.linalg.norm(A, axis=(1, 2))
+    err = _match_err(e, r) / scale
+    B = len(cases["random"])
+    for k, name in enumerate(cases):
+        tol = 1e-6 if name == "defective" else 1e-12  # double eigenvalue: error ~ √ε·‖A‖
+        assert np.max(err[k * B : (k + 1) * B]) < tol, (n, name, np.max(err[k * B : (k + 1) * B]))
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 5])
+def test_eigvals_equal_lapack(n):
+    _check_eigvals(n, seed=n)
+
+
+@pytest.mark.slow  # the n = 6 program compiles in ~25 s
+def test_eigvals_equal_lapack_n6():
+    _check_eigvals(6, seed=6)
+
+
+@pytest.mark.parametrize("n", [7, 8])
+def test_eigvals_above_the_unrolled_size_use_lapack(n):
+    rng = np.random.default_rng(n)
+    A = rng.standard_normal((5, n, n)) + 1j * rng.standard_normal((5, n, n))
+    e = np.asarray(K.eigvals(K.to_entries(jnp.asarray(A)))).T
+    assert np.max(_match_err(e, np.linalg.eigvals(A))) < 1e-10
+
+
+def test_eigvals_of_nonfinite_matrices_terminate():
+    A = np.full((3, 3, 4), np.nan + 0j)
+    e = np.asarray(K.eigvals(jnp.asarray(A)))
+    assert e.shape == (3, 4) and not np.all(np.isfinite(e))
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 5])
+def test_pair_optimal_is_the_best_permutation(n):
+    rng = np.random.default_rng(10 + n)
+    I = 500
+    a = rng.standard_normal((n, I)) + 1j * rng.standard_normal((n, I))
+    b = a + 0.8 * (rng.standard_normal((n, I)) + 1j * rng.standard_normal((n, I)))
+    got = np.asarray(K.pair_optimal(jnp.asarray(a), jnp.asarray(b)))
+    perms = np.array(list(itertools.permutations(range(n))))
+    cost = np.sum(np.abs(a.T[:, None, :] - b.T[:, perms]) ** 2, axis=2)  # (I, P)
+    best = b.T[np.arange(I)[:, None], perms[np.argmin(cost, axis=1)]]
+    np.testing.assert_array_equal(got.T, best)
+
+
+def test_det_inv_and_sigma_max_equal_lapack():
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((200, 4, 4)) + 1j * rng.standard_normal((200, 4, 4))
+    det, Ai = K.det_inv(K.to_entries(jnp.asarray(A)), unroll=True)
+    np.testing.assert_allclose(np.asarray(det), np.linalg.det(A), rtol=1e-11)
+    np.testing.assert_allclose(np.asarray(K.from_entries(Ai)), np.linalg.inv(A), rtol=1e-9,
+                               atol=1e-10 * np.abs(np.linalg.inv(A)).max())  # fmt: skip
+    s = np.asarray(K.sigma_max(K.to_entries(jnp.asarray(A))))
+    np.testing.assert_allclose(s, np.linalg.svd(A, compute_uv=False)[:, 0], rtol=1e-12)
+    lo, hi = K.sigma_bounds(K.to_entries(jnp.asarray(A)))
+    assert np.all(np.asarray(lo) <= s * (1 + 1e-12)) and np.all(s <= np.asarray(hi) * (1 + 1e-12))
