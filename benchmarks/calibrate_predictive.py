@@ -73,7 +73,7 @@ def device(name: str):
         hand = hapid.SecondOrder(_spd(rng, 2, 0.3), _spd(rng, 2, 10.0), _spd(rng, 2, 800.0))
         mech = hapid.SecondOrder(_spd(rng, 2, 0.6), _spd(rng, 2, 40.0), _spd(rng, 2, 200.0))
         return SecondOrderDevice(hand=hand, mechanism=mech, delay_samples=0)
-    raise ValueError(name)
+    return preset(name)  # any other preset by name (e.g. cu5_soft); unknown names raise
 
 
 def held_out_grid(freq_hz, f_lo=1.0, f_hi=40.0, n=200):
