@@ -84,7 +84,8 @@ def issue_table(out: Path, since: float, sections=()) -> list[dict]:
             if not isinstance(r, dict) or "id" not in r:
                 bad.append(f.name)
             elif f.stat().st_mtime >= since:
-                fresh[r["id"]] = r | {"_quick": d.get("quick")}
+                # a row's own "quick" (extra key) says whether its sizes were reduced
+                fresh[r["id"]] = r | {"_quick": r.get("quick", d.get("quick"))}
             else:
                 stale.add(r["id"])
     table_rows = []

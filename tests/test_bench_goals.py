@@ -44,6 +44,14 @@ def test_table_has_the_six_issue_rows_fresh_only(tmp_path):
     assert all(r["met"] == "not measured" for r in (rows[1], rows[4], rows[5]))
 
 
+def test_a_row_measured_at_full_size_in_a_quick_run_is_not_marked_quick(tmp_path):
+    since = time.time() - 1.0
+    rows = [_row("loop_analysis", quick=False), _row("robust_check")]
+    _common.write_goal_rows(str(tmp_path), "bench_fast", rows, quick=True)
+    t = run_all.issue_table(tmp_path, since)
+    assert "--quick" not in t[0]["work"] and "--quick" in t[1]["work"]
+
+
 def test_write_goal_rows_rejects_an_incomplete_or_unknown_row(tmp_path):
     with pytest.raises(ValueError, match="missing"):
         _common.write_goal_rows(str(tmp_path), "x", [{"id": "loop_analysis"}], quick=False)
