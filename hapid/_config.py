@@ -22,7 +22,9 @@ jax.config.update("jax_enable_x64", True)
 
 # Persistent compilation cache: compile time dominates small JAX problems. Users may point it
 # elsewhere with HAPID_JAX_CACHE, or switch it off with HAPID_JAX_CACHE="".
-_cache = os.environ.get("HAPID_JAX_CACHE", os.path.join(os.path.expanduser("~"), ".cache", "hapid", "jax"))
+_cache = os.environ.get(
+    "HAPID_JAX_CACHE", os.path.join(os.path.expanduser("~"), ".cache", "hapid", "jax")
+)
 if _cache:
     try:
         os.makedirs(_cache, exist_ok=True)

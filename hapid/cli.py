@@ -33,8 +33,12 @@ def _protocol_args(p):
     g.add_argument("--freqs", default="paper",
                    help="excited frequencies in Hz: 'paper' (1..10, 15..100) or a comma list")  # fmt: skip
     g.add_argument("--fs", type=float, default=1000.0, help="sampling rate (Hz), default 1000")
-    g.add_argument("--period", type=int, default=1000, help="period length in samples (default 1000)")
-    g.add_argument("--periods", type=int, default=4, help="measured periods per experiment (default 4)")
+    g.add_argument(
+        "--period", type=int, default=1000, help="period length in samples (default 1000)"
+    )
+    g.add_argument(
+        "--periods", type=int, default=4, help="measured periods per experiment (default 4)"
+    )
     g.add_argument("--transient", type=int, default=1, help="discarded periods (time domain)")
     g.add_argument("--pattern", default="paper", choices=["paper", "one_at_a_time", "hadamard"])
     g.add_argument("--phases", default="random", choices=["random", "schroeder", "min_crest"])
@@ -42,7 +46,9 @@ def _protocol_args(p):
     g.add_argument("--seed", type=int, default=0, help="seed of phases and noise")
     g.add_argument("--noise", type=float, default=5e-3, help="force-sensor noise std (N)")
     g.add_argument("--position-noise", type=float, default=0.0, help="encoder noise std (m)")
-    g.add_argument("--encoder-res", type=float, default=2e-6, help="encoder resolution (m), 0 = off")
+    g.add_argument(
+        "--encoder-res", type=float, default=2e-6, help="encoder resolution (m), 0 = off"
+    )
 
 
 def _protocol(a):
@@ -87,7 +93,11 @@ def cmd_frf(a):
     from . import io
     from .experiment import estimate_frf, estimate_frf_h1
 
-    kind = "timeseries" if a.add or a.force_key != "force" else io.file_kind(a.run, "a run file or a time-series file")
+    kind = (
+        "timeseries"
+        if a.add or a.force_key != "force"
+        else io.file_kind(a.run, "a run file or a time-series file")
+    )
     if kind in ("timeseries", "unknown"):  # unknown: the reader names the arrays it found
         from ._cli_fit import run_frf_lab
 
@@ -175,8 +185,12 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Empirical impedances Z_H = −𝓡_I 𝓛⁻¹, Z_T = −𝓡_A 𝓛⁻¹ per "
                        "excited frequency (paper section 4.1), with element std.",
                        epilog="example: hapid frf run.npz --out frf.npz --plot frf.png")  # fmt: skip
-    f.add_argument("run", help="run file, or lab time series (fs_hz, force, response); .npz, .csv or .mat")
-    f.add_argument("--out", required=True, help="output FRF file (an impedance FRF for a time series)")
+    f.add_argument(
+        "run", help="run file, or lab time series (fs_hz, force, response); .npz, .csv or .mat"
+    )
+    f.add_argument(
+        "--out", required=True, help="output FRF file (an impedance FRF for a time series)"
+    )
     f.add_argument("--plot", help="also write a figure of σ(Z_H), σ(Z_T), σ(P)")
     f.add_argument("--cond-warn", type=float, default=1e3, help="warn where cond(𝓛) exceeds this")
     _register_lab_frf_args(f)
@@ -327,7 +341,11 @@ def cmd_analyze(a):
            "design": a.design, "controller_rhp_poles": int(ctrl.p_rhp), **s}  # fmt: skip
     if a.out:
         io.save_json(a.out, out)
-    verdict = "STABLE" if s["stable"] else ("UNSTABLE" if s.get("nyquist_resolved", True) else "UNDECIDED (grid too coarse)")
+    verdict = (
+        "STABLE"
+        if s["stable"]
+        else ("UNSTABLE" if s.get("nyquist_resolved", True) else "UNDECIDED (grid too coarse)")
+    )
     kind = f"sampled at {1 / ts:g} Hz" if ts else "continuous-time"
     print(f"closed loop ({kind} controller): {verdict} (generalized Nyquist, {s['n_encirclements']} "
           f"encirclements, {int(ctrl.p_rhp)} open-loop RHP pole(s) of the controller)")  # fmt: skip
@@ -449,9 +467,14 @@ def _register_stages(sub):
     po.add_argument("--model", help="(unused: the NLS fit is redone as the start point)")
     po.add_argument("--method", choices=["emcee", "laplace"], default="emcee")
     po.add_argument("--walkers", type=int, default=0, help="0 = 2·dim + 2")
-    po.add_argument("--free-boundary", action="store_true",
-                    help="also sample matrices the NLS fit put on the PSD boundary (default: hold them)")
-    po.add_argument("--moves", default="de", help="emcee moves: de (default), laplace_de, de_mix, stretch")
+    po.add_argument(
+        "--free-boundary",
+        action="store_true",
+        help="also sample matrices the NLS fit put on the PSD boundary (default: hold them)",
+    )
+    po.add_argument(
+        "--moves", default="de", help="emcee moves: de (default), laplace_de, de_mix, stretch"
+    )
     po.add_argument("--steps", type=int, help="emcee steps (default: run to 50 τ)")
     po.add_argument("--samples", type=int, default=4000, help="Laplace draws")
     po.add_argument("--f-max-hz", type=float, default=40.0)
@@ -579,7 +602,10 @@ def _register_tune(sub):
                         epilog="example: hapid tune --model nls.npz --samples samples.npz --device cu5 --out design.npz")  # fmt: skip
     tu.add_argument("--model", required=True, help="nominal model file (the controller inverts it)")
     tu.add_argument("--samples", help="posterior samples file (hapid posterior)")
-    tu.add_argument("--device", help="preset device: tune on its pose/subject variants, validate on its true plant")
+    tu.add_argument(
+        "--device",
+        help="preset device: tune on its pose/subject variants, validate on its true plant",
+    )
     tu.add_argument("--frf", help="the measured FRF file (whole range): the evidence the design must hold on "
                     "(default: the samples' fit data); beyond its top frequency the loop is kept small-gain")  # fmt: skip
     tu.add_argument("--fs", type=float, help="sampling rate (Hz) the controller runs at: the measured loop and "
@@ -587,9 +613,18 @@ def _register_tune(sub):
     tu.add_argument("--out", required=True, help="design file (.npz)")
     tu.add_argument("--report", help="JSON report of the re-check")
     tu.add_argument("--n-train", type=int, default=80, help="posterior samples used for tuning")
-    tu.add_argument("--n-holdout", type=int, default=200, help="held-out posterior samples for the re-check")
-    tu.add_argument("--quantile", type=float, default=0.95, help="fraction of samples that must meet the margins")
-    tu.add_argument("--subjects", type=int, default=16, help="virtual subjects among the device variants")
+    tu.add_argument(
+        "--n-holdout", type=int, default=200, help="held-out posterior samples for the re-check"
+    )
+    tu.add_argument(
+        "--quantile",
+        type=float,
+        default=0.95,
+        help="fraction of samples that must meet the margins",
+    )
+    tu.add_argument(
+        "--subjects", type=int, default=16, help="virtual subjects among the device variants"
+    )
     tu.add_argument("--max-steps", type=int, default=300, help="BFGS steps per continuation stage")
     tu.add_argument("--free-dc", action="store_true",
                     help="let |g(0)| drop below the paper g's (trades static force accuracy for bandwidth)")  # fmt: skip
@@ -603,7 +638,13 @@ def _register_predict(sub):
     register(sub)
 
 
-_EXTRA: list = [_register_scene, _register_stages, _register_sweep, _register_tune, _register_predict]  # later stages register their subcommands here
+_EXTRA: list = [
+    _register_scene,
+    _register_stages,
+    _register_sweep,
+    _register_tune,
+    _register_predict,
+]  # later stages register their subcommands here
 
 
 def _one_line_errors(parser) -> None:

@@ -46,7 +46,9 @@ class SecondOrder(eqx.Module):
     def __call__(self, s: Complex[Array, " N"]) -> Complex[Array, "N n n"]:
         """Evaluate ``Z(s)`` at complex ``s`` (rad/s), returning ``(N, n, n)``."""
         s = jnp.asarray(s, dtype=jnp.complex128)[..., None, None]
-        return self.M[..., None, :, :] * s**2 + self.B[..., None, :, :] * s + self.K[..., None, :, :]
+        return (
+            self.M[..., None, :, :] * s**2 + self.B[..., None, :, :] * s + self.K[..., None, :, :]
+        )
 
     def at_omega(self, omega: Float[Array, " N"]) -> Complex[Array, "N n n"]:
         """Evaluate on the imaginary axis, ``s = jω`` with ω in rad/s."""
@@ -162,7 +164,9 @@ class ImpedanceModel(eqx.Module):
 
 def plant(Z_H: Complex[Array, "N n n"], Z_T: Complex[Array, "N n n"]) -> Complex[Array, "N n n"]:
     """``P = Z_H Z_T⁻¹`` per frequency, computed as a solve (``(Z_T^T \\ Z_H^T)^T``)."""
-    return jnp.swapaxes(jnp.linalg.solve(jnp.swapaxes(Z_T, -1, -2), jnp.swapaxes(Z_H, -1, -2)), -1, -2)
+    return jnp.swapaxes(
+        jnp.linalg.solve(jnp.swapaxes(Z_T, -1, -2), jnp.swapaxes(Z_H, -1, -2)), -1, -2
+    )
 
 
 def singular_values(A: Complex[Array, "N n n"]) -> Float[Array, "N n"]:

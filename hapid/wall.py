@@ -154,7 +154,10 @@ def max_wall_stiffness(device: ParallelDevice, controller, direction, *, k_max: 
     near it the contact rings."""
 
     def stable(k):
-        return closed_loop_wall_steady_state(device, controller, direction, k, 1.0)["spectral_radius"] < 1.0
+        return (
+            closed_loop_wall_steady_state(device, controller, direction, k, 1.0)["spectral_radius"]
+            < 1.0
+        )
 
     ks = np.geomspace(k_min, k_max, n_scan)
     if not stable(ks[0]):

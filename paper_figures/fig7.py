@@ -1,6 +1,6 @@
 """Fig. 7: singular values of the measured Z_T and of its paper-WLS and hapid-NLS models.
 
-    python paper_figures/fig7.py [--out out/paper]
+python paper_figures/fig7.py [--out out/paper]
 """
 
 from _common import main

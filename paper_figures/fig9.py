@@ -1,6 +1,6 @@
 """Fig. 9: characteristic loci of P(z)G(z) for the MIMO controller — Nyquist plane and Bode.
 
-    python paper_figures/fig9.py [--out out/paper]
+python paper_figures/fig9.py [--out out/paper]
 """
 
 from _common import main

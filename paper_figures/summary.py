@@ -1,6 +1,6 @@
 """summary.md and summary.json: the paper's reported numbers next to ours, for both fits.
 
-    python paper_figures/summary.py [--out out/paper]
+python paper_figures/summary.py [--out out/paper]
 """
 
 from _common import main

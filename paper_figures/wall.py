@@ -41,13 +41,19 @@ def controllers(dev):
            "MIMO NLS": discretize_controller(fit_nls(frf).model, g, dev.ts)}  # fmt: skip
     omega = analysis_grid(merge({})["analysis"], dev.fs_hz)
     gd = discretize_compensator(g, dev.ts)
-    c = float(max_siso_gain(np.asarray(dev.sampled_P(omega)), omega, np.asarray(gd.at_omega(omega)).reshape(-1)))
+    c = float(
+        max_siso_gain(
+            np.asarray(dev.sampled_P(omega)), omega, np.asarray(gd.at_omega(omega)).reshape(-1)
+        )
+    )
     out[f"SISO c={c:.2f}"] = discretize_siso_controller(g, c, dev.ts, dev.n)
     return out
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--out", default="out/paper")
     ap.add_argument("--k-wall", type=float, default=200.0)
     ap.add_argument("--push", type=float, default=2.0)
@@ -67,16 +73,24 @@ def main(argv=None):
             sim = render_wall(dev, ct, e, k_wall=a.k_wall, push=a.push, duration=6.0, wobble=0.3)
             sims[(name, label)] = sim
             m = wall_metrics(sim)
-            pen.append(f"{ss['penetration'] * 1e3:.3f} ({100 * (ss['penetration'] / pc - 1):+.1f} %)")
+            pen.append(
+                f"{ss['penetration'] * 1e3:.3f} ({100 * (ss['penetration'] / pc - 1):+.1f} %)"
+            )
             ferr.append(f"{100 * m['force_error']:.1f} %")
             off.append(f"{m['off_axis_force']:.1e}")
             kmax.append(f"{max_wall_stiffness(dev, ct, e):.0f}")
-        rows.append(f"| {name} | steady penetration, mm (vs perfect control) | {ide * 1e3:.3f} | {pc * 1e3:.3f} | " + " | ".join(pen) + " |")
+        rows.append(
+            f"| {name} | steady penetration, mm (vs perfect control) | {ide * 1e3:.3f} | {pc * 1e3:.3f} | "
+            + " | ".join(pen)
+            + " |"
+        )
         rows.append(f"| {name} | force error, probing hand | | | " + " | ".join(ferr) + " |")
         rows.append(f"| {name} | off-axis / on-axis force | | | " + " | ".join(off) + " |")
         rows.append(f"| {name} | max stable k_w, N/m | | | " + " | ".join(kmax) + " |")
     table = "\n".join(rows)
-    print(f"cu5, paper g(s), k_w = {a.k_wall:g} N/m, push {a.push:g} N (probing: 30 % wobble at 1.5 Hz)\n")
+    print(
+        f"cu5, paper g(s), k_w = {a.k_wall:g} N/m, push {a.push:g} N (probing: 30 % wobble at 1.5 Hz)\n"
+    )
     print(table)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -15,8 +15,12 @@ def random_spd(rng, n, scale, cond=10.0):
 
 def second_order_device(n, seed=0, delay_samples=0):
     rng = np.random.default_rng(seed)
-    hand = hapid.SecondOrder(random_spd(rng, n, 0.3), random_spd(rng, n, 10.0), random_spd(rng, n, 800.0))
-    mech = hapid.SecondOrder(random_spd(rng, n, 0.6), random_spd(rng, n, 40.0), random_spd(rng, n, 200.0))
+    hand = hapid.SecondOrder(
+        random_spd(rng, n, 0.3), random_spd(rng, n, 10.0), random_spd(rng, n, 800.0)
+    )
+    mech = hapid.SecondOrder(
+        random_spd(rng, n, 0.6), random_spd(rng, n, 40.0), random_spd(rng, n, 200.0)
+    )
     return SecondOrderDevice(hand=hand, mechanism=mech, delay_samples=delay_samples)
 
 

@@ -26,6 +26,7 @@ def test_jacobian_matches_finite_difference_of_rod_lengths(make):
     for k in range(g.n):
         v, w_body = dof[:3, k], dof[3:, k]
         w = R @ w_body
+
         # rotate about the grip point by a small angle h around w, translate by h v
         def moved(sign, v=v, w=w):
             from scipy.spatial.transform import Rotation

@@ -27,9 +27,14 @@ def test_paper_frequencies():
 
 
 def test_multisine_equals_sum_of_cosines():
-    ms = multisine([3.0, 7.0, 20.0], fs_hz=500.0, period_samples=500, amplitude=[1.0, 0.5, 0.2], seed=3)
+    ms = multisine(
+        [3.0, 7.0, 20.0], fs_hz=500.0, period_samples=500, amplitude=[1.0, 0.5, 0.2], seed=3
+    )
     t = np.arange(500) / 500.0
-    ref = sum(a * np.cos(2 * np.pi * f * t + p) for f, a, p in zip(ms.freq_hz, ms.amplitude, ms.phase, strict=True))
+    ref = sum(
+        a * np.cos(2 * np.pi * f * t + p)
+        for f, a, p in zip(ms.freq_hz, ms.amplitude, ms.phase, strict=True)
+    )
     np.testing.assert_allclose(np.asarray(ms.period()), ref, atol=1e-12)
 
 

@@ -20,7 +20,9 @@ def test_nls_models_have_all_roots_in_the_open_left_half_plane(data, weight):
     _, frf, _ = data
     res = fit_nls(frf, weight=weight)
     assert res.status in ("converged", "max_steps")
-    roots = np.concatenate([np.asarray(res.model.hand.roots()), np.asarray(res.model.total.roots())])
+    roots = np.concatenate(
+        [np.asarray(res.model.hand.roots()), np.asarray(res.model.total.roots())]
+    )
     assert np.all(roots.real < 0), roots[roots.real >= 0]
     for A in (res.model.hand.M, res.model.hand.B, res.model.hand.K, res.model.mechanism.M,
               res.model.mechanism.B, res.model.mechanism.K):  # fmt: skip

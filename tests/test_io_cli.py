@@ -44,7 +44,12 @@ def test_bad_files_are_clear_errors(tmp_path):
     np.savez(tmp_path / "x.npz", Z_H=np.ones((3, 2, 2)), freq_hz=np.arange(1.0, 4.0))
     with pytest.raises(io.FileFormatError, match="missing arrays.*Z_T"):
         io.load_frf(tmp_path / "x.npz")
-    np.savez(tmp_path / "y.npz", freq_hz=np.array([1.0, 1.0, 2.0]), Z_H=np.ones((3, 2, 2)), Z_T=np.ones((3, 2, 2)))
+    np.savez(
+        tmp_path / "y.npz",
+        freq_hz=np.array([1.0, 1.0, 2.0]),
+        Z_H=np.ones((3, 2, 2)),
+        Z_T=np.ones((3, 2, 2)),
+    )
     with pytest.raises(io.FileFormatError, match="strictly increasing"):
         io.load_frf(tmp_path / "y.npz")
     with pytest.raises(io.FileFormatError, match="unknown file type"):
@@ -57,7 +62,20 @@ def test_bad_files_are_clear_errors(tmp_path):
 
 
 def test_cli_simulate_then_frf_write_contract_files(tmp_path, capsys):
-    assert main(["simulate", "--device", "tripod3", "--periods", "2", "--out", str(tmp_path / "run.npz")]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "--device",
+                "tripod3",
+                "--periods",
+                "2",
+                "--out",
+                str(tmp_path / "run.npz"),
+            ]
+        )
+        == 0
+    )
     with np.load(tmp_path / "run.npz") as z:
         assert z["fs_hz"].dtype == np.float64 and z["fs_hz"].shape == ()
         assert z["period_samples"].dtype == np.int64
@@ -86,5 +104,7 @@ def test_cli_errors_are_one_line_and_write_nothing(tmp_path, capsys):
 
 
 def test_console_script_help():
-    res = subprocess.run([sys.executable, "-m", "hapid.cli", "--help"], capture_output=True, text=True)
+    res = subprocess.run(
+        [sys.executable, "-m", "hapid.cli", "--help"], capture_output=True, text=True
+    )
     assert res.returncode == 0 and "simulate" in res.stdout and "example" in res.stdout

@@ -53,7 +53,9 @@ def run_notebook(name: str, out_dir: Path, probe: str, setup: str = "") -> tuple
         f"{name}: committed outputs"
     )
     nb.cells.append(
-        nbformat.v4.new_code_cell(f"import json as _j\n{setup}\nprint({PROBE!r}, _j.dumps({probe}))")
+        nbformat.v4.new_code_cell(
+            f"import json as _j\n{setup}\nprint({PROBE!r}, _j.dumps({probe}))"
+        )
     )
     os.environ["HAPID_NB_OUT"] = str(out_dir)
     try:

@@ -91,5 +91,7 @@ def test_sweep_shards_over_two_host_devices(tmp_path):
         print("OK")
     """)
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
-    res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=1100)
+    res = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=1100
+    )
     assert res.returncode == 0 and "OK" in res.stdout, res.stderr[-2000:]

@@ -216,7 +216,11 @@ def test_diverging_gauss_newton_is_failed_and_returns_the_best_iterate():
     out = []
     for Z in (np.asarray(z) for z in cu5().impedances(2j * np.pi * f)):
         std = 1e-3 * np.linalg.norm(Z, axis=(1, 2))[:, None, None] / Z.shape[-1] * np.ones(Z.shape)
-        out += [Z + std * (rng.standard_normal(Z.shape) + 1j * rng.standard_normal(Z.shape)) / np.sqrt(2), std]
+        out += [
+            Z
+            + std * (rng.standard_normal(Z.shape) + 1j * rng.standard_normal(Z.shape)) / np.sqrt(2),
+            std,
+        ]
     frf = as_frf(f, out[0], out[2], out[1], out[3])
     gn = fit_nls(frf, solver="gauss_newton", linear_solver="qr", max_steps=3000)
     lm = fit_nls(frf)

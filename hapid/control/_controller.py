@@ -126,7 +126,11 @@ class ControllerCheck(eqx.Module):
     @property
     def status(self) -> str:
         """``"ok"``, ``"unstable"``, ``"non-minimum-phase"`` or ``"unstable, non-minimum-phase"``."""
-        bad = [w for w, good in (("unstable", self.stable), ("non-minimum-phase", self.minimum_phase)) if not good]
+        bad = [
+            w
+            for w, good in (("unstable", self.stable), ("non-minimum-phase", self.minimum_phase))
+            if not good
+        ]
         return ", ".join(bad) or "ok"
 
     def summary(self) -> dict:

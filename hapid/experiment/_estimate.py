@@ -135,7 +135,9 @@ def estimate_frf_h1(
     """
     R_A, R_I, L = (np.asarray(a, dtype=float) for a in (R_A, R_I, L))
     if not (R_A.shape == R_I.shape == L.shape) or R_A.ndim != 3:
-        raise ValueError(f"R_A, R_I, L must be equal (E, T, n) arrays, got {R_A.shape}, {R_I.shape}, {L.shape}")
+        raise ValueError(
+            f"R_A, R_I, L must be equal (E, T, n) arrays, got {R_A.shape}, {R_I.shape}, {L.shape}"
+        )
     for name, a in (("R_A", R_A), ("R_I", R_I), ("L", L)):
         if not np.all(np.isfinite(a)):
             raise ValueError(f"{name} contains NaN or inf")
@@ -173,7 +175,9 @@ def estimate_frf_h1(
     S_LX = S(YL)
     cond = np.linalg.cond(S_LX)
     if np.any(cond > COND_ERROR**2):
-        raise ValueError("rank-deficient cross-spectrum S_LX: too few independent experiments/segments")
+        raise ValueError(
+            "rank-deficient cross-spectrum S_LX: too few independent experiments/segments"
+        )
     inv = np.linalg.inv(S_LX)
     Z_H = -S(YI) @ inv
     Z_T = -S(YA) @ inv

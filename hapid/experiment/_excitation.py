@@ -119,7 +119,9 @@ def multisine(
         ph = np.asarray(phases, dtype=float)
         if ph.shape != f.shape:
             raise ValueError(f"phases must have shape {f.shape}, got {ph.shape}")
-    return Multisine(jnp.asarray(f), jnp.asarray(amp), jnp.asarray(ph), float(fs_hz), int(period_samples))
+    return Multisine(
+        jnp.asarray(f), jnp.asarray(amp), jnp.asarray(ph), float(fs_hz), int(period_samples)
+    )
 
 
 def _min_crest(bins, amp, T, ph0, iters):

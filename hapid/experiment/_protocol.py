@@ -59,7 +59,9 @@ class Protocol:
                          self.phases, self.seed)  # fmt: skip
 
     def noiseless(self) -> Protocol:
-        return dataclasses.replace(self, force_noise=0.0, position_noise=0.0, encoder_resolution=0.0)
+        return dataclasses.replace(
+            self, force_noise=0.0, position_noise=0.0, encoder_resolution=0.0
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,5 +118,7 @@ def validate_run(run: Run) -> None:
         a = getattr(run, k)
         if not np.all(np.isfinite(a)):
             idx = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
-            raise ValueError(f"run: {k} contains NaN or inf (first at [experiment, sample, rod] = {idx})")
+            raise ValueError(
+                f"run: {k} contains NaN or inf (first at [experiment, sample, rod] = {idx})"
+            )
     check_on_grid(run.freq_hz, fs, Tp)

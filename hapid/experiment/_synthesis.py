@@ -39,7 +39,9 @@ def periodic_run(device: Device, protocol: Protocol | None = None, *, hold: str 
     """
     protocol = Protocol() if protocol is None else protocol
     if device.fs_hz != protocol.fs_hz:
-        raise ValueError(f"device samples at {device.fs_hz} Hz but the protocol at {protocol.fs_hz} Hz")
+        raise ValueError(
+            f"device samples at {device.fs_hz} Hz but the protocol at {protocol.fs_hz} Hz"
+        )
     U, ms, _ = _command(device, protocol)
     Tp, n = protocol.period_samples, device.n
     bins = ms.bins
@@ -49,7 +51,10 @@ def periodic_run(device: Device, protocol: Protocol | None = None, *, hold: str 
         H = device.discrete().freqresp(z) * (z ** (-device.delay_samples))[:, None, None]
     elif hold == "bandlimited":
         s = 1j * omega
-        H = device.state_space().freqresp(s) * jnp.exp(-s * device.delay_samples / device.fs_hz)[:, None, None]
+        H = (
+            device.state_space().freqresp(s)
+            * jnp.exp(-s * device.delay_samples / device.fs_hz)[:, None, None]
+        )
     else:
         raise ValueError(f"hold must be 'zoh' or 'bandlimited', got {hold!r}")
     c = np.asarray(ms.amplitude) * np.exp(1j * np.asarray(ms.phase))  # (K,)
@@ -75,7 +80,9 @@ def time_domain_run(device: Device, protocol: Protocol | None = None, *, frictio
     """
     protocol = Protocol() if protocol is None else protocol
     if device.fs_hz != protocol.fs_hz:
-        raise ValueError(f"device samples at {device.fs_hz} Hz but the protocol at {protocol.fs_hz} Hz")
+        raise ValueError(
+            f"device samples at {device.fs_hz} Hz but the protocol at {protocol.fs_hz} Hz"
+        )
     if initial not in ("periodic", "zero"):
         raise ValueError(f"initial must be 'periodic' or 'zero', got {initial!r}")
     m = substeps if substeps is not None else (10 if friction else 1)
@@ -88,7 +95,9 @@ def time_domain_run(device: Device, protocol: Protocol | None = None, *, frictio
         applied[:, :d] = 0.0
     ss_sub = device.discrete(substeps=m, friction=friction)
     ss_lin = device.discrete(substeps=1)
-    y = _simulate(device, ss_sub, ss_lin, jnp.asarray(applied), m, friction, initial == "periodic", Tp)
+    y = _simulate(
+        device, ss_sub, ss_lin, jnp.asarray(applied), m, friction, initial == "periodic", Tp
+    )
     keep = slice(protocol.transient_periods * Tp, None)
     return _measure(np.asarray(y)[:, keep], cmd[:, keep], n, protocol, noise_seed)
 

@@ -69,12 +69,21 @@ class CRHPReport(NamedTuple):
     @property
     def status(self) -> str:
         """``"ok"`` or which impedance has closed-RHP roots (concrete counts only)."""
-        bad = [f"det Ẑ_{k} has {int(v)} CRHP root(s)" for k, v in (("H", self.hand), ("T", self.total)) if int(v)]
+        bad = [
+            f"det Ẑ_{k} has {int(v)} CRHP root(s)"
+            for k, v in (("H", self.hand), ("T", self.total))
+            if int(v)
+        ]
         return "; ".join(bad) or "ok"
 
     def summary(self) -> dict:
         """Plain-python counts and verdict."""
-        return {"ok": bool(self.ok), "status": self.status, "hand": int(self.hand), "total": int(self.total)}
+        return {
+            "ok": bool(self.ok),
+            "status": self.status,
+            "hand": int(self.hand),
+            "total": int(self.total),
+        }
 
 
 def crhp_report(model: ImpedanceModel, tol: float = 0.0) -> CRHPReport:

@@ -28,14 +28,20 @@ DEFAULT_OFFSETS = (
 )  # fmt: skip
 
 
-def pose_grid(step: float = 0.04, axes: str = "xyz", full: bool = False) -> list[tuple[float, float, float]]:
+def pose_grid(
+    step: float = 0.04, axes: str = "xyz", full: bool = False
+) -> list[tuple[float, float, float]]:
     """Offsets (m): home plus ``±step`` along each of ``axes``; ``full=True`` gives the whole
     3ⁿ grid ``{−step, 0, step}^axes`` instead."""
     if not (np.isfinite(step) and step > 0):
         raise ValueError(f"step must be > 0, got {step}")
     idx = ["xyz".index(a) for a in axes]
     if full:
-        vals = np.array(np.meshgrid(*([(-step, 0.0, step)] * len(idx)), indexing="ij")).reshape(len(idx), -1).T
+        vals = (
+            np.array(np.meshgrid(*([(-step, 0.0, step)] * len(idx)), indexing="ij"))
+            .reshape(len(idx), -1)
+            .T
+        )
         out = []
         for v in vals:
             o = [0.0, 0.0, 0.0]
@@ -98,7 +104,9 @@ def pose_study(
     if any(len(o) != 3 or not np.all(np.isfinite(o)) for o in offsets):
         raise ValueError("offsets must be finite (dx, dy, dz) triples in m")
     if nominal_model is None:
-        nominal_model = identify(device, protocol, noise_seed=noise_seed, **fit_options).raise_if_failed().model
+        nominal_model = (
+            identify(device, protocol, noise_seed=noise_seed, **fit_options).raise_if_failed().model
+        )
     from ._robust import _sampled_P
 
     rows = []

@@ -53,11 +53,19 @@ def log_prob_numpy(post, xs) -> np.ndarray:
         quad = np.real(np.sum(np.conj(r) * Cr, axis=-1))
         _, logdet = np.linalg.slogdet(C)
         ll = np.sum(-2 * np.log(np.pi) - logdet - quad)
-        lp = np.sum(-0.5 * (xs[w, :p] / post.prior_scale) ** 2 - np.log(post.prior_scale * np.sqrt(2 * np.pi)))
+        lp = np.sum(
+            -0.5 * (xs[w, :p] / post.prior_scale) ** 2
+            - np.log(post.prior_scale * np.sqrt(2 * np.pi))
+        )
         if post.model_error:
             z = (xs[w, p:] - post.log_tau_mean) / post.log_tau_sd
             lp += np.sum(-0.5 * z**2 - np.log(post.log_tau_sd * np.sqrt(2 * np.pi)))
-        if matrix and post.psd_constraint and min(np.linalg.eigvalsh(A)[0] for A in mats) < -1e-12 * max(np.abs(np.linalg.eigvalsh(A)).max() for A in mats):
+        if (
+            matrix
+            and post.psd_constraint
+            and min(np.linalg.eigvalsh(A)[0] for A in mats)
+            < -1e-12 * max(np.abs(np.linalg.eigvalsh(A)).max() for A in mats)
+        ):
             lp = -np.inf
         v = ll + lp
         out[w] = v if np.isfinite(v) else -np.inf
