@@ -125,7 +125,7 @@ def _gather_two(delay, timeout):
         assert "GATHERED [1.0, 2.0, 3.0] [True, False, True]" in o, o + e[-2000:]
 
 
-@pytest.mark.slow  # the default run covers it inside the robust-check test (dist_worker)
+@pytest.mark.slow  # also covered inside the robust-check two-process test (dist_worker)
 def test_two_processes_gather_when_one_has_no_items():
     _gather_two(0.0, 120)
 
@@ -157,6 +157,7 @@ def _check_two_equal_one(tmp_path, prefix, *extra):
     return one
 
 
+@pytest.mark.slow  # CI budget: three processes each compile the loop analysis (make test-all)
 def test_two_processes_gather_the_one_process_robust_check(tmp_path):
     one = _check_two_equal_one(tmp_path, "robust_")
     for r in (0, 1):  # process 0 had no rows: it still gets process 1's
