@@ -96,6 +96,7 @@ def test_quickstart_nls_model_has_no_crhp_roots(kernel_env, tmp_path):
     assert (tmp_path / "01_quickstart" / "step.png").exists()
 
 
+@pytest.mark.slow  # CI budget: the paper scene again (tests/test_results_table.py and the scene tests cover its numbers)
 def test_paper_notebook_writes_summary_with_both_fits(kernel_env, tmp_path):
     probe, _ = run_notebook("02_paper_reproduction", tmp_path, "sorted(summary['fits'])")
     assert probe == ["nls", "wls"]

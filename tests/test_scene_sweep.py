@@ -23,6 +23,7 @@ def test_zh_only_scene_runs_no_controller_stages(tmp_path):
     assert (tmp_path / "fig6.png").exists()
 
 
+@pytest.mark.slow  # CI budget (~30 s): stage skipping stays in test_zh_only_scene_runs_no_controller_stages, cache keys in test_stage_cache
 def test_changing_the_gain_reruns_only_controller_and_analysis(tmp_path):
     cfg = scene.merge({"analysis": {"n_freq": 300}})
     want = ["fig5", "fig6", "fig9"]  # fig10/summary (with the tuned g): the paper notebook test
