@@ -81,7 +81,7 @@ def _breakdown(P, G, w, p_ol):
                      ("loop_metrics: verdict + T peak + disk", dict(t_peak=True, disk=True))):  # fmt: skip
         sp = MetricsSpec(**(base | fl))
         parts[name] = (
-            jax.jit(lambda P, G, sp=sp: metrics_screened(P, G, w, p_ol, None, sp)[0]["stable"]),
+            jax.jit(lambda P, G, sp=sp: metrics_screened(P, G, w, p_ol, None, sp)["stable"]),
             (P, G),
         )
     rows = []

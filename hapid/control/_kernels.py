@@ -21,8 +21,8 @@ batch, run the same on GPU and cannot meet the LAPACK hang.
   (``z ← z + 1/tr((A − zI)⁻¹)``).
 * :func:`eigvals` — all eigenvalues (Householder → Hessenberg, Wilkinson-shifted QR with
   deflation, ``n ≤ MAX_EIG_N`` unrolled; LAPACK's ``eigvals`` above).
-* :func:`pair_nearest` — nearest-neighbour pairing of eigenvalues between two frequencies,
-  with the test that proves it equals the optimal permutation.
+* :func:`pair_optimal` — the optimal-permutation pairing of eigenvalues between two
+  frequencies (the reference tracker's rule), by dynamic programming over subsets.
 
 Entry-major layout: ``to_entries`` / ``from_entries`` move ``(..., n, n)`` ↔ ``(n, n, ...)``.
 """
@@ -333,30 +333,6 @@ def eigvals(A, max_iter: int = 40):
         H = [row[: m - 1] for row in Hm[: m - 1]]
     out[0] = H[0][0]
     return jnp.stack(out)
-
-
-def pair_nearest(a, b):
-    """Order eigenvalues ``b (n, ...)`` to continue ``a (n, ...)`` by nearest neighbour.
-
-    Returns ``(b_paired (n, ...), ambiguous (...))``. Where not ``ambiguous`` the pairing is
-    the unique minimizer of ``Σ|a_i − b_σ(i)|²`` over all permutations (the reference
-    tracker's choice): every ``a_i``'s nearest ``b`` is closer than half the smallest
-    distance between two ``b``'s, so any other permutation moves some ``a_i`` farther.
-    Elsewhere ``b_paired`` is a placeholder (the caller pairs those by permutations).
-    """
-    n = a.shape[0]
-    d = jnp.abs(a[:, None] - b[None, :]) ** 2  # (n, n, ...)
-    sig = jnp.argmin(d, axis=1)  # (n, ...)
-    dmin = jnp.min(d, axis=1)
-    sep = jnp.full(a.shape[1:], jnp.inf)
-    for j in range(n):
-        for k in range(j + 1, n):
-            sep = jnp.minimum(sep, jnp.abs(b[j] - b[k]) ** 2)
-    onto = jnp.ones(a.shape[1:], dtype=bool)
-    for j in range(n):
-        onto = onto & (jnp.sum(sig == j, axis=0) == 1)
-    ok = onto & (4.0 * jnp.max(dmin, axis=0) < sep)
-    return jnp.take_along_axis(b, sig, axis=0), ~ok
 
 
 def pair_optimal(a, b):

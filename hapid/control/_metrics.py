@@ -31,7 +31,6 @@ paper's loops).
 from __future__ import annotations
 
 import dataclasses
-import itertools
 from collections.abc import Callable
 
 import equinox as eqx
@@ -48,7 +47,6 @@ from ._margins import _DB, _pm_deg, disk_margin_from_peak, gain_crossing, phase_
 from ._nyquist import (
     _MAX_PERMUTATION_N,
     _match_greedy,
-    _match_permutation,
     nyquist_encirclements,
     nyquist_verdict,
 )
@@ -285,15 +283,6 @@ def _fill_where(flag, fn, out, size, stop=None):
     return jax.lax.while_loop(cond, body, (jnp.asarray(0), out, jnp.asarray(False)))[1]
 
 
-def _pair(a, b):
-    """Order the eigenvalues ``b (C, n)`` to continue ``a (C, n)`` (as the reference tracker)."""
-    n = a.shape[-1]
-    if n <= _MAX_PERMUTATION_N:
-        perms = jnp.asarray(np.array(list(itertools.permutations(range(n)))), dtype=jnp.int32)
-        return jax.vmap(lambda p, c: _match_permutation(p, c, perms))(a, b)
-    return jax.vmap(_match_greedy)(a, b)
-
-
 # --------------------------------------------------------------------------------------
 # the analysis
 
@@ -311,25 +300,18 @@ def _threshold_crossing(i, j, thr, interp, lw, kernels):
     return jnp.exp(lw[i] + t * (lw[j] - lw[i]))
 
 
-def _first_crossing(sig_fn, lo, hi, thr, interp, lw, size, exact_all, kernels):
-    """Refined lowest ω where σ̄(S) reaches ``thr``: (omega, overflow)."""
+def _first_crossing(sig_fn, lo, hi, thr, interp, lw, size, kernels):
+    """Refined lowest ω (rad/s) where σ̄(S) reaches ``thr``; exact σ̄ only where the bounds
+    ``lo``/``hi`` straddle it, up to the first sure crossing."""
     N = lo.shape[0]
-    if exact_all:
-        sig = sig_fn(jnp.arange(N))
-        above = sig >= thr
-        overflow = jnp.asarray(False)
-    else:
-        maybe = hi >= thr
-        sure = lo >= thr
-        k1 = jnp.where(jnp.any(sure), jnp.argmax(sure), N - 1)
-        amb = maybe & ~sure & (jnp.arange(N) <= k1)
-        above = _fill_where(amb, lambda i: sig_fn(i) >= thr, sure, size, stop=lambda v: v)
-        overflow = jnp.asarray(False)
-        sig = None
+    maybe = hi >= thr
+    sure = lo >= thr
+    k1 = jnp.where(jnp.any(sure), jnp.argmax(sure), N - 1)
+    amb = maybe & ~sure & (jnp.arange(N) <= k1)
+    above = _fill_where(amb, lambda i: sig_fn(i) >= thr, sure, size, stop=lambda v: v)
     k = jnp.argmax(above)
     w = _threshold_crossing(jnp.maximum(k - 1, 0), k, thr, interp, lw, kernels)
-    w = jnp.where(~jnp.any(above), jnp.inf, jnp.where(k == 0, 0.0, w))
-    return w, overflow, sig
+    return jnp.where(~jnp.any(above), jnp.inf, jnp.where(k == 0, 0.0, w))
 
 
 def _last_crossing(sig, thr, interp, lw, kernels):
@@ -349,22 +331,10 @@ def _sigma_of_S(L, kernels):
     return _sigma_exact(S, kernels)
 
 
-def _sigma_of_T(L, kernels, kind):
-    n = L.shape[-1]
-    eye = jnp.eye(n, dtype=L.dtype)
-    _, S = _det_inv(L + eye, kernels, unroll=True)
-    M = eye - S if kind == "T" else 2.0 * S - eye  # T = I − S; S − T = 2S − I
-    return _sigma_exact(M, kernels)
-
-
-def _peak_grid(M_grid, size, exact_all, kernels):
+def _peak_grid(M_grid, size, kernels):
     """Grid maximum of σ̄(M): exact σ̄ in a window around the largest lower bound and at
     every other point whose upper bound exceeds the window's maximum: (index, value)."""
     N = M_grid.shape[0]
-    if exact_all:
-        sig = _sigma_exact(M_grid, kernels)
-        kpk = jnp.argmax(sig)
-        return kpk, sig[kpk]
     lo, hi = K.sigma_bounds(K.to_entries(M_grid))
     W = min(size, N)
     start = jnp.clip(jnp.argmax(lo) - W // 2, 0, N - W)
@@ -431,14 +401,13 @@ def _peaks(grid_peaks, kinds, interp, lw, kernels):
     return [(v[i], w[i]) for i in range(nk)]
 
 
-def _loci_intervals(L, omega, spec, size, exact_all):
-    """Paired loci at the ends of every grid interval: (idx, valid, a, b, overflow).
+def _loci_pairs(L, spec):
+    """Paired loci at the ends of every grid interval: ``(a, b)``, each ``(N − 1, n)``.
 
     Eigenvalues of ``L`` at every frequency by the XLA QR kernel (:func:`._kernels.eigvals`;
     LAPACK with ``kernels="lapack"``), paired between neighbours as the reference tracker
     does (optimal permutation for ``n ≤ 6`` by :func:`._kernels.pair_optimal`, greedy
     above)."""
-    N = L.shape[0]
     if spec.kernels == "lapack":
         e = jnp.linalg.eigvals(L).T  # the reference
     else:
@@ -448,11 +417,10 @@ def _loci_intervals(L, omega, spec, size, exact_all):
         bp = K.pair_optimal(a, b).T
     else:
         bp = jax.vmap(_match_greedy)(a.T, b.T)
-    a = a.T  # (N − 1, n)
-    return jnp.arange(N - 1), jnp.ones(N - 1, dtype=bool), a, bp, jnp.asarray(False)
+    return a.T, bp
 
 
-def _refine_loci(idx, valid, a, b, interp, lw, kernels):
+def _refine_loci(a, b, interp, lw, kernels):
     """Refined worst gain and phase margins: ``((gm_db, omega), (pm_deg, omega))``; the
     ``_N_REFINE`` best grid candidates of each kind refined together (one Illinois loop on
     ``Im λ`` resp. ``log|λ|`` of the locus followed by Newton, :func:`._kernels.eig_newton`)."""
@@ -462,16 +430,15 @@ def _refine_loci(idx, valid, a, b, interp, lw, kernels):
     nr = min(_N_REFINE, C * n)
     sels, oks = [], []
     for ok, grid_val in ((okg, gval), (okp, pval)):
-        score = jnp.where(ok & valid[:, None], jnp.abs(grid_val), jnp.inf).ravel()
+        score = jnp.where(ok, jnp.abs(grid_val), jnp.inf).ravel()
         neg, sel = jax.lax.top_k(-score, nr)  # the nr smallest (lowest index first on ties)
         sels.append(sel)
         oks.append(jnp.isfinite(neg))
     sel = jnp.concatenate(sels)
     sel_ok = jnp.concatenate(oks)
     is_gm = jnp.arange(2 * nr) < nr
-    ci, li = sel // n, sel % n
-    k = idx[ci]
-    la, lb = a[ci, li], b[ci, li]
+    k, li = sel // n, sel % n  # grid interval k = [ω_k, ω_{k+1}], locus li
+    la, lb = a[k, li], b[k, li]
 
     def f_of(lam):
         return jnp.where(is_gm, jnp.imag(lam), jnp.log(jnp.abs(lam)))
@@ -494,7 +461,7 @@ def _refine_loci(idx, valid, a, b, interp, lw, kernels):
     return out
 
 
-def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec, exact_all: bool):
+def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec):
     kern = spec.kernels
     N, n, _ = P.shape
     size = spec.n_candidates
@@ -505,7 +472,6 @@ def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec, exact_all: bool):
     lw = jnp.log(omega)
     interp = _Interp(L, lw, L_fn)
     nan = jnp.asarray(jnp.nan)
-    overflow = jnp.asarray(False)
 
     # --- singular I + L: σ̲(I+L) = 1/σ̄(S) ≤ rtol·max(1, σ̄(I+L)) ---------------------------
     rtol = spec.singular_rtol
@@ -532,10 +498,9 @@ def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec, exact_all: bool):
     p_ol = jnp.asarray(p_ol, dtype=jnp.float64)
 
     # --- loci where needed: resolution of every 1 + λ_i, margins ------------------------------
-    idx, valid, la, lb, ovl = _loci_intervals(after(L, det), omega, spec, size, exact_all)
-    overflow = overflow | ovl
+    la, lb = _loci_pairs(after(L, det), spec)
     dphi = jnp.abs(jnp.angle((1.0 + lb) / (1.0 + la)))
-    loci_ok = ~jnp.any(valid[:, None] & ~(dphi < spec.max_phase_step))
+    loci_ok = ~jnp.any(~(dphi < spec.max_phase_step))
     resolved = resolved & loci_ok
     stable = nyquist_verdict(n_enc, p_ol, resolved, singular)
 
@@ -558,32 +523,22 @@ def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec, exact_all: bool):
         disk_pm_deg=nan,
     )
     if spec.margins:
-        (g, gw), (p, pw) = _refine_loci(idx, valid, la, lb, interp, lw, kern)
+        (g, gw), (p, pw) = _refine_loci(la, lb, interp, lw, kern)
         out.update(gm_db=g, gm_freq_hz=gw / TWO_PI, pm_deg=p, pm_freq_hz=pw / TWO_PI)
 
-    sig_S_all = None
     if spec.bandwidth:
         lo, hi = K.sigma_bounds(K.to_entries(S))
-        bw, ovb, sig_S_all = _first_crossing(
-            lambda i: _sigma_exact(S[i], kern),
-            lo,
-            hi,
-            ISO_THRESHOLD,
-            interp,
-            lw,
-            size,
-            exact_all,
-            kern,
+        bw = _first_crossing(
+            lambda i: _sigma_exact(S[i], kern), lo, hi, ISO_THRESHOLD, interp, lw, size, kern
         )
-        overflow = overflow | ovb
         out["iso_bandwidth_hz"] = jnp.where(stable, bw / TWO_PI, nan)
     kinds, grid = [], []
     if spec.t_peak:
         kinds.append("T")
-        grid.append(_peak_grid(eye - S, size, exact_all, kern))
+        grid.append(_peak_grid(eye - S, size, kern))
     if spec.disk:
         kinds.append("SmT")
-        grid.append(_peak_grid(2.0 * S - eye, size, exact_all, kern))
+        grid.append(_peak_grid(2.0 * S - eye, size, kern))
     if kinds:
         res = dict(zip(kinds, _peaks(grid, tuple(kinds), interp, lw, kern), strict=True))
     if spec.t_peak:
@@ -596,9 +551,11 @@ def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec, exact_all: bool):
         dm = disk_margin_from_peak(v)
         out["disk_gm_db"] = jnp.where(stable, dm["disk_gm_db"], 0.0)
         out["disk_pm_deg"] = jnp.where(stable, dm["disk_pm_deg"], 0.0)
+    # σ̄(S) on the whole grid only for what needs it (the literal bandwidth, the arrays)
+    sig_S_all = None
+    if spec.literal or (spec.arrays and not spec.full_sv):
+        sig_S_all = _sigma_exact(S, kern)
     if spec.literal:
-        if sig_S_all is None:
-            sig_S_all = _sigma_exact(S, kern)
         lit = _last_crossing(sig_S_all, ISO_THRESHOLD, interp, lw, kern)
         out["iso_bandwidth_literal_hz"] = jnp.where(stable, lit / TWO_PI, nan)
     if spec.arrays:
@@ -607,9 +564,9 @@ def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec, exact_all: bool):
         if spec.full_sv:
             sv = jnp.linalg.svd(after(S, out["stable"]), compute_uv=False)
         else:
-            sv = sig_S_all if sig_S_all is not None else _sigma_exact(S, kern)
+            sv = sig_S_all
         out.update(freq_hz=omega / TWO_PI, sv_T_minus_I=sv, loci=characteristic_loci(after(L, sv)))
-    return out, overflow
+    return out
 
 
 def _check(P, G, omega):
@@ -620,33 +577,19 @@ def _check(P, G, omega):
 
 
 def metrics_screened(P, G, omega, p_ol, L_fn, spec):
-    """The analysis: ``(fields dict, overflow)``; pure, jit/vmap-able (``overflow`` is always
-    false: kept for callers)."""
-    return _metrics(P, G, omega, p_ol, L_fn, spec, exact_all=False)
+    """The analysis as a dict of :class:`LoopMetrics` fields; pure, jit/vmap-able."""
+    return _metrics(P, G, omega, p_ol, L_fn, spec)
 
 
-def metrics_exact(P, G, omega, p_ol, L_fn, spec):
-    """Every grid point exact (σ̄ by Jacobi everywhere; same rules, no bounds): a check of
-    the bounds' screening, not needed by any caller."""
-    return _metrics(P, G, omega, p_ol, L_fn, spec, exact_all=True)[0]
-
-
-@eqx.filter_jit
-def _screened_jit(P, G, omega, p_ol, L_fn, spec):
-    return metrics_screened(P, G, omega, p_ol, L_fn, spec)
-
-
-@eqx.filter_jit
-def _exact_jit(P, G, omega, p_ol, L_fn, spec):
-    return metrics_exact(P, G, omega, p_ol, L_fn, spec)
+_metrics_jit = eqx.filter_jit(metrics_screened)
 
 
 def _loop_metrics(P, G, omega, p_ol, L_fn, spec):
     if isinstance(P, jax.core.Tracer) or isinstance(p_ol, jax.core.Tracer):
-        out, overflow = metrics_screened(P, G, omega, p_ol, L_fn, spec)
+        out = metrics_screened(P, G, omega, p_ol, L_fn, spec)
     else:
-        out, overflow = _screened_jit(P, G, omega, p_ol, L_fn, spec)
-    return LoopMetrics(**out, exact_fallback=overflow)
+        out = _metrics_jit(P, G, omega, p_ol, L_fn, spec)
+    return LoopMetrics(**out, exact_fallback=jnp.asarray(False))
 
 
 def loop_metrics(

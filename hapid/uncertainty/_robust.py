@@ -230,7 +230,7 @@ def _reference_chunk(P, p_ol, G, omega):
 @eqx.filter_jit
 def _metrics_chunk(P, p_ol, G, omega):
     def one(P_, p_):
-        return _fields(metrics_screened(P_, G, omega, p_, None, _SPEC)[0])
+        return _fields(metrics_screened(P_, G, omega, p_, None, _SPEC))
 
     return jax.vmap(one)(P, p_ol)
 
