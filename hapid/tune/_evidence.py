@@ -46,6 +46,7 @@ import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
 from ..control import Compensator
+from ..impedance import plant
 from ._response import g_response
 
 KAPPA = 0.5  # σ̄(L) ≤ κ beyond the evidence: |1 + λ| ≥ 1/2 ⇒ GM ≥ 6 dB at crossings there
@@ -83,17 +84,14 @@ class Evidence:
 
 def measured_plant(Z_H, Z_T) -> np.ndarray:
     """``P = Z_H Z_T⁻¹`` of measured impedances ``(N, n, n)``."""
-    ZH, ZT = np.asarray(Z_H), np.asarray(Z_T)
-    return np.linalg.solve(np.swapaxes(ZT, -1, -2), np.swapaxes(ZH, -1, -2)).swapaxes(-1, -2)
+    return np.asarray(plant(jnp.asarray(Z_H), jnp.asarray(Z_T)))
 
 
 def mismatch_sigma(P, model, omega) -> np.ndarray:
     """``σ̄(P P̂⁻¹)`` per frequency ``(N,)``: how far the measured plant is from the model
     the controller inverts."""
-    Ph = np.asarray(model.P(1j * np.asarray(omega, dtype=float)))
-    M = np.linalg.solve(np.swapaxes(Ph, -1, -2), np.swapaxes(np.asarray(P), -1, -2)).swapaxes(
-        -1, -2
-    )
+    Ph = model.P(1j * jnp.asarray(omega, dtype=float))
+    M = np.asarray(plant(jnp.asarray(P), Ph))  # the right division P P̂⁻¹
     return np.linalg.svd(M, compute_uv=False)[:, 0]
 
 

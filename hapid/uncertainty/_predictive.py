@@ -268,8 +268,7 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
             gH, gM = gH * w, gM * w
         ZH, ZM = ZH + gH, ZM + gM
     ZT = ZH + ZM
-    P = np.linalg.solve(np.swapaxes(ZT, -1, -2), np.swapaxes(ZH, -1, -2)).swapaxes(-1, -2)
-    return {"omega": omega, "Z_H": ZH, "Z_T": ZT, "P": P}
+    return {"omega": omega, "Z_H": ZH, "Z_T": ZT, "P": np.asarray(plant(ZH, ZT))}
 
 
 def band_calibration(draws, truth, level: float = 0.9, n_reference: int = 20) -> dict[str, float]:
