@@ -9,8 +9,8 @@ parse results in, library calls, one report out).
 and on ``--method`` through :data:`PAIR_METHODS` / :data:`SINGLE_METHODS` (name → function
 ``(data, args, band_hz) -> Fitted``; ``data`` already restricted to the band): adding a method
 is one function and one table entry. Every
-method sees the same band (``--f-min-hz``/``--f-max-hz``; default every frequency in the
-file), selected before the fit and echoed in the report; every fit gets a
+method sees the band given by ``--f-min-hz``/``--f-max-hz`` (default every frequency in the
+file, except NLS on the haptic pair: up to 40 Hz, :data:`NLS_DEFAULT_F_MAX_HZ`), selected before the fit and echoed in the report; every fit gets a
 :class:`hapid.fit.FitQuality` over that band, printed and stored in the model file. Extra
 report lines (a Cramér–Rao band, an error against a known true plant) go through
 ``FitQuality.with_line`` in the method function or in :func:`extra_quality_lines`.
@@ -168,9 +168,26 @@ def extra_quality_lines(quality, fitted: Fitted, data, a):
     )
 
 
-def _band(a, f_all_hz: np.ndarray) -> tuple[float, float]:
+NLS_DEFAULT_F_MAX_HZ = 40.0
+"""Default upper band edge (Hz) of ``hapid fit --method nls`` on the haptic pair: the paper
+scene's NLS band and ``hapid posterior``'s default. A second-order fit over the whole 1–100 Hz
+FRF of a device with a delay and chain modes bends to the misfit above ~40 Hz (measured on
+cu5_soft: an Ẑ_H with right-half-plane roots, which the inverse-model controller cancels
+unstably)."""
+
+
+def _default_f_max(a, pair: bool) -> float | None:
+    """The band's upper edge when ``--f-max-hz`` is not given: 40 Hz for NLS on the haptic
+    pair (:data:`NLS_DEFAULT_F_MAX_HZ`), else every frequency."""
+    if a.f_max_hz is None and pair and a.method == "nls":
+        return NLS_DEFAULT_F_MAX_HZ
+    return a.f_max_hz
+
+
+def _band(a, f_all_hz: np.ndarray, f_max_hz: float | None = None) -> tuple[float, float]:
+    f_max_hz = a.f_max_hz if f_max_hz is None else f_max_hz
     lo = 0.0 if a.f_min_hz is None else float(a.f_min_hz)
-    hi = np.inf if a.f_max_hz is None else float(a.f_max_hz)
+    hi = np.inf if f_max_hz is None else float(f_max_hz)
     n_in = int(np.sum((f_all_hz >= lo) & (f_all_hz <= hi)))
     if n_in < 3:
         raise FitCommandError(
@@ -217,7 +234,8 @@ def run_fit(a) -> None:
             f"--method {a.method} is not available for "
             f"{'a single impedance' if single else 'the haptic pair'} (choose from {', '.join(table)})"
         )
-    lo, hi = _band(a, np.asarray(data.freq_hz))
+    f_max = _default_f_max(a, not single)
+    lo, hi = _band(a, np.asarray(data.freq_hz), f_max)
     sel = data.band(lo, hi)
     unit = data.unit if single else "N/m"
     units = model_units(unit)
@@ -225,14 +243,15 @@ def run_fit(a) -> None:
             else "haptic hand/total pair Z_H, Z_T (N/m)")  # fmt: skip
     f = np.asarray(sel.freq_hz)
     print(f"data: {what}, n = {data.n}, from {a.frf}")
-    how = ("every frequency in the file; narrow it with --f-min-hz/--f-max-hz"
-           if a.f_min_hz is None and a.f_max_hz is None
-           else f"--f-min-hz {lo:g} --f-max-hz {hi:g}")  # fmt: skip
+    if a.f_min_hz is None and f_max is None:
+        how = "every frequency in the file; narrow it with --f-min-hz/--f-max-hz"
+    elif a.f_max_hz is None and f_max is not None:
+        how = (f"default for nls on the haptic pair: up to {f_max:g} Hz, the paper's fit band "
+               "and hapid posterior's; --f-max-hz to change")  # fmt: skip
+    else:
+        how = f"--f-min-hz {lo:g} --f-max-hz {hi:g}"
     print(f"band: {f.min():g}–{f.max():g} Hz, {f.size} of {np.size(data.freq_hz)} frequencies "
-          f"({how}; the same band for every method)")  # fmt: skip
-    if not single and a.method == "nls" and a.f_max_hz is None and f.max() > 40:
-        print("note: every frequency is fitted; for a haptic device the NLS fit is usually "
-              "best with --f-max-hz 40 (the paper scene's band)")  # fmt: skip
+          f"({how})")  # fmt: skip
     fitted = table[a.method](sel, a, (lo, hi))
     q = fitted.quality
     if q is None:
@@ -260,6 +279,15 @@ def run_fit(a) -> None:
         after = crhp_report(fitted.model)
         print(f"CRHP roots of det Ẑ_H, det Ẑ_T: {int(after.hand)}, {int(after.total)} (of "
               f"{2 * data.n} each)")  # fmt: skip
+        if int(after.hand) > 0:
+            import warnings
+
+            warnings.warn(f"Ẑ_H has {int(after.hand)} closed-right-half-plane root(s): the "
+                          "inverse-model controller g Ẑ_T Ẑ_H⁻¹ cancels them unstably, so no g "
+                          "makes its loop stable (hapid tune will not certify it); "
+                          + (f"fit a narrower band (e.g. --f-max-hz {NLS_DEFAULT_F_MAX_HZ:g})"
+                             if a.method != "wls" else "use --positize or --method nls"),
+                          stacklevel=1)  # fmt: skip
         if np.all(np.asarray(data.Z_H) == np.asarray(data.Z_T)) or not np.any(np.asarray(data.Z_H)):
             print("P·P̂⁻¹ band: not reported (Z_H = Z_T or Z_H = 0: a single impedance in the "
                   "pair; store it as Z for the single-impedance path)")  # fmt: skip
@@ -355,7 +383,8 @@ def register_fit(sub, func) -> None:
     f.add_argument("--f-min-hz", type=float,
                    help="fit band lower edge (Hz), every method; default: the file's lowest")  # fmt: skip
     f.add_argument("--f-max-hz", type=float,
-                   help="fit band upper edge (Hz), every method; default: the file's highest")  # fmt: skip
+                   help="fit band upper edge (Hz), every method; default: 40 for nls on the "
+                   "haptic pair (hapid posterior's band), else the file's highest")  # fmt: skip
     f.add_argument("--omega-c-hz", type=float, default=7.0, help="paper weight corner (Hz)")
     f.add_argument("--max-steps", type=int, default=500)
     f.add_argument("--band-hz", type=float, default=30.0,

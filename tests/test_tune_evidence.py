@@ -92,6 +92,19 @@ def test_never_worse_decides_on_the_evidence_first():
     # neither certified: the tuned g may not raise the beyond-band gain bound
     ok, why = no_worse(base | bad, base | bad | better_draws | {"beyond_loop_gain": 0.9})
     assert not ok and "beyond the evidence" in why
+    # neither certified: a tuned loop closer to −1 on the measured FRF is not kept, even
+    # with better draws and the start's σ̲ above the floor
+    mid = {"certified": False, "frf_min_sigma_I_plus_L": 0.55, "beyond_loop_gain": 0.7}
+    ok, why = no_worse(base | mid, base | mid | better_draws | {"frf_min_sigma_I_plus_L": 0.52})
+    assert not ok and "neither is certified" in why and "closer to −1" in why
+    ok, why = no_worse(base | mid | {"nominal_stable": True},
+                       base | mid | better_draws | {"nominal_stable": False})  # fmt: skip
+    assert not ok and "model's own plant" in why
+    # … and better on the same evidence and on the draws: kept
+    ok, why = no_worse(base | mid, base | mid | better_draws | {"frf_min_sigma_I_plus_L": 0.56})
+    assert ok and "margins met 80.0 → 95.0 %" in why
+    # no better on the draws: the start stays, however the evidence figures moved
+    assert not no_worse(base | mid, base | mid | {"frf_min_sigma_I_plus_L": 0.6})[0]
     assert no_worse(base | good, base | good | better_draws)[0]
 
 
@@ -169,3 +182,36 @@ def test_cli_route_tuned_g_is_stable_on_a_device_not_used_for_tuning(tmp_path):
     )
     rep = json.loads((d / "tune.json").read_text())
     assert {"certified", "beyond_loop_gain", "frf_min_sigma_I_plus_L"} <= set(rep["tuned"])
+
+
+def test_fit_band_default_rule():
+    from types import SimpleNamespace as NS
+
+    from hapid._cli_fit import NLS_DEFAULT_F_MAX_HZ, _band, _default_f_max
+
+    f = np.arange(1.0, 101.0)
+    assert _default_f_max(NS(f_max_hz=None, method="nls"), True) == NLS_DEFAULT_F_MAX_HZ == 40.0
+    assert _default_f_max(NS(f_max_hz=None, method="nls"), False) is None  # single impedance
+    assert _default_f_max(NS(f_max_hz=None, method="wls"), True) is None
+    assert _default_f_max(NS(f_max_hz=80.0, method="nls"), True) == 80.0
+    assert _band(NS(f_min_hz=None, f_max_hz=None), f, 40.0) == (0.0, 40.0)
+    assert _band(NS(f_min_hz=2.0, f_max_hz=None), f) == (2.0, np.inf)
+
+
+@pytest.mark.slow
+def test_fit_nls_on_the_haptic_pair_defaults_to_the_40_hz_band(tmp_path, capsys):
+    """``hapid fit --method nls`` without a band fits 1–40 Hz of the haptic pair (the band of
+    ``hapid posterior``), says so, and stores that band; WLS keeps every frequency."""
+    from hapid.cli import main
+
+    fp = tmp_path / "frf.npz"
+    assert main(["plant", "--device", "tripod3", "--f-min-hz", "1", "--f-max-hz", "100",
+                 "--n-freq", "30", "--out", str(fp)]) == 0  # fmt: skip
+    capsys.readouterr()
+    assert main(["fit", str(fp), "--method", "nls", "--out", str(tmp_path / "m.npz")]) == 0
+    out = capsys.readouterr().out
+    assert "default for nls on the haptic pair: up to 40 Hz" in out
+    f_q = np.load(tmp_path / "m.npz")["quality_freq_hz"]
+    assert f_q.max() <= 40.0 and f_q.max() > 30.0
+    assert main(["fit", str(fp), "--method", "wls", "--out", str(tmp_path / "w.npz")]) == 0
+    assert np.load(tmp_path / "w.npz")["quality_freq_hz"].max() > 90.0

@@ -331,9 +331,12 @@ def no_worse(start: dict, tuned: dict) -> tuple[bool, str]:
     ``frf_min_sigma_I_plus_L`` in both rows (:func:`frf_return_difference`, the measured FRF)
     the tuned g may not bring the loop on the data closer to −1 than the start when it falls
     below ``FRF_SIGMA_FLOOR``. With ``certified`` in both rows (:func:`._evidence.certificate`:
-    the measured loop's return difference ≥ the floor *and* the loop small-gain beyond the
     evidence) the evidence decides first: a certified start is never traded for an
-    uncertified g, and a certified tuned g replaces an uncertified start."""
+    uncertified g, and a certified tuned g replaces an uncertified start. When *neither* is
+    certified, both are judged on the same evidence figures: the tuned g must be no worse on
+    each (stable on the model's own plant if the start is, measured return difference not
+    lower, beyond-band gain bound not above ``max(start, κ)``) and then better on the held-out
+    draws; otherwise the start is kept and the reason says which figure decided."""
     if start.get("true_stable") and not tuned.get("true_stable", True):
         return False, "kept the start: the tuned g makes the nominal true plant unstable"
     c = "certified"
@@ -347,13 +350,20 @@ def no_worse(start: dict, tuned: dict) -> tuple[bool, str]:
                           f"{tuned['evidence_hz']:.3g} Hz ≤ {tuned['beyond_loop_gain']:.3g}) and the "
                           f"start does not (min σ̲(I+L) {start['frf_min_sigma_I_plus_L']:.3g}, gain "
                           f"beyond {start['beyond_loop_gain']:.3g})")  # fmt: skip
-        if (
-            not tuned[c]
-            and tuned["beyond_loop_gain"] > max(start["beyond_loop_gain"], KAPPA) + 1e-9
-        ):
-            return False, (f"kept the start: beyond the evidence ({tuned['evidence_hz']:.3g} Hz) the "
-                           f"tuned loop gain bound {tuned['beyond_loop_gain']:.3g} exceeds the start's "
-                           f"{start['beyond_loop_gain']:.3g}")  # fmt: skip
+        if not tuned[c]:  # neither certified: the tuned g must be no worse on each figure
+            if start.get("nominal_stable", True) and not tuned.get("nominal_stable", True):
+                return False, ("kept the start: neither is certified, and the tuned g is not stable "
+                               "on the model's own plant while the start is")  # fmt: skip
+            if tuned["beyond_loop_gain"] > max(start["beyond_loop_gain"], KAPPA) + 1e-9:
+                return False, (f"kept the start: neither is certified, and beyond the evidence "
+                               f"({tuned['evidence_hz']:.3g} Hz) the tuned loop gain bound "
+                               f"{tuned['beyond_loop_gain']:.3g} exceeds the start's "
+                               f"{start['beyond_loop_gain']:.3g}")  # fmt: skip
+            k = "frf_min_sigma_I_plus_L"
+            if tuned[k] < start[k] - 1e-9:
+                return False, (f"kept the start: neither is certified, and on the measured FRF the "
+                               f"tuned loop comes closer to −1 (min σ̲(I+L) {tuned[k]:.3g} against "
+                               f"{start[k]:.3g})")  # fmt: skip
     k = "frf_min_sigma_I_plus_L"
     if k in start and k in tuned and tuned[k] < min(start[k], FRF_SIGMA_FLOOR) - 1e-9:
         return False, (f"kept the start: on the data's own FRF the tuned g brings the loop closer to "
