@@ -220,6 +220,7 @@ COMMON: dict[str, tuple] = {
     "n_holdout": int_ge(1),
     "quantile": between(0, 1, lo_open=True),
     "free_dc": FLAG,
+    "predictive": FLAG,
     "no_cache": FLAG,
     "outputs": ANY,  # checked with the scene (run)
     "set": ANY,  # checked with the scene (run)

@@ -144,10 +144,29 @@ def cvar(c, k: int):
     return jnp.mean(jax.lax.top_k(c, k)[0])
 
 
-def aggregate(g, families, u, req: Requirements) -> dict[str, jax.Array]:
+def masked_cvar(c, k: int, counted):
+    """Chance-constraint CVaR with scenarios left out: ``counted`` (``(S,)`` bool) marks the
+    scenarios the constraint is evaluated on; each one left out (an unstable closed loop,
+    already a violator) uses one of the ``k`` allowed slots, so the mean is over the
+    ``max(1, k − #left out)`` largest counted values (``k`` static, the count traced)."""
+    n_out = jnp.sum(~counted)
+    k_eff = jnp.maximum(1, k - n_out)
+    top = jax.lax.top_k(jnp.where(counted, c, -1e6), k)[0]
+    w = (jnp.arange(k) < k_eff).astype(top.dtype)
+    return jnp.sum(top * w) / k_eff
+
+
+def aggregate(g, families, u, req: Requirements, counted=None) -> dict[str, jax.Array]:
     """``{"<family>/<constraint>": CVaR}`` over every family (the constraints of the problem),
-    plus ``"g/dc"`` with ``min_dc_gain`` and ``"evidence/small_gain"`` with ``sg_omega``."""
+    plus ``"g/dc"`` with ``min_dc_gain`` and ``"evidence/small_gain"`` with ``sg_omega``.
+
+    ``counted`` (optional, one ``(S,)`` bool array or ``None`` per family): scenarios whose
+    closed loop is unstable at the current stage are left out of the margin CVaR and count as
+    violators (:func:`masked_cvar`); ``"<family>/unstable"`` then reports
+    ``#unstable − (K − 1)`` (> 0: more unstable scenarios than the quantile allows; no
+    gradient — a loop becomes stable only by a locus crossing −1)."""
     out = {}
+    counted = [None] * len(families) if counted is None else counted
     if req.min_dc_gain is not None:
         log_dc = jnp.log(g.k) + jnp.sum(jnp.log(g.lag_zeros)) - jnp.sum(jnp.log(g.lag_poles))
         out["g/dc"] = np.log(req.min_dc_gain) - log_dc
@@ -156,14 +175,19 @@ def aggregate(g, families, u, req: Requirements) -> dict[str, jax.Array]:
 
         out["evidence/small_gain"] = small_gain_constraint(g, np.asarray(req.sg_omega), req.sg_g_max,
                                                            req.beta, req.sg_ts)  # fmt: skip
-    for fam in families:
+    for fam, cnt in zip(families, counted, strict=True):
         c = scenario_constraints(g, fam.scenarios, u, req)
         if fam.bandwidth:
             out[f"{fam.name}/bw"] = cvar(c["bw"], fam.k_worst(fam.bw_quantile))
         if fam.margins:
-            out[f"{fam.name}/ms"] = cvar(c["ms"], fam.k_worst())
+            k = fam.k_worst()
+            if cnt is None:
+                out[f"{fam.name}/ms"] = cvar(c["ms"], k)
+            else:
+                out[f"{fam.name}/ms"] = masked_cvar(c["ms"], k, cnt)
+                out[f"{fam.name}/unstable"] = (jnp.sum(~cnt) - (k - 1)).astype(float)
             if "disk" in c:
-                out[f"{fam.name}/disk"] = cvar(c["disk"], fam.k_worst())
+                out[f"{fam.name}/disk"] = cvar(c["disk"], k)
     return out
 
 
@@ -199,13 +223,15 @@ BOX_WEIGHT = 1e4
 design trade-off but the domain where g is meaningful)."""
 
 
-def penalized(z, mu, pm: ParamMap, families, req: Requirements, box: Box, x0, rho: float):
+def penalized(z, mu, pm: ParamMap, families, req: Requirements, box: Box, x0, rho: float,
+              counted=None):  # fmt: skip
     """The penalized objective of the module docstring at ``z = (x, u)``. ``u`` is boxed to
-    the first family's grid (beyond it the bandwidth claim would be unbounded)."""
+    the first family's grid (beyond it the bandwidth claim would be unbounded). ``counted``:
+    see :func:`aggregate` (the ``/unstable`` entries are constants and not penalized)."""
     x, u = z[:-1], z[-1]
     g = pm.compensator(x)
-    cons = aggregate(g, families, u, req)
-    pen = sum(jax.nn.relu(v) ** 2 for v in cons.values())
+    cons = aggregate(g, families, u, req, counted)
+    pen = sum(jax.nn.relu(v) ** 2 for k, v in cons.items() if not k.endswith("/unstable"))
     lw = jnp.log(families[0].scenarios.omega)
     u_box = jax.nn.relu(u - lw[-1]) ** 2 + jax.nn.relu(lw[0] - u) ** 2
     wbox = jnp.maximum(mu, BOX_WEIGHT)

@@ -130,9 +130,9 @@ def robust_design(
     device=None,
     g0: Compensator | None = None,
     requirements: Requirements | None = None,
-    n_train: int = 80,
+    n_train: int = 150,
     n_holdout: int = 200,
-    quantile: float = 0.95,
+    quantile: float = 0.975,
     posterior_bandwidth: bool = False,
     n_subjects: int = 16,
     n_holdout_subjects: int = 4,
@@ -200,7 +200,8 @@ def robust_design(
     a stable true plant stays stable). Otherwise ``out["kept_start"]`` is True, the
     result's ``g`` is the start and ``out["decision"]`` says why.
 
-    Returns ``{"result": TuneResult, "families": {...sizes}, "validation": {"start": v,
+    Returns ``{"result": TuneResult, "candidate": TuneResult (the tuner's g even when the
+    start was kept), "families": {...sizes}, "validation": {"start": v,
     "tuned": v}, "table": {"start": row, "tuned": row}, "kept_start": bool, "decision": str}``
     (``v`` from :func:`.validate`, ``row`` from :func:`.table_row`).
     """
@@ -275,7 +276,8 @@ def robust_design(
                                 "kappa": ev.kappa}  # fmt: skip
     res = tune(families, g0, requirements=req, mu_schedule=mu_schedule, max_steps=max_steps,
                f_max_hz=f_max_hz, progress=progress)  # fmt: skip
-    out = {"result": res, "families": info, "kept_start": False, "decision": "not validated"}
+    out = {"result": res, "candidate": res, "families": info, "kept_start": False,
+           "decision": "not validated"}  # fmt: skip
     if validate_designs:
         out["validation"], out["table"] = {}, {}
         omega_c = (

@@ -99,6 +99,26 @@ def phase_counts(g: Compensator, families) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(counts), np.concatenate(ok)
 
 
+def stable_scenarios(g: Compensator, families) -> list:
+    """Per family, ``(S,)`` bool: is the closed loop of each scenario stable under ``g``
+    (Nyquist count of :func:`phase_counts` equal to the nominal loop's ``(1 + g)^n``, grid
+    resolved)? Only for families with ``quantile < 1`` (chance constraints) and scenarios with
+    no open-loop RHP poles; else ``None`` / True (all scenarios counted, as the strict guard
+    assumes)."""
+    out = []
+    for f in families:
+        if f.quantile >= 1.0:
+            out.append(None)
+            continue
+        sc = f.scenarios
+        cnt, res = phase_counts(g, [f])
+        gam = np.asarray(g_response(g, sc.omega, sc.ts))
+        ang = np.unwrap(np.angle(1.0 + gam))
+        ref = np.round(sc.lam.shape[-1] * (ang[-1] - ang[0]) / np.pi)
+        out.append(np.where(np.asarray(sc.p_ol) > 0, True, res & (cnt == ref)))
+    return out
+
+
 def smooth_bandwidth(g: Compensator, families, req: Requirements, n_grid: int = 200) -> float:
     """Largest ω_b (rad/s) on a log grid whose aggregated bandwidth constraints are all ≤ 0
     (the smooth robust bandwidth of ``g``); the grid's lowest point if none."""
@@ -167,39 +187,50 @@ def tune(
         return [dataclasses.replace(f, scenarios=s) for f, s in zip(families, sc, strict=True)]
 
     def fn(z, args):
-        mu, sc = args
-        return penalized(z, mu, pm, rebuild(sc), req, box, x0, rho)
+        mu, sc, counted = args
+        return penalized(z, mu, pm, rebuild(sc), req, box, x0, rho, counted)
 
     @eqx.filter_jit
-    def cons(z, sc):
-        return aggregate(pm.compensator(z[:-1]), rebuild(sc), z[-1], req)
+    def cons(z, sc, counted):
+        return aggregate(pm.compensator(z[:-1]), rebuild(sc), z[-1], req, counted)
+
+    def counted_at(zc):
+        st = stable_scenarios(pm.compensator(zc[:-1]), families)
+        return [None if m is None else jnp.asarray(m) for m in st], st
 
     solver = optx.BFGS(rtol=1e-8, atol=1e-8)
     history = []
-    count0, res0 = phase_counts(g0, families)
 
-    def same_topology(zc):
+    def same_topology(zc, count0, keep):
         cnt, res = phase_counts(pm.compensator(zc[:-1]), families)
-        keep = res0  # scenarios whose start was resolved must keep their count, resolved
         return bool(np.all(np.isfinite(np.asarray(zc)))) and bool(
             np.all((cnt == count0) & res | ~keep)
         )
 
     for mu in mu_schedule:
         ts_ = time.perf_counter()
+        # scenarios whose loop is stable at the stage start must stay so (same count,
+        # resolved); chance-constrained scenarios that are unstable are free to change
+        counted, st = counted_at(z)
+        count0, res0 = phase_counts(pm.compensator(z[:-1]), families)
+        keep = res0 & np.concatenate(
+            [np.ones(f.scenarios.n_scenarios, bool) if m is None else m
+             for f, m in zip(families, st, strict=True)]
+        )  # fmt: skip
         sol = optx.minimise(
-            fn, solver, z, args=(jnp.asarray(mu), scens), max_steps=max_steps, throw=False
-        )
+            fn, solver, z, args=(jnp.asarray(mu), scens, counted), max_steps=max_steps,
+            throw=False,
+        )  # fmt: skip
         z_new, frac = sol.value, 1.0
         # non-smooth guard: back off towards the previous stage's point until no scenario's
         # Nyquist count has changed (see phase_counts); give up the stage if none works
-        while not same_topology(z_new) and frac > 1e-3:
+        while not same_topology(z_new, count0, keep) and frac > 1e-3:
             frac *= 0.5
             z_new = z + frac * (sol.value - z)
         stop = frac <= 1e-3
         if not stop:
             z = z_new
-        c = {k: float(v) for k, v in cons(z, scens).items()}
+        c = {k: float(v) for k, v in cons(z, scens, counted_at(z)[0]).items()}
         rec = {"mu": float(mu), "steps": int(sol.stats["num_steps"]), "result": str(sol.result),
                "bandwidth_hz": float(np.exp(z[-1]) / TWO_PI), "constraints": c,
                "wall_s": time.perf_counter() - ts_, "step_fraction": 0.0 if stop else frac}  # fmt: skip
@@ -209,7 +240,7 @@ def tune(
         if stop:
             break
     x = np.asarray(z[:-1])
-    c = {k: float(v) for k, v in cons(z, scens).items()}
+    c = {k: float(v) for k, v in cons(z, scens, counted_at(z)[0]).items()}
     return TuneResult(
         g=pm.compensator(x), g0=g0, x=x, x0=np.asarray(x0),
         bandwidth_hz=float(np.exp(z[-1]) / TWO_PI), bandwidth0_hz=wb0 / TWO_PI,
