@@ -191,6 +191,15 @@ def aggregate(g, families, u, req: Requirements, counted=None) -> dict[str, jax.
     return out
 
 
+F_MIN_HZ = 0.05
+"""Lowest frequency (Hz) of g's poles and zeros: 10× above the continuous analysis grid's
+0.005 Hz, so that the loop has settled at the grid's low end and every Nyquist count (the
+tuner's guard, the re-check, the nominal-loop certificate) sees the same low-frequency
+phase. Measured on tripod3 (gp draws): with 0.01 Hz the tuner put the lag pole there
+(|g(0)| ≈ 890) and the continuous re-checks called the loop unstable where the true plant's
+0.001 Hz grid found it stable."""
+
+
 @dataclasses.dataclass(frozen=True)
 class Box:
     """Soft box in log coordinates: ``lo ≤ x ≤ hi`` (penalized quadratically outside)."""
@@ -199,7 +208,7 @@ class Box:
     hi: np.ndarray
 
     @classmethod
-    def default(cls, pm: ParamMap, f_max_hz: float, f_min_hz: float = 0.01) -> Box:
+    def default(cls, pm: ParamMap, f_max_hz: float, f_min_hz: float = F_MIN_HZ) -> Box:
         """Frequencies in [f_min, f_max] Hz, damping ratios in [0.02, 2], gain in [1e-3, 1e3]."""
         lo, hi = [], []
         for name, isf in zip(pm.names, pm.is_frequency, strict=True):
