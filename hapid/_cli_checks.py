@@ -221,6 +221,7 @@ COMMON: dict[str, tuple] = {
     "quantile": between(0, 1, lo_open=True),
     "free_dc": FLAG,
     "predictive": FLAG,
+    "evidence_bandwidth": FLAG,
     "no_cache": FLAG,
     "outputs": ANY,  # checked with the scene (run)
     "set": ANY,  # checked with the scene (run)

@@ -571,7 +571,7 @@ def cmd_tune(a):
                           evidence_ts=None if a.fs is None else 1.0 / a.fs, n_train=a.n_train,
                           n_holdout=a.n_holdout, quantile=a.quantile, n_subjects=a.subjects,
                           seed=a.seed, max_steps=a.max_steps, keep_dc_gain=not a.free_dc,
-                          model_error_draws=a.predictive)  # fmt: skip
+                          model_error_draws=a.predictive, evidence_bandwidth=a.evidence_bandwidth)  # fmt: skip
     r = res["result"]
     print(res.get("decision", ""))
     print(f"tuned in {r.wall_s:.1f} s: claimed robust bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, "
@@ -633,6 +633,9 @@ def _register_tune(sub):
     tu.add_argument("--predictive", action="store_true",
                     help="tune and re-check on posterior-predictive plants (each draw plus its model-error "
                     "term, confined to the fit band) instead of the draws' second-order models")  # fmt: skip
+    tu.add_argument("--evidence-bandwidth", action="store_true",
+                    help="the measured FRF (--frf) claims the bandwidth, the draws keep the margins (chance "
+                    "constraint); default: the median draw claims it")  # fmt: skip
     tu.add_argument("--seed", type=int, default=0)
     tu.set_defaults(func=cmd_tune)
 
