@@ -14,18 +14,19 @@ from tests.helpers import random_spd
 
 def test_masked_cvar_is_the_mean_of_the_worst_counted_values():
     rng = np.random.default_rng(0)
-    for _ in range(6):
-        S = int(rng.integers(5, 40))
+    S = 30
+    for k in (1, 4, 12, 4, 12, 1):
         c = rng.normal(size=S)
-        counted = rng.random(S) > 0.3
-        k = int(rng.integers(1, S + 1))
+        counted = rng.random(S) > rng.uniform(0.05, 0.8)
         u = int(np.sum(~counted))
         k_eff = max(1, k - u)
         ref = np.mean(np.sort(c[counted])[::-1][:k_eff]) if counted.any() else -1e6
         got = float(masked_cvar(jnp.asarray(c), k, jnp.asarray(counted)))
         np.testing.assert_allclose(got, ref, rtol=1e-12)
     c = jnp.asarray(rng.normal(size=12))
-    assert float(masked_cvar(c, 3, jnp.ones(12, bool))) == float(cvar(c, 3))
+    np.testing.assert_allclose(
+        float(masked_cvar(c, 3, jnp.ones(12, bool))), float(cvar(c, 3)), rtol=1e-14
+    )
 
 
 def test_stable_scenarios_agree_with_the_nyquist_verdict():
@@ -41,7 +42,7 @@ def test_stable_scenarios_agree_with_the_nyquist_verdict():
         random_spd(rng, n, 0.6), random_spd(rng, n, 40.0), random_spd(rng, n, 200.0)
     )
     model = hapid.ImpedanceModel(hand, hapid.SecondOrder(hand.M + mech.M, hand.B + mech.B, hand.K + mech.K))  # fmt: skip
-    om = np.geomspace(2 * np.pi * 0.01, 2 * np.pi * 5e3, 1500)
+    om = np.geomspace(2 * np.pi * 0.01, 2 * np.pi * 2e3, 800)
     g = Compensator.paper()
     gains = np.array([0.3, 1.0, 3.0, 10.0, 30.0])
     Ph = np.asarray(model.P(1j * om))
