@@ -15,7 +15,10 @@ used to choose tuning settings.
 
     python paper_figures/robust_table.py [--devices cu5 cu5_soft] [--quick] [--draws gp|white|nls]
                                          [--n-train 150] [--n-holdout N] [--quantile 0.975]
-                                         [--predictive] [--free-dc] [--out out/robust]
+                                         [--predictive] [--free-dc] [--evidence-bandwidth]
+                                         [--out out/robust]
+    # the held-out check reported in docs/robust-design.md:
+    python paper_figures/robust_table.py --devices cu5_soft --quick --evidence-bandwidth
     python paper_figures/robust_table.py --oracle     # the paper-form g tuned on the true plant
 """
 
