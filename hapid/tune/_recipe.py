@@ -178,10 +178,10 @@ def robust_design(
     ``evidence_bandwidth`` (off): let the measured FRF claim the bandwidth instead of the
     median draw. With narrow NLS-Laplace draws (24, q = 0.95) it failed on cu5: 6.9 Hz on the
     true plant but GM −2.0 dB, PM 8.8° — the loci met the disc at the 28 measured
-    frequencies and passed near −1 between them. With the chance constraint on 150 gp draws
-    (125 trained on, q = 0.975) the draws guard the margins between the measured points: cu5 2.41 Hz, GM
-    6.9 dB, PM 54° (median-draw bandwidth: 1.19 Hz); tripod3 2.77 Hz, GM 7.6 dB, PM 44°
-    (2.42 Hz) — all certified (docs/robust-design.md). Off by default: it relies on draws
+    frequencies and passed near −1 between them. With the chance constraint on gp draws
+    (125 trained on, q = 0.975) the draws guard the margins between the measured points:
+    cu5 2.41 Hz, GM 6.9 dB, PM 54° (median-draw bandwidth: 1.19 Hz); tripod3 2.77 Hz, GM
+    7.6 dB, PM 44° (2.42 Hz) — all certified (docs/robust-design.md). Off by default: it relies on draws
     wide enough to cover the plant between the measured frequencies.
 
     **Chance constraint.** The margins on the posterior draws must hold on ``quantile``
