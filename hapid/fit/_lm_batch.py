@@ -1,0 +1,235 @@
+# ruff: noqa: F722  (jaxtyping shape strings such as "N n n" are not Python expressions)
+"""Levenberg–Marquardt on the compressed NLS residual, lean enough to batch (issue 13).
+
+``fit_nls`` runs optimistix's ``LevenbergMarquardt`` (``linear_solver=lx.Normal(lx.Cholesky())``)
+through :func:`hapid.fit._iterate.iterate` on the :class:`~hapid.fit._compress.CompressedProblem`.
+Under ``vmap`` that machinery costs per fit what it costs alone: each step materializes the
+damped operator ``[J; √λ I]`` (``(m + p) × p``) by ``p`` batched JVPs and forms its normal
+matrix densely, and the Laplace covariance is a ``p × p`` ``eigh`` per fit.
+
+This module is the same algorithm, step for step, written on the structure of the compressed
+residual ``r_t = R_t a_t(θ) − y_t`` (element ``t``, ``a_t`` the six matrix entries):
+
+- ``J[(t, r), (k, α)] = R_t[r, k]·D_k[t, α]`` with ``D_k = ∂(L_k L_kᵀ)_t/∂θ_k`` a constant 0/1
+  tensor times ``θ_k`` (one small matmul);
+- ``JᵀJ[(k, α), (l, β)] = Σ_t G_t[k, l]·D_k[t, α]·D_l[t, β]`` with ``G_t = R_tᵀR_t`` formed once
+  per fit — six batched ``(p × t)·(t × t)`` matmuls instead of the dense ``p × m × p`` product;
+- the trust-region test, the damping ``λ = 1/step_size``, the Cauchy termination and the
+  stagnation rule are optimistix's ``ClassicalTrustRegion`` / ``DampedNewtonDescent`` /
+  ``cauchy_termination`` and ``iterate``'s, with the same constants and the same order of
+  operations; the damped system ``(JᵀJ + λI) x = Jᵀr`` is solved by the same Cholesky calls
+  lineax makes. The step count and status equal ``fit_nls``'s and the costs agree to rounding
+  (``tests/test_fit_batch.py``).
+
+:func:`lm_compressed` is one fit (vmappable); :func:`covariance_batch` the Laplace covariance
+of a batch, through a Cholesky inverse where the information matrix is provably far from
+singular and ``pinv_psd`` (``eigh``) only for the fits where it is not.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import jax.scipy.linalg as jsl
+import numpy as np
+from jax import lax
+from jaxtyping import Array, Float
+
+from ._compress import CompressedProblem
+from ._result import CONVERGED, FAILED, MAX_STEPS
+
+# optimistix.ClassicalTrustRegion's defaults (Gould et al.), used by LevenbergMarquardt
+HIGH_CUTOFF, LOW_CUTOFF, HIGH_CONSTANT, LOW_CONSTANT = 0.99, 0.01, 3.5, 0.25
+#: covariance_batch uses the Cholesky inverse when tr(F)·‖F⁻¹‖_F (≥ the condition number)
+#: is below this; pinv_psd drops eigenvalues below 1e-12 × the largest, so up to 1e10 the
+#: two are the same matrix (100× margin for rounding)
+COND_CHOLESKY_MAX = 1e10
+
+
+@functools.cache
+def entry_jacobian_selection(n: int) -> np.ndarray:
+    """``S`` ``(t·t, t)``, 0/1/2: ``D[t_, α] = Σ_m S[t_·t + α, m] θ_k[m]`` is the Jacobian of the
+    lower-triangle entries ``(L Lᵀ)[i, j]`` (``t_ = (i, j)``) w.r.t. the factor entries
+    ``L[a, c]`` (``α = (a, c)``), both in ``numpy.tril_indices`` order (``t = n(n+1)/2``).
+
+    ``∂(L Lᵀ)[i, j]/∂L[a, c] = δ_ai L[j, c] + δ_aj L[i, c]`` (zero above the diagonal of L).
+    """
+    rows, cols = np.tril_indices(n)
+    T = len(rows)
+    idx = -np.ones((n, n), dtype=int)
+    idx[rows, cols] = np.arange(T)
+    S = np.zeros((T, T, T))
+    for t, (i, j) in enumerate(zip(rows, cols, strict=True)):
+        for al, (a, c) in enumerate(zip(rows, cols, strict=True)):
+            if a == i and c <= j:
+                S[t, al, idx[j, c]] += 1.0
+            if a == j and c <= i:
+                S[t, al, idx[i, c]] += 1.0
+    return S.reshape(T * T, T)
+
+
+def gram(work: CompressedProblem) -> Float[Array, "t 6 6"]:
+    """``G_t = R_tᵀ R_t`` of every element (constant during a fit)."""
+    return jnp.einsum("trk,trl->tkl", work.R, work.R)
+
+
+def derivatives(work: CompressedProblem, G, theta: Float[Array, " p"]):
+    """``(r, J, Jᵀr, JᵀJ)`` of the compressed residual at ``theta``.
+
+    ``r`` ``(m,)`` is ``work(theta)`` (last entry ``√c₀``, whose row of ``J`` is zero),
+    ``J`` ``(m − 1, p)`` the Jacobian of the other rows, ``JᵀJ`` ``(p, p)`` from ``G``.
+    """
+    n = work.n
+    T = n * (n + 1) // 2
+    S = jnp.asarray(entry_jacobian_selection(n), dtype=theta.dtype)
+    D = (theta.reshape(6, T) @ S.T).reshape(6, T, T)  # D[k, t, α]
+    r = work(theta)
+    J = (work.R[:, :, :, None] * jnp.transpose(D, (1, 0, 2))[:, None]).reshape(6 * T, 6 * T)
+    g = J.T @ r[:-1]
+    # F[(k, α), (l, β)] = Σ_t D[k, t, α] G[t, k, l] D[l, t, β]: batched over l
+    W = jnp.einsum("kta,tkl->lkat", D, G).reshape(6, 6 * T, T)
+    F = jnp.matmul(W, D)  # (l, (k, α), β)
+    F = jnp.transpose(F.reshape(6, 6 * T, T), (1, 0, 2)).reshape(6 * T, 6 * T)
+    return r, J, g, F
+
+
+def _cauchy(rtol, atol, y, y_diff, f, f_diff):
+    """optimistix.cauchy_termination with its max norm."""
+    y_scale = atol + rtol * jnp.abs(y)
+    f_scale = atol + rtol * jnp.abs(f)
+    y_conv = jnp.max(jnp.abs(y_diff) / y_scale) < 1
+    f_conv = jnp.max(jnp.abs(f_diff) / f_scale) < 1
+    return y_conv & f_conv
+
+
+def damped_solve(F, g, step_size):
+    """optimistix ``damped_newton_step`` with ``lx.Normal(lx.Cholesky())``: solve
+    ``(JᵀJ + λI) x = Jᵀr``, ``λ = 1/step_size`` (the largest float when ``step_size ≤ eps``)."""
+    eps = jnp.finfo(step_size.dtype).eps
+    pred = step_size > eps
+    safe = jnp.where(pred, step_size, 1.0)
+    lam = jnp.where(pred, 1.0 / safe, jnp.finfo(step_size.dtype).max)
+    root = jnp.sqrt(lam)
+    A = F + (root * root) * jnp.eye(F.shape[-1], dtype=F.dtype)
+    factor, _ = jsl.cho_factor(A)
+    return jsl.cho_solve((factor, False), g)
+
+
+def lm_compressed(
+    work: CompressedProblem,
+    theta0: Float[Array, " p"],
+    rtol,
+    atol,
+    max_steps,
+    ftol,
+    patience,
+) -> tuple[Array, Array, Array]:
+    """One Levenberg–Marquardt fit of ``work`` from ``theta0``: ``(theta, n_steps, code)``.
+
+    The same iterates as ``iterate(optx.LevenbergMarquardt(rtol, atol,
+    linear_solver=lx.Normal(lx.Cholesky())), ...)`` with the stagnation rule (``ftol`` over
+    ``patience`` steps) — see the module docstring. Vmappable: ``jax.vmap`` turns the loop
+    into one batched loop that runs until every fit has stopped (a stopped fit is frozen).
+    """
+    G = gram(work)
+    p = theta0.shape[-1]
+    dt = theta0.dtype
+    m = work.y.size + 1
+    zero_r = jnp.zeros((m,), dt)
+    zero_J = jnp.zeros((m - 1, p), dt)
+    c0 = work.cost(theta0)
+    carry0 = dict(
+        y=theta0, y_eval=theta0, k=jnp.array(0), step=jnp.array(1.0, dt), first=jnp.array(True),
+        r=zero_r, J=zero_J, g=jnp.zeros((p,), dt), F=jnp.zeros((p, p), dt),
+        term=jnp.array(False), nonfinite=jnp.array(False), ref=c0, since=jnp.array(0),
+        stalled=jnp.array(False), y_best=theta0, c_best=c0,
+    )  # fmt: skip
+
+    def cond(c):
+        return (~c["term"]) & (~c["stalled"]) & (~c["nonfinite"]) & (c["k"] < max_steps)
+
+    def body(c):
+        r_e, J_e, g_e, F_e = derivatives(work, G, c["y_eval"])
+        # ClassicalTrustRegion.step, with the last accepted point's residual and Jacobian
+        y_diff = c["y_eval"] - c["y"]
+        Jd = jnp.concatenate([c["J"] @ y_diff, jnp.zeros((1,), dt)])
+        rtr = jnp.sum(c["r"] ** 2)
+        pred_red = 0.5 * (jnp.sum((Jd + c["r"]) ** 2) - rtr)
+        f_min_diff = 0.5 * jnp.sum(r_e**2) - 0.5 * rtr
+        accept = f_min_diff <= LOW_CUTOFF * pred_red
+        good = (f_min_diff < HIGH_CUTOFF * pred_red) & (pred_red < 0) & ~c["first"]
+        accept = accept | c["first"]
+        mul = jnp.where(good, HIGH_CONSTANT, 1.0)
+        mul = jnp.where(accept, mul, LOW_CONSTANT)
+        step = mul * c["step"]
+        # AbstractGaussNewton.step: accepted / rejected branches, then the damped descent
+        term = accept & _cauchy(rtol, atol, c["y_eval"], y_diff, r_e, r_e - c["r"])
+        sel = lambda a, b: jnp.where(accept, a, b)  # noqa: E731
+        y = sel(c["y_eval"], c["y"])
+        r, J, g, F = sel(r_e, c["r"]), sel(J_e, c["J"]), sel(g_e, c["g"]), sel(F_e, c["F"])
+        y_eval = y - damped_solve(F, g, step)
+        # iterate's finite check and stagnation rule on the accepted point's cost
+        nonfinite = ~jnp.all(jnp.isfinite(y))
+        cst = 0.5 * jnp.sum(r**2)
+        improved = cst < c["ref"] * (1.0 - ftol)
+        ref = jnp.where(improved, cst, jnp.minimum(c["ref"], cst))
+        since = jnp.where(improved, 0, c["since"] + 1)
+        better = jnp.isfinite(cst) & (cst < c["c_best"])
+        return dict(
+            y=y, y_eval=y_eval, k=c["k"] + 1, step=step, first=jnp.array(False), r=r, J=J, g=g,
+            F=F, term=term, nonfinite=nonfinite, ref=ref, since=since,
+            stalled=since >= patience, y_best=jnp.where(better, y, c["y_best"]),
+            c_best=jnp.where(better, cst, c["c_best"]),
+        )  # fmt: skip
+
+    c = lax.while_loop(cond, body, carry0)
+    y, term, stalled, y_best, c_best = c["y"], c["term"], c["stalled"], c["y_best"], c["c_best"]
+    successful = ~c["nonfinite"]
+    c_last = work.cost(y)
+    diverged = ~(c_last <= c_best * (1.0 + 10.0 * ftol) + 1e-300)
+    ok = (term | stalled) & successful & ~(stalled & ~term & diverged)
+    y = jnp.where(stalled & diverged, y_best, y)
+    maxed = successful & ~ok & ~(stalled & ~term & diverged)
+    code = jnp.where(ok, CONVERGED, jnp.where(maxed, MAX_STEPS, FAILED))
+    return y, c["k"], code
+
+
+def information(work: CompressedProblem, theta: Float[Array, " p"]):
+    """``(JᵀJ, cost)`` of the compressed residual at ``theta`` (one fit)."""
+    r, _, _, F = derivatives(work, gram(work), theta)
+    return F, 0.5 * jnp.sum(r**2)
+
+
+def covariance_batch(F: Float[Array, "B p p"]) -> Float[Array, "B p p"]:
+    """``pinv_psd`` of a batch of information matrices, by Cholesky where it is the inverse.
+
+    A fit whose ``tr(F)·‖F⁻¹‖_F`` (an upper bound of its condition number) is below
+    :data:`COND_CHOLESKY_MAX` has no eigenvalue ``pinv_psd`` would drop: its ``F⁻¹`` comes from
+    the Cholesky factor. Only when some fit fails that test (a fitted matrix on the PSD
+    boundary makes ``F`` singular) is ``pinv_psd`` (``eigh``) run, for the batch.
+    """
+    from ._nls import pinv_psd
+
+    p = F.shape[-1]
+    Fs = 0.5 * (F + jnp.swapaxes(F, -1, -2))
+    eye = jnp.eye(p, dtype=F.dtype)
+
+    def chol_inv(A):
+        factor, _ = jsl.cho_factor(A)
+        inv = jsl.cho_solve((factor, False), eye)
+        return 0.5 * (inv + inv.T)
+
+    inv = jax.vmap(chol_inv)(Fs)
+    bound = jnp.trace(Fs, axis1=-2, axis2=-1) * jnp.sqrt(jnp.sum(inv**2, axis=(-2, -1)))
+    good = (
+        jnp.isfinite(bound)
+        & (bound < COND_CHOLESKY_MAX)
+        & jnp.all(jnp.isfinite(inv), axis=(-2, -1))
+    )
+    return lax.cond(
+        jnp.all(good),
+        lambda: inv,
+        lambda: jnp.where(good[:, None, None], inv, jax.vmap(pinv_psd)(Fs)),
+    )
