@@ -75,24 +75,40 @@ def gram(work: CompressedProblem) -> Float[Array, "t 6 6"]:
     return jnp.einsum("trk,trl->tkl", work.R, work.R)
 
 
-def derivatives(work: CompressedProblem, G, theta: Float[Array, " p"]):
-    """``(r, J, Jᵀr, JᵀJ)`` of the compressed residual at ``theta``.
+def entry_jacobian(theta: Float[Array, " p"], n: int) -> Float[Array, "6 t t"]:
+    """``D[k, t, α] = ∂(L_k L_kᵀ)[t]/∂θ_k[α]`` (lower triangular in ``(t, α)``)."""
+    T = n * (n + 1) // 2
+    S = jnp.asarray(entry_jacobian_selection(n), dtype=theta.dtype)
+    return (theta.reshape(6, T) @ S.T).reshape(6, T, T)
 
-    ``r`` ``(m,)`` is ``work(theta)`` (last entry ``√c₀``, whose row of ``J`` is zero),
-    ``J`` ``(m − 1, p)`` the Jacobian of the other rows, ``JᵀJ`` ``(p, p)`` from ``G``.
+
+def derivatives(work: CompressedProblem, G, theta: Float[Array, " p"]):
+    """``(r, D, Jᵀr, JᵀJ)`` of the compressed residual at ``theta``.
+
+    ``r`` ``(m,)`` is ``work(theta)`` (last entry ``√c₀``, whose row of ``J`` is zero); the
+    Jacobian ``J[(t, r), (k, α)] = R_t[r, k] D[k, t, α]`` is never formed: ``Jᵀr`` and
+    ``JᵀJ`` (``(p, p)``, from ``G``) come from ``D`` (:func:`jvp` gives ``J δ``).
     """
     n = work.n
     T = n * (n + 1) // 2
-    S = jnp.asarray(entry_jacobian_selection(n), dtype=theta.dtype)
-    D = (theta.reshape(6, T) @ S.T).reshape(6, T, T)  # D[k, t, α]
+    D = entry_jacobian(theta, n)
     r = work(theta)
-    J = (work.R[:, :, :, None] * jnp.transpose(D, (1, 0, 2))[:, None]).reshape(6 * T, 6 * T)
-    g = J.T @ r[:-1]
+    u = jnp.einsum("trk,tr->kt", work.R, r[:-1].reshape(T, 6))  # R_tᵀ r_t
+    g = jnp.einsum("kta,kt->ka", D, u).reshape(6 * T)
     # F[(k, α), (l, β)] = Σ_t D[k, t, α] G[t, k, l] D[l, t, β]: batched over l
     W = jnp.einsum("kta,tkl->lkat", D, G).reshape(6, 6 * T, T)
     F = jnp.matmul(W, D)  # (l, (k, α), β)
     F = jnp.transpose(F.reshape(6, 6 * T, T), (1, 0, 2)).reshape(6 * T, 6 * T)
-    return r, J, g, F
+    return r, D, g, F
+
+
+def jvp(work: CompressedProblem, D, delta: Float[Array, " p"]) -> Float[Array, " m"]:
+    """``J δ`` (``(m,)``, last entry 0) of the compressed residual, ``D`` from
+    :func:`derivatives` at the linearization point."""
+    T = D.shape[-1]
+    da = jnp.einsum("kta,ka->tk", D, delta.reshape(6, T))  # change of the six entries
+    Jd = jnp.einsum("trk,tk->tr", work.R, da).reshape(6 * T)
+    return jnp.concatenate([Jd, jnp.zeros((1,), delta.dtype)])
 
 
 def _cauchy(rtol, atol, y, y_diff, f, f_diff):
@@ -137,12 +153,12 @@ def lm_compressed(
     p = theta0.shape[-1]
     dt = theta0.dtype
     m = work.y.size + 1
+    T = work.y.shape[0]
     zero_r = jnp.zeros((m,), dt)
-    zero_J = jnp.zeros((m - 1, p), dt)
     c0 = work.cost(theta0)
     carry0 = dict(
         y=theta0, y_eval=theta0, k=jnp.array(0), step=jnp.array(1.0, dt), first=jnp.array(True),
-        r=zero_r, J=zero_J, g=jnp.zeros((p,), dt), F=jnp.zeros((p, p), dt),
+        r=zero_r, D=jnp.zeros((6, T, T), dt), g=jnp.zeros((p,), dt), F=jnp.zeros((p, p), dt),
         term=jnp.array(False), nonfinite=jnp.array(False), ref=c0, since=jnp.array(0),
         stalled=jnp.array(False), y_best=theta0, c_best=c0,
     )  # fmt: skip
@@ -151,10 +167,10 @@ def lm_compressed(
         return (~c["term"]) & (~c["stalled"]) & (~c["nonfinite"]) & (c["k"] < max_steps)
 
     def body(c):
-        r_e, J_e, g_e, F_e = derivatives(work, G, c["y_eval"])
+        r_e, D_e, g_e, F_e = derivatives(work, G, c["y_eval"])
         # ClassicalTrustRegion.step, with the last accepted point's residual and Jacobian
         y_diff = c["y_eval"] - c["y"]
-        Jd = jnp.concatenate([c["J"] @ y_diff, jnp.zeros((1,), dt)])
+        Jd = jvp(work, c["D"], y_diff)
         rtr = jnp.sum(c["r"] ** 2)
         pred_red = 0.5 * (jnp.sum((Jd + c["r"]) ** 2) - rtr)
         f_min_diff = 0.5 * jnp.sum(r_e**2) - 0.5 * rtr
@@ -168,7 +184,7 @@ def lm_compressed(
         term = accept & _cauchy(rtol, atol, c["y_eval"], y_diff, r_e, r_e - c["r"])
         sel = lambda a, b: jnp.where(accept, a, b)  # noqa: E731
         y = sel(c["y_eval"], c["y"])
-        r, J, g, F = sel(r_e, c["r"]), sel(J_e, c["J"]), sel(g_e, c["g"]), sel(F_e, c["F"])
+        r, D, g, F = sel(r_e, c["r"]), sel(D_e, c["D"]), sel(g_e, c["g"]), sel(F_e, c["F"])
         y_eval = y - damped_solve(F, g, step)
         # iterate's finite check and stagnation rule on the accepted point's cost
         nonfinite = ~jnp.all(jnp.isfinite(y))
@@ -178,7 +194,7 @@ def lm_compressed(
         since = jnp.where(improved, 0, c["since"] + 1)
         better = jnp.isfinite(cst) & (cst < c["c_best"])
         return dict(
-            y=y, y_eval=y_eval, k=c["k"] + 1, step=step, first=jnp.array(False), r=r, J=J, g=g,
+            y=y, y_eval=y_eval, k=c["k"] + 1, step=step, first=jnp.array(False), r=r, D=D, g=g,
             F=F, term=term, nonfinite=nonfinite, ref=ref, since=since,
             stalled=since >= patience, y_best=jnp.where(better, y, c["y_best"]),
             c_best=jnp.where(better, cst, c["c_best"]),
@@ -202,34 +218,61 @@ def information(work: CompressedProblem, theta: Float[Array, " p"]):
     return F, 0.5 * jnp.sum(r**2)
 
 
-def covariance_batch(F: Float[Array, "B p p"]) -> Float[Array, "B p p"]:
-    """``pinv_psd`` of a batch of information matrices, by Cholesky where it is the inverse.
+def tril_inverse(A: Float[Array, "... k k"]) -> Float[Array, "... k k"]:
+    """Inverse of lower-triangular matrices by forward substitution, in plain XLA ops (one
+    ``fori_loop`` over rows, vectorized over the leading axes). Non-finite where singular."""
+    k = A.shape[-1]
+    eye = jnp.eye(k, dtype=A.dtype)
 
-    A fit whose ``tr(F)·‖F⁻¹‖_F`` (an upper bound of its condition number) is below
-    :data:`COND_CHOLESKY_MAX` has no eigenvalue ``pinv_psd`` would drop: its ``F⁻¹`` comes from
-    the Cholesky factor. Only when some fit fails that test (a fitted matrix on the PSD
-    boundary makes ``F`` singular) is ``pinv_psd`` (``eigh``) run, for the batch.
+    def row(i, X):
+        a = lax.dynamic_index_in_dim(A, i, axis=-2, keepdims=False)  # (..., k)
+        e = lax.dynamic_index_in_dim(eye, i, axis=0, keepdims=False)
+        d = lax.dynamic_index_in_dim(a, i, axis=-1, keepdims=False)
+        new = (e - jnp.einsum("...c,...cj->...j", a, X)) / d[..., None]
+        return lax.dynamic_update_index_in_dim(X, new, i, axis=-2)
+
+    return lax.fori_loop(0, k, row, jnp.zeros_like(A))
+
+
+def inverse_information(work: CompressedProblem, theta: Float[Array, " p"]):
+    """``(JᵀJ)⁻¹`` from the structure, without factorizing the ``p × p`` matrix.
+
+    ``JᵀJ = Dᵀ H D`` with ``D = blockdiag_k(D_k)`` and ``H = blockdiag_t(G_t)``. Each ``D_k``
+    (``∂ tril(L Lᵀ)/∂ tril(L)``) is lower triangular in ``tril_indices`` order, with diagonal
+    ``L[j, j]`` (``2 L[i, i]`` on the diagonal entries), so ``(JᵀJ)⁻¹ = D⁻¹ H⁻¹ D⁻ᵀ``:
+    ``[(k, α), (l, β)] = Σ_t D_k⁻¹[α, t]·G_t⁻¹[k, l]·D_l⁻¹[β, t]`` with ``G_t⁻¹ = R_t⁻¹R_t⁻ᵀ``.
+    Non-finite or huge where ``L`` has a zero diagonal (a matrix on the PSD boundary) or the
+    data cannot identify an element (``R_t`` singular).
+    """
+    T = work.y.shape[0]
+    D = entry_jacobian(theta, work.n)  # D[k, t, α], lower triangular
+    Dinv = tril_inverse(D)  # Dinv[k, α, t]
+    Xt = tril_inverse(jnp.swapaxes(work.R, -1, -2))  # (R_tᵀ)⁻¹
+    Ginv = jnp.einsum("trk,trl->tkl", Xt, Xt)  # R⁻¹R⁻ᵀ
+    W = jnp.einsum("kat,tkl->lkat", Dinv, Ginv).reshape(6, 6 * T, T)
+    out = jnp.matmul(W, jnp.swapaxes(Dinv, -1, -2))  # (l, (k, α), β)
+    return jnp.transpose(out.reshape(6, 6 * T, T), (1, 0, 2)).reshape(6 * T, 6 * T)
+
+
+def covariance_batch(work: CompressedProblem, theta: Float[Array, "B p"]):
+    """``(pinv_psd(JᵀJ), cost)`` of a batch of fits (``work`` and ``theta`` batched).
+
+    A fit whose ``tr(F)·‖F⁻¹‖_F`` (an upper bound of the condition number of ``F = JᵀJ``) is
+    below :data:`COND_CHOLESKY_MAX` has no eigenvalue ``pinv_psd`` would drop: its ``F⁻¹`` is
+    :func:`inverse_information`. Only when some fit fails that test (a fitted matrix on the
+    PSD boundary makes ``F`` singular) is ``pinv_psd`` (``eigh``) run, for the batch.
     """
     from ._nls import pinv_psd
 
-    p = F.shape[-1]
-    Fs = 0.5 * (F + jnp.swapaxes(F, -1, -2))
-    eye = jnp.eye(p, dtype=F.dtype)
-
-    def chol_inv(A):
-        factor, _ = jsl.cho_factor(A)
-        inv = jsl.cho_solve((factor, False), eye)
-        return 0.5 * (inv + inv.T)
-
-    inv = jax.vmap(chol_inv)(Fs)
-    bound = jnp.trace(Fs, axis1=-2, axis2=-1) * jnp.sqrt(jnp.sum(inv**2, axis=(-2, -1)))
-    good = (
-        jnp.isfinite(bound)
-        & (bound < COND_CHOLESKY_MAX)
-        & jnp.all(jnp.isfinite(inv), axis=(-2, -1))
-    )
-    return lax.cond(
+    F, cost = jax.vmap(information)(work, theta)
+    inv = jax.vmap(inverse_information)(work, theta)
+    inv = 0.5 * (inv + jnp.swapaxes(inv, -1, -2))
+    bound = jnp.trace(F, axis1=-2, axis2=-1) * jnp.sqrt(jnp.sum(inv**2, axis=(-2, -1)))
+    good = jnp.isfinite(bound) & (bound < COND_CHOLESKY_MAX)
+    good = good & jnp.all(jnp.isfinite(inv), axis=(-2, -1))
+    inv = lax.cond(
         jnp.all(good),
         lambda: inv,
-        lambda: jnp.where(good[:, None, None], inv, jax.vmap(pinv_psd)(Fs)),
+        lambda: jnp.where(good[:, None, None], inv, jax.vmap(pinv_psd)(F)),
     )
+    return inv, cost
