@@ -82,24 +82,35 @@ def entry_jacobian(theta: Float[Array, " p"], n: int) -> Float[Array, "6 t t"]:
     return (theta.reshape(6, T) @ S.T).reshape(6, T, T)
 
 
+def normal_matrix(D, G) -> Float[Array, "p p"]:
+    """``JᵀJ`` (``(p, p)``) from ``D`` (:func:`entry_jacobian`) and ``G`` (:func:`gram`):
+    ``[(k, α), (l, β)] = Σ_t D[k, t, α] G[t, k, l] D[l, t, β]``, six batched matmuls."""
+    T = D.shape[-1]
+    W = jnp.einsum("kta,tkl->lkat", D, G).reshape(6, 6 * T, T)
+    F = jnp.matmul(W, D)  # (l, (k, α), β)
+    return jnp.transpose(F.reshape(6, 6 * T, T), (1, 0, 2)).reshape(6 * T, 6 * T)
+
+
 def derivatives(work: CompressedProblem, G, theta: Float[Array, " p"]):
     """``(r, D, Jᵀr, JᵀJ)`` of the compressed residual at ``theta``.
 
     ``r`` ``(m,)`` is ``work(theta)`` (last entry ``√c₀``, whose row of ``J`` is zero); the
     Jacobian ``J[(t, r), (k, α)] = R_t[r, k] D[k, t, α]`` is never formed: ``Jᵀr`` and
-    ``JᵀJ`` (``(p, p)``, from ``G``) come from ``D`` (:func:`jvp` gives ``J δ``).
+    ``JᵀJ`` (``(p, p)``, :func:`normal_matrix`) come from ``D`` (:func:`jvp` gives ``J δ``).
     """
+    r, D, g = residual_gradient(work, theta)
+    return r, D, g, normal_matrix(D, G)
+
+
+def residual_gradient(work: CompressedProblem, theta: Float[Array, " p"]):
+    """``(r, D, Jᵀr)``: :func:`derivatives` without ``JᵀJ``."""
     n = work.n
     T = n * (n + 1) // 2
     D = entry_jacobian(theta, n)
     r = work(theta)
     u = jnp.einsum("trk,tr->kt", work.R, r[:-1].reshape(T, 6))  # R_tᵀ r_t
     g = jnp.einsum("kta,kt->ka", D, u).reshape(6 * T)
-    # F[(k, α), (l, β)] = Σ_t D[k, t, α] G[t, k, l] D[l, t, β]: batched over l
-    W = jnp.einsum("kta,tkl->lkat", D, G).reshape(6, 6 * T, T)
-    F = jnp.matmul(W, D)  # (l, (k, α), β)
-    F = jnp.transpose(F.reshape(6, 6 * T, T), (1, 0, 2)).reshape(6 * T, 6 * T)
-    return r, D, g, F
+    return r, D, g
 
 
 def jvp(work: CompressedProblem, D, delta: Float[Array, " p"]) -> Float[Array, " m"]:
@@ -158,7 +169,7 @@ def lm_compressed(
     c0 = work.cost(theta0)
     carry0 = dict(
         y=theta0, y_eval=theta0, k=jnp.array(0), step=jnp.array(1.0, dt), first=jnp.array(True),
-        r=zero_r, D=jnp.zeros((6, T, T), dt), g=jnp.zeros((p,), dt), F=jnp.zeros((p, p), dt),
+        r=zero_r, D=jnp.zeros((6, T, T), dt), g=jnp.zeros((p,), dt),
         term=jnp.array(False), nonfinite=jnp.array(False), ref=c0, since=jnp.array(0),
         stalled=jnp.array(False), y_best=theta0, c_best=c0,
     )  # fmt: skip
@@ -167,7 +178,7 @@ def lm_compressed(
         return (~c["term"]) & (~c["stalled"]) & (~c["nonfinite"]) & (c["k"] < max_steps)
 
     def body(c):
-        r_e, D_e, g_e, F_e = derivatives(work, G, c["y_eval"])
+        r_e, D_e, g_e = residual_gradient(work, c["y_eval"])
         # ClassicalTrustRegion.step, with the last accepted point's residual and Jacobian
         y_diff = c["y_eval"] - c["y"]
         Jd = jvp(work, c["D"], y_diff)
@@ -184,8 +195,9 @@ def lm_compressed(
         term = accept & _cauchy(rtol, atol, c["y_eval"], y_diff, r_e, r_e - c["r"])
         sel = lambda a, b: jnp.where(accept, a, b)  # noqa: E731
         y = sel(c["y_eval"], c["y"])
-        r, D, g, F = sel(r_e, c["r"]), sel(D_e, c["D"]), sel(g_e, c["g"]), sel(F_e, c["F"])
-        y_eval = y - damped_solve(F, g, step)
+        r, D, g = sel(r_e, c["r"]), sel(D_e, c["D"]), sel(g_e, c["g"])
+        # JᵀJ of the accepted point, formed from its D (carrying D, not the p × p matrix)
+        y_eval = y - damped_solve(normal_matrix(D, G), g, step)
         # iterate's finite check and stagnation rule on the accepted point's cost
         nonfinite = ~jnp.all(jnp.isfinite(y))
         cst = 0.5 * jnp.sum(r**2)
@@ -195,7 +207,7 @@ def lm_compressed(
         better = jnp.isfinite(cst) & (cst < c["c_best"])
         return dict(
             y=y, y_eval=y_eval, k=c["k"] + 1, step=step, first=jnp.array(False), r=r, D=D, g=g,
-            F=F, term=term, nonfinite=nonfinite, ref=ref, since=since,
+            term=term, nonfinite=nonfinite, ref=ref, since=since,
             stalled=since >= patience, y_best=jnp.where(better, y, c["y_best"]),
             c_best=jnp.where(better, cst, c["c_best"]),
         )  # fmt: skip
