@@ -13,6 +13,7 @@ from hapid.fit._lm_batch import (
     derivatives,
     entry_jacobian,
     gram,
+    information_trace,
     inverse_information,
     jvp,
     tril_inverse,
@@ -120,6 +121,7 @@ def test_structured_derivatives_equal_autodiff_and_numpy():
             D=entry_jacobian(theta, n), Dj=jax.jacfwd(lambda t: lower_entries(t, n))(theta),
             r=r, r0=work(theta), g=g, F=F, J=jax.jacfwd(work)(theta), Jd=jvp(work, D, delta),
             inv=inverse_information(work, theta), Ainv=tril_inverse(A), pinv=pinv_psd(F),
+            tr=information_trace(work, theta)[0],
         )  # fmt: skip
 
     out = {k: np.asarray(v) for k, v in everything(work, theta, delta, A).items()}
@@ -130,6 +132,7 @@ def test_structured_derivatives_equal_autodiff_and_numpy():
     np.testing.assert_allclose(out["g"], J.T @ r, atol=1e-11 * np.abs(J.T @ r).max())
     JtJ = J.T @ J
     np.testing.assert_allclose(out["F"], JtJ, atol=1e-12 * np.abs(JtJ).max())
+    np.testing.assert_allclose(out["tr"], np.trace(JtJ), rtol=1e-12)
     np.testing.assert_allclose(out["Jd"], J @ np.asarray(delta), atol=1e-11)
     ref = np.linalg.inv(JtJ)
     tol = 1e-14 * np.linalg.cond(JtJ) * np.abs(ref).max()  # both sides to ~cond·eps

@@ -230,6 +230,14 @@ def information(work: CompressedProblem, theta: Float[Array, " p"]):
     return F, 0.5 * jnp.sum(r**2)
 
 
+def information_trace(work: CompressedProblem, theta: Float[Array, " p"]):
+    """``(tr(JᵀJ), cost)`` without forming ``JᵀJ``: ``Σ_t Σ_k G_t[k, k]·‖D[k, t, :]‖²``."""
+    D = entry_jacobian(theta, work.n)
+    G = gram(work)
+    tr = jnp.sum(jnp.diagonal(G, axis1=-2, axis2=-1).T * jnp.sum(D**2, axis=-1))
+    return tr, 0.5 * jnp.sum(work(theta) ** 2)
+
+
 def tril_inverse(A: Float[Array, "... k k"]) -> Float[Array, "... k k"]:
     """Inverse of lower-triangular matrices by forward substitution, in plain XLA ops (one
     ``fori_loop`` over rows, vectorized over the leading axes). Non-finite where singular."""
@@ -276,15 +284,15 @@ def covariance_batch(work: CompressedProblem, theta: Float[Array, "B p"]):
     """
     from ._nls import pinv_psd
 
-    F, cost = jax.vmap(information)(work, theta)
+    tr, cost = jax.vmap(information_trace)(work, theta)
     inv = jax.vmap(inverse_information)(work, theta)
     inv = 0.5 * (inv + jnp.swapaxes(inv, -1, -2))
-    bound = jnp.trace(F, axis1=-2, axis2=-1) * jnp.sqrt(jnp.sum(inv**2, axis=(-2, -1)))
+    bound = tr * jnp.sqrt(jnp.sum(inv**2, axis=(-2, -1)))
     good = jnp.isfinite(bound) & (bound < COND_CHOLESKY_MAX)
     good = good & jnp.all(jnp.isfinite(inv), axis=(-2, -1))
-    inv = lax.cond(
-        jnp.all(good),
-        lambda: inv,
-        lambda: jnp.where(good[:, None, None], inv, jax.vmap(pinv_psd)(F)),
-    )
-    return inv, cost
+
+    def fallback():
+        F, _ = jax.vmap(information)(work, theta)
+        return jnp.where(good[:, None, None], inv, jax.vmap(pinv_psd)(F))
+
+    return lax.cond(jnp.all(good), lambda: inv, fallback), cost
