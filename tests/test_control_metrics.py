@@ -167,9 +167,7 @@ def test_nyquist_family_verdicts_equal_the_reference():
             assert bool(q.stable) == bool(ref.stable[i]) == (Z[i] == 0)
             assert int(q.n_closed_loop_rhp) == int(ref.n_closed_loop_rhp[i])
             ql = loop_metrics(Pj[i], Gj[i], W[i], p_ol=pol[i], spec=lap)
-            # NOT the 1e-9 goal: one loop's refined PM differs by 7.5e-7° (1.7e-8 relative)
-            # between the kernels (Illinois on Newton-followed loci, not fully converged there)
-            _assert_same(q.summary(), ql.summary(), f"loop {n_loops}", rtol_margin=1e-6)
+            _assert_same(q.summary(), ql.summary(), f"loop {n_loops}")
             n_loops += 1
     assert n_loops >= 25
 
