@@ -41,10 +41,13 @@ plants (unstable: ``−inf``); :meth:`RobustReport.rows` keeps the signed values
 Compute path. ``backend="metrics"`` (the default): every plant is analysed by
 :func:`hapid.control.loop_metrics`'s program (XLA small-matrix kernels for det/inverse/σ̄ and
 the eigenvalues of the loci, no LAPACK inside; exact values only where the cheap bounds do
-not decide; refined crossings), once per plant (``vectorize=False``, the default: measured
-faster on the 2-core machine than ``vmap`` over large chunks, whose working set leaves the
-cache) or ``vmap``-ed over chunks of ``chunk`` plants (the last chunk padded, ``p_ol`` an
-array: one compile). Same verdicts as the reference on 1000 cu5 posterior draws
+not decide; refined crossings), once per plant (``vectorize=False``, the default: the plain
+jitted program, no ``vmap``) or ``vmap``-ed over chunks of ``chunk`` plants (the last chunk
+padded, ``p_ol`` an array: one compile). Measured on the 2-core machine, the per-plant
+program is the faster: under ``vmap`` the batch axis sits in front of the kernels'
+entry-major ``(n, n, N)`` layout and the grid kernels cost 2–3× more per plant (det/inverse
+7.3 vs 2.6 ms per plant at 8 plants × 1000 frequencies), which outweighs sharing the
+sequential refinement steps. Same verdicts as the reference on 1000 cu5 posterior draws
 (benchmarks/bench_fast.py, tests/test_control_metrics.py). ``backend="reference"``:
 :func:`hapid.control.analyze_loop` (the LAPACK reference, grid values) once per plant.
 """
