@@ -239,9 +239,9 @@ def robust_row(sec: Section, nls, S: int):
             + f"\n\nbest fast path: {best_name}; verdicts identical to the reference: {same}/{S}; "
             f"max |GM(refined) − GM(grid)| over stable draws with finite GM in both: {dgm:.3g} dB "
             "(the refined crossing against the grid reading; where they differ by more than a grid "
-            "step's interpolation error, the grid's pairing swapped two small loci near the origin "
-            "and its linear interpolation 'crossed' the negative real axis — benchmarks/README.md, "
-            "'Loop analysis and robust check')")  # fmt: skip
+            "step's interpolation error, on the draw examined the grid's pairing swapped two small loci "
+            "near the origin and its linear interpolation 'crossed' the negative real axis — "
+            "benchmarks/README.md, 'Loop analysis and robust check')")  # fmt: skip
     per_1000 = dt / S * 1000
     sec.rows["robust_1000_s"] = per_1000
     t_ref_1000 = runs["reference (analyze_loop per draw)"][1] / S * 1000
