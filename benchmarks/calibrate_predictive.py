@@ -117,10 +117,14 @@ def calibrate(name: str, kinds=("white", "gp"), method="laplace", draws=400, see
     rows = []
     for kind in kinds:
         fixed = boundary_fixed(nls) if nls.boundary else None
+        base, _, mode = kind.partition("@")  # e.g. "gp_corr@map": gp_hyper mode after "@"
+        opts = {"warp": False} if base == "gp_logf" else {}
+        if mode:
+            opts["gp_hyper"] = mode
         t0 = time.perf_counter()
         post = make_log_posterior(
-            frf, nls.scale, f_max_hz=40.0, model_error="gp" if kind == "gp_logf" else kind,
-            reference=nls, fixed=fixed, **({"warp": False} if kind == "gp_logf" else {}),
+            frf, nls.scale, f_max_hz=40.0, model_error="gp" if base == "gp_logf" else base,
+            reference=nls, fixed=fixed, **opts,
         )  # fmt: skip
         t_build = time.perf_counter() - t0
         ms = _eval_ms(post, initial_point(post, nls))
