@@ -136,6 +136,9 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
       ``K_{*x} C⁻¹ (r − ỹ)``, Matheron's rule). Far from the fit band it reverts to the prior
       (amplitude ``τ a(ω)``, :func:`~hapid.uncertainty._likelihood.gp_amplitudes`, with the
       slope factor ``(ω/ω_ref)^β`` held at its band-edge value beyond the fit band).
+    - ``"gp_corr"`` samples: the same exact conditional for the correlated model (shared
+      latent function of ``e_H`` and ``e_M``, complex ρ, asinh knee coordinate:
+      :func:`hapid.uncertainty._likelihood.gp_corr_blocks`), in complex circular form.
     - ``"white"`` samples: independent circular errors of variance ``τ² a(ω)²`` at each new
       frequency (``a`` log-log interpolated from the fit band): the white model has no
       correlation to condition on.
