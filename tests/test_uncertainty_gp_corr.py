@@ -191,3 +191,29 @@ def test_gp_corr_predictive_conditional_mean_and_file_round_trip(case, tmp_path)
         sd = np.std(eH[:, i, j]) / np.sqrt(eH.shape[0])
         assert abs(np.mean(eH[:, i, j]) - mean) < 4 * sd * np.sqrt(2) + 1e-9 * abs(mean), (
             i, j, np.mean(eH[:, i, j]), mean, sd)  # fmt: skip
+
+
+@pytest.mark.slow  # marginal mode search + Laplace + emcee to 50 τ + predictive draws: ~1–2 min
+def test_gp_corr_predictive_calibrated_on_second_order_truth(case):
+    """Strictly second-order truth (the model class is right): the gp_corr posterior's 90 %
+    predictive band of P covers the truth at held-out frequencies (Laplace and emcee), and
+    emcee reaches 50 τ on the quadratic-form likelihood."""
+    import warnings
+
+    from hapid.uncertainty import ShortChainWarning, band_calibration, sample_posterior
+
+    truth, frf, nls = case
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp_corr", reference=nls)
+    assert post.n_tau == 0 and post.hyper_fixed.shape == (10,)  # marginal mode, held fixed
+    om = 2 * np.pi * np.geomspace(1.2, 38.0, 40)
+    om = om[np.min(np.abs(om[:, None] / (2 * np.pi) - FREQ_HZ[None]), axis=1) > 0.3]
+    P_true = np.asarray(truth.P(1j * om))
+    ps = posterior_laplace_samples(post, 300, nls, key=1)
+    c = band_calibration(predictive_plants(ps, om, max_samples=300)["P"], P_true)
+    assert c["coverage"] >= 0.85 and c["rel_error_median"] < 0.01, c
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ShortChainWarning)
+        pe = sample_posterior(post, nls, seed=2)
+    assert pe.diagnostics["converged_50tau"] and pe.error_kind == "gp_corr"
+    c = band_calibration(predictive_plants(pe, om, max_samples=300)["P"], P_true)
+    assert c["coverage"] >= 0.85, c
