@@ -2,7 +2,9 @@
 
 For each device: simulate the paper's multisine experiments (periodic steady state, default
 protocol), estimate the FRF, fit the NLS model (relative weights, ≤ 40 Hz), build the
-posterior with the white and the GP model error, draw the predictive plant on a dense grid
+posterior with each model error (white; gp: independent GPs of the Z_H and Z_M misfits;
+gp_corr: correlated through a shared latent GP, asinh knee coordinate, marginal
+hyperparameters — docs/conventions.md "Posterior"), draw the predictive plant on a dense grid
 of 1–40 Hz *excluding* the experiment frequencies (held out: ≥ 5 % away from any of them)
 and compare with the device's true sampled response there
 (:func:`hapid.uncertainty.band_calibration`: coverage of the 90 % credible ball around the
@@ -25,7 +27,7 @@ if it were exactly calibrated; a Gaussian gives 1.13–2.44 depending on its sha
 is one log-posterior evaluation of 200 walkers (jitted, vmapped).
 
 Run:  PYTHONPATH=. python benchmarks/calibrate_predictive.py [--method laplace|emcee]
-      [--draws 400] [--devices cu5,tripod3_d2,second_order]
+      [--draws 400] [--devices cu5,tripod3_d2,second_order] [--kinds white,gp,gp_corr]
 Prints a markdown table.
 """
 
@@ -99,7 +101,7 @@ def _eval_ms(post, x0, walkers=200, reps=20):
     return (time.perf_counter() - t0) / reps * 1e3
 
 
-def calibrate(name: str, kinds=("white", "gp"), method="laplace", draws=400, seed=0):
+def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", draws=400, seed=0):
     dev = device(name)
     noise = 5e-3 if not isinstance(dev, SecondOrderDevice) else 2e-2
     pattern = "hadamard" if dev.n < 3 else "paper"  # the paper's pattern is singular for n = 2
@@ -117,10 +119,14 @@ def calibrate(name: str, kinds=("white", "gp"), method="laplace", draws=400, see
     rows = []
     for kind in kinds:
         fixed = boundary_fixed(nls) if nls.boundary else None
+        base, _, mode = kind.partition("@")  # e.g. "gp_corr@map": gp_hyper mode after "@"
+        opts = {"warp": False} if base == "gp_logf" else {}
+        if mode:
+            opts["gp_hyper"] = mode
         t0 = time.perf_counter()
         post = make_log_posterior(
-            frf, nls.scale, f_max_hz=40.0, model_error="gp" if kind == "gp_logf" else kind,
-            reference=nls, fixed=fixed, **({"warp": False} if kind == "gp_logf" else {}),
+            frf, nls.scale, f_max_hz=40.0, model_error="gp" if base == "gp_logf" else base,
+            reference=nls, fixed=fixed, **opts,
         )  # fmt: skip
         t_build = time.perf_counter() - t0
         ms = _eval_ms(post, initial_point(post, nls))
@@ -150,8 +156,9 @@ def main(argv=None):
     ap.add_argument("--method", choices=["laplace", "emcee"], default="laplace")
     ap.add_argument("--draws", type=int, default=400)
     ap.add_argument("--devices", default="cu5,tripod3_d2,second_order")
-    ap.add_argument("--kinds", default="white,gp",
-                    help="model errors to compare: white, gp, gp_logf (gp with κ ≡ 0)")  # fmt: skip
+    ap.add_argument("--kinds", default="white,gp,gp_corr",
+                    help="model errors to compare: white, gp, gp_corr, gp_logf (gp with κ ≡ 0); "
+                         "kind@mode sets gp_hyper (e.g. gp@marginal, gp_corr@map)")  # fmt: skip
     a = ap.parse_args(argv)
     print(f"posterior: {a.method}; 90 % predictive band; held-out frequencies in 1–40 Hz\n")
     print("| device | model error | quantity | coverage | width / error | calibrated | "

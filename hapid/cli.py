@@ -377,7 +377,7 @@ def cmd_posterior(a):
                               n_steps=a.steps, seed=a.seed, backend_path=a.hdf5,
                               fit_options={"f_max_hz": a.f_max_hz},
                               posterior_options={"model_error": a.model_error}
-                              | ({"gp_hyper": a.gp_hyper} if a.model_error == "gp" else {}),
+                              | ({"gp_hyper": a.gp_hyper} if a.gp_hyper and a.model_error in ("gp", "gp_corr") else {}),
                               sampler_options={"moves": a.moves} | ({"n_walkers": a.walkers} if a.walkers else {}),
                               fix_boundary=not a.free_boundary)  # fmt: skip
     print(ps.summary())
@@ -478,12 +478,14 @@ def _register_stages(sub):
     po.add_argument("--steps", type=int, help="emcee steps (default: run to 50 τ)")
     po.add_argument("--samples", type=int, default=4000, help="Laplace draws")
     po.add_argument("--f-max-hz", type=float, default=40.0)
-    po.add_argument("--model-error", choices=["white", "gp", "none"], default="white",
+    po.add_argument("--model-error", choices=["white", "gp", "gp_corr", "none"], default="white",
                     help="model-error term: white (independent per frequency, default), gp (smooth "
-                         "random function of log-frequency, marginalized), none")  # fmt: skip
-    po.add_argument("--gp-hyper", choices=["map", "sample"], default="map",
-                    help="gp hyperparameters: map (default; held at their posterior mode, fast) or "
-                         "sample (sampled with M, B, K; ~100× slower per step)")  # fmt: skip
+                         "random function of log-frequency, marginalized), gp_corr (gp with "
+                         "correlated hand/mechanism errors, docs/posterior.md), none")  # fmt: skip
+    po.add_argument("--gp-hyper", choices=["map", "marginal", "sample"], default=None,
+                    help="gp hyperparameters: map (held at the joint posterior mode; gp default), "
+                         "marginal (mode of their marginal, M, B, K integrated out; gp_corr default) "
+                         "or sample (sampled with M, B, K; ~100× slower per step)")  # fmt: skip
     po.add_argument("--seed", type=int, default=0)
     po.add_argument("--hdf5", help="emcee HDF5 backend file")
     po.set_defaults(func=cmd_posterior)

@@ -38,6 +38,8 @@ from .. import _config  # noqa: F401  (float64)
 MAX_UNROLLED_N = 12
 MAX_EIG_N = 6  # unrolled QR compiles in ~25 s at n = 6, minutes at n = 8
 _JACOBI_SWEEPS = {2: 3, 3: 5, 4: 6, 5: 6, 6: 7}
+_ULP = float(np.finfo(np.float64).eps)
+_SAFMIN = float(np.finfo(np.float64).tiny)
 
 
 def to_entries(A):
@@ -155,8 +157,7 @@ def _jacobi_rotate(h, p, q):
 def hermitian_eigvals(H, sweeps: int | None = None, unroll: bool = False):
     """Eigenvalues ``(n, ...)`` (unsorted, real) of Hermitian ``H (n, n, ...)`` by cyclic
     Jacobi (``sweeps`` default by ``n``; quadratic convergence, rounding-level results).
-    ``unroll``: every rotation inlined (static indices; for small batches, where the
-    per-step cost of a loop dominates)."""
+    ``unroll``: every sweep inlined too (else one ``fori_loop`` step per sweep)."""
     n = H.shape[0]
     if sweeps is None:
         sweeps = _JACOBI_SWEEPS.get(n, 8)
@@ -166,9 +167,15 @@ def hermitian_eigvals(H, sweeps: int | None = None, unroll: bool = False):
             for p, q in pairs:
                 H = _jacobi_rotate(H, int(p), int(q))
     elif len(pairs):
-        P, Q = jnp.asarray(pairs[:, 0]), jnp.asarray(pairs[:, 1])
-        m = len(pairs)
-        H = jax.lax.fori_loop(0, sweeps * m, lambda i, h: _jacobi_rotate(h, P[i % m], Q[i % m]), H)
+        # one loop step per sweep, its rotations inlined (static indices): ``sweeps``
+        # sequential steps instead of ``sweeps·n(n−1)/2`` (each step a fused elementwise body)
+
+        def sweep(_, h):
+            for p, q in pairs:
+                h = _jacobi_rotate(h, int(p), int(q))
+            return h
+
+        H = jax.lax.fori_loop(0, sweeps, sweep, H)
     return jnp.real(jnp.stack([H[i, i] for i in range(n)]))
 
 
@@ -185,17 +192,24 @@ def sigma_max(A, sweeps: int | None = None, unroll: bool = False):
 
 def eig_newton(A, z0, iters: int = 6):
     """The eigenvalue of ``A (n, n, ...)`` nearest the guess ``z0 (...)`` (Newton on
-    ``det(A − zI)``; quadratic for a simple eigenvalue once close)."""
+    ``det(A − zI)``; quadratic for a simple eigenvalue once close). Stops when every step is
+    at rounding level (``|Δz| ≤ 4ε·max(|z|, ‖A‖_F·ε)``), at most ``iters`` steps."""
     n = A.shape[0]
     eye = jnp.eye(n, dtype=A.dtype).reshape((n, n) + (1,) * (A.ndim - 2))
+    floor = 4.0 * _ULP * _ULP * jnp.sqrt(fro2(A))
 
-    def body(_, z):
+    def body(c):
+        it, z, _ = c
         _, Ai = det_inv(A - eye * z, unroll=True)
         tr = sum(Ai[i, i] for i in range(n))
         step = jnp.where(jnp.isfinite(tr) & (tr != 0), 1.0 / jnp.where(tr != 0, tr, 1.0), 0.0)
-        return z + step
+        small = jnp.abs(step) <= jnp.maximum(4.0 * _ULP * jnp.abs(z), floor)
+        return it + 1, z + step, jnp.all(small | ~jnp.isfinite(step))
 
-    return jax.lax.fori_loop(0, iters, body, z0)
+    def cond(c):
+        return (c[0] < iters) & ~c[2]
+
+    return jax.lax.while_loop(cond, body, (jnp.asarray(0), z0, jnp.asarray(False)))[1]
 
 
 # --------------------------------------------------------------------------------------
@@ -235,10 +249,6 @@ def hessenberg(A):
         for i in range(k + 2, n):
             H[i][k] = jnp.zeros_like(H[i][k])
     return H
-
-
-_ULP = float(np.finfo(np.float64).eps)
-_SAFMIN = float(np.finfo(np.float64).tiny)
 
 
 def _wilkinson(a, b, c, d):

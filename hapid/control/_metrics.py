@@ -54,6 +54,7 @@ from ._nyquist import (
 TWO_PI = 2.0 * np.pi
 ISO_THRESHOLD = 1.0 - 1.0 / np.sqrt(2.0)
 _ROOT_ITERS = 30
+_T_TOL = 1e-14  # Illinois: bracket width in t ∈ [0, 1] that counts as converged
 _GOLDEN_ITERS = 48
 _N_REFINE = 4
 
@@ -180,19 +181,33 @@ class LoopMetrics(eqx.Module):
 
 def _illinois(f, fa, fb, iters=_ROOT_ITERS):
     """Root of ``f(t)`` on ``t ∈ [0, 1]`` given ``fa = f(0)``, ``fb = f(1)`` of opposite
-    signs (vectorized over the candidates). Returns ``(t, aux)`` of the last evaluation at
-    the bracket end that kept the sign of ``fb`` (Illinois false position)."""
+    signs (vectorized over the candidates), by Illinois false position. Returns the evaluated
+    point of smallest ``|f|`` (the bracket ends included): false position converges from one
+    side, so the bracket's midpoint can stay far from the root while one end sits on it.
+    Runs until every candidate has converged (``f = 0`` hit or the bracket below
+    ``_T_TOL``; a candidate without a sign change counts as converged), at most ``iters``
+    steps."""
     ta = jnp.zeros_like(fa)
     tb = jnp.ones_like(fb)
+    a_best = jnp.abs(fa) <= jnp.abs(fb)
+    best_t = jnp.where(a_best, ta, tb)
+    best_f = jnp.where(a_best, jnp.abs(fa), jnp.abs(fb))
 
-    def body(_, c):
-        ta, tb, fa, fb, side = c
+    def done_of(ta, tb, fa, fb, best_f):
+        bracket = ((fa >= 0) != (fb >= 0)) & jnp.isfinite(fa) & jnp.isfinite(fb)
+        return ~bracket | (best_f == 0) | (jnp.abs(tb - ta) <= _T_TOL)
+
+    def body(c):
+        it, ta, tb, fa, fb, side, best_t, best_f = c
         den = fb - fa
         t = jnp.where(
             den != 0, (ta * fb - tb * fa) / jnp.where(den != 0, den, 1.0), 0.5 * (ta + tb)
         )
         t = jnp.clip(t, jnp.minimum(ta, tb), jnp.maximum(ta, tb))
         ft = f(t)
+        better = jnp.abs(ft) < best_f
+        best_t = jnp.where(better, t, best_t)
+        best_f = jnp.where(better, jnp.abs(ft), best_f)
         same_a = (ft >= 0) == (fa >= 0)
         # Illinois: halve the stale end's value when the same end is kept twice
         fa_new = jnp.where(same_a, ft, jnp.where(side == -1, 0.5 * fa, fa))
@@ -200,11 +215,15 @@ def _illinois(f, fa, fb, iters=_ROOT_ITERS):
         ta_new = jnp.where(same_a, t, ta)
         tb_new = jnp.where(same_a, tb, t)
         side = jnp.where(same_a, 1, -1).astype(jnp.int32)
-        return ta_new, tb_new, fa_new, fb_new, side
+        return it + 1, ta_new, tb_new, fa_new, fb_new, side, best_t, best_f
+
+    def cond(c):
+        it, ta, tb, fa, fb, _, _, best_f = c
+        return (it < iters) & ~jnp.all(done_of(ta, tb, fa, fb, best_f))
 
     side = jnp.zeros(fa.shape, dtype=jnp.int32)
-    ta, tb, fa, fb, _ = jax.lax.fori_loop(0, iters, body, (ta, tb, fa, fb, side))
-    return 0.5 * (ta + tb)
+    init = (jnp.asarray(0), ta, tb, fa, fb, side, best_t, best_f)
+    return jax.lax.while_loop(cond, body, init)[6]
 
 
 def _lagrange_weights(x, nodes):

@@ -45,7 +45,7 @@ def posterior_from_files(
     popts = {"f_max_hz": fit_options["f_max_hz"]} | dict(posterior_options or {})
     if fix_boundary and nls.boundary and "fixed" not in popts:
         popts["fixed"] = boundary_fixed(nls)
-    if popts.get("model_error") == "gp":
+    if popts.get("model_error") in ("gp", "gp_corr"):
         popts.setdefault("reference", nls)
     post = make_log_posterior(frf, nls.scale, **popts)
     if method == "laplace":

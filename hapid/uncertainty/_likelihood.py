@@ -92,7 +92,11 @@ WARP_NAMES = ("kappa_H", "kappa_M")
 DEFAULT_BETA_SD = 1.0  # prior sd of the amplitude slopes β (per e-fold of frequency)
 DEFAULT_KAPPA_SD = 1.0  # prior sd of the frequency warps κ (mean 0: log-frequency)
 N_GP_HYPER = 8
-MODEL_ERRORS = ("none", "white", "gp")
+RHO_NAMES = ("rho_re", "rho_im")  # gp_corr: unconstrained coordinates z of ρ = tanh|z| z/|z|
+DEFAULT_RHO_SD = 1.0  # prior sd of each of the two ρ coordinates (mean 0: independent)
+N_GP_CORR_HYPER = N_GP_HYPER + 2
+MODEL_ERRORS = ("none", "white", "gp", "gp_corr")
+GP_KINDS = ("gp", "gp_corr")
 DEFAULT_LOG_ELL_MEAN = float(np.log(0.5))  # length scale in natural-log frequency units
 DEFAULT_LOG_ELL_SD = 1.0
 GP_NUGGET = 1e-8  # relative nugget on the GP kernel diagonal (conditioning only)
@@ -204,9 +208,11 @@ def error_kind(model_error) -> str:
 
 def hyper_names(model_error) -> list[str]:
     """Names of the model-error coordinates after θ: none, ``log_tau_H, log_tau_M`` (white)
-    or those plus ``log_ell_H, log_ell_M, beta_H, beta_M, kappa_H, kappa_M`` (gp)."""
+    or those plus ``log_ell_H, log_ell_M, beta_H, beta_M, kappa_H, kappa_M`` (gp), plus
+    ``rho_re, rho_im`` (gp_corr)."""
     kind = error_kind(model_error)
-    gp = list(ELL_NAMES) + list(SLOPE_NAMES) + list(WARP_NAMES) if kind == "gp" else []
+    gp = list(ELL_NAMES) + list(SLOPE_NAMES) + list(WARP_NAMES) if kind in GP_KINDS else []
+    gp += list(RHO_NAMES) if kind == "gp_corr" else []
     return [] if kind == "none" else list(TAU_NAMES) + gp
 
 
@@ -225,13 +231,25 @@ def matern52(x: Float[Array, " N"], y: Float[Array, " M"], ell) -> Float[Array, 
     return (1.0 + r + r**2 / 3.0) * jnp.exp(-r)
 
 
+def matern72(x: Float[Array, " N"], y: Float[Array, " M"], ell) -> Float[Array, "N M"]:
+    """Matérn-7/2 correlation ``(1 + √7 r/ℓ + 14r²/5ℓ² + 7√7 r³/15ℓ³) e^{−√7 r/ℓ}``."""
+    r = jnp.abs(x[:, None] - y[None, :]) * (np.sqrt(7.0) / ell)
+    return (1.0 + r + 0.4 * r**2 + r**3 / 15.0) * jnp.exp(-r)
+
+
 def squared_exponential(x: Float[Array, " N"], y: Float[Array, " M"], ell) -> Float[Array, "N M"]:
     """Squared-exponential correlation ``exp(−(x − y)²/2ℓ²)``."""
     return jnp.exp(-0.5 * ((x[:, None] - y[None, :]) / ell) ** 2)
 
 
-KERNELS = {"se": squared_exponential, "matern52": matern52}
+KERNELS = {"se": squared_exponential, "matern52": matern52, "matern72": matern72}
 GP_KERNEL = "matern52"
+# gp_corr's kernel and frequency coordinate (GP_CORR_WARP) were chosen on cu5 and tripod3_d2
+# (benchmarks/calibrate_predictive.py, Laplace, marginal hyperparameters; P coverage / width ratio):
+# Matérn-5/2 + asinh knee 1.00 / 2.48 and 1.00 / 2.33; Matérn-7/2 + asinh 0.92 / 1.65 and
+# 0.79 / 1.93; Matérn-7/2 + Box–Cox 0.89 / 2.43 and 0.85 / 3.11; Matérn-5/2 + Box–Cox 0.99 / 2.80
+# and 0.92 / 3.94. hexapod6_d2 and second_order were checks only.
+GP_CORR_KERNEL = "matern52"
 
 
 def kernel(x, y, ell):
@@ -290,6 +308,97 @@ def gp_covariance(logw, a_H, a_M, var_H, var_T, noise_corr, hyper):
     z = jnp.zeros_like(off)
     offb = jnp.concatenate([jnp.concatenate([z, off], 2), jnp.concatenate([off, z], 2)], 1)
     return base[None] + jax.vmap(jnp.diag)(diag) + offb
+
+
+GP_CORR_WARP = "asinh"
+
+
+def corr_warp(u, c):
+    """gp_corr's frequency coordinate: ``asinh(ω/ω_c)`` with ``u = log(ω/ω_ref)`` and
+    ``c = log(ω_c/ω_ref)`` (the κ slot of the hyperparameters): linear in frequency below the
+    knee ω_c (an analytic error function is a power series in ω there) and log-frequency above
+    it. :data:`GP_CORR_WARP` ``"boxcox"`` uses :func:`warp` instead."""
+    if GP_CORR_WARP == "boxcox":
+        return warp(u, c)
+    return jnp.arcsinh(jnp.exp(u - c))
+
+
+def hm_correlation(hyper):
+    """The complex H–M correlation ``ρ = tanh(|z|) z/|z|`` (``|ρ| < 1``) of gp_corr
+    hyperparameters (``z = hyper[8] + i hyper[9]``); 0 for fewer than 10 numbers."""
+    if hyper.shape[-1] < N_GP_CORR_HYPER:
+        return jnp.zeros((), dtype=jnp.complex128)
+    zr, zi = hyper[N_GP_HYPER], hyper[N_GP_HYPER + 1]
+    r2 = zr**2 + zi**2
+    r = jnp.sqrt(jnp.where(r2 > 0, r2, 1.0))
+    f = jnp.where(r2 > 1e-12, jnp.tanh(r) / r, 1.0 - r2 / 3.0)  # tanh(r)/r → 1 − r²/3
+    return f * (zr + 1j * zi)
+
+
+def gp_corr_blocks(u, b_H, b_M, hyper):
+    """Complex model-error covariances of gp_corr on log-frequencies ``u (N,)`` with
+    amplitudes ``b_H, b_M (N,)`` (slopes already applied): ``(K_HH, K_HM, K_MM)``, each
+    ``(N, N)``, ``K_XY = E[e_X e_Yᴴ]`` of one element's complex errors.
+
+    Shared latent (a linear model of coregionalization): ``e_H = τ_H b_H f₁``, ``e_M =
+    τ_M b_M (ρ f₁ + √(1 − |ρ|²) f₂)`` with ``f₁, f₂`` independent circular complex GPs of unit
+    variance and correlations ``k(w_H; ℓ_H)``, ``k(w_M; ℓ_M)`` (:func:`warp` of ``u`` by
+    κ_H, κ_M; ``k`` the Matérn-5/2 of :data:`GP_CORR_KERNEL`; ``w`` = :func:`corr_warp`, the
+    κ slots holding ``log(ω_c/ω_ref)`` of the knee frequency). So ``K_HH = τ_H² b_H b_Hᵀ ⊙ k₁``, ``K_HM = ρ̄ τ_H τ_M b_H b_Mᵀ ⊙ k₁``,
+    ``K_MM = τ_M² b_M b_Mᵀ ⊙ (|ρ|² k₁ + (1 − |ρ|²) k₂)``; ``ρ = 0`` is the independent gp."""
+    tau, ell, _, kappa = split_hyper(hyper)
+    rho = hm_correlation(hyper)
+    kern = KERNELS[GP_CORR_KERNEL]
+    w1, w2 = corr_warp(u, kappa[0]), corr_warp(u, kappa[1])
+    k1 = kern(w1, w1, ell[0])
+    k2 = kern(w2, w2, ell[1])
+    r2 = jnp.abs(rho) ** 2
+    KHH = tau[0] ** 2 * jnp.outer(b_H, b_H) * k1
+    KHM = jnp.conj(rho) * tau[0] * tau[1] * jnp.outer(b_H, b_M) * k1
+    KMM = tau[1] ** 2 * jnp.outer(b_M, b_M) * (r2 * k1 + (1.0 - r2) * k2)
+    return KHH, KHM, KMM
+
+
+def gp_corr_covariance(logw, a_H, a_M, var_H, var_T, noise_corr, hyper):
+    """Hermitian covariance ``E[r rᴴ]`` of the complex residual ``r = [r_H; r_T]`` (``2N``)
+    per element under the gp_corr model error: ``(E, 2N, 2N)`` complex.
+
+    Same amplitudes ``b_X = τ_X (ω/ω_ref)^β_X a_X(ω)`` as :func:`gp_covariance` and the H–M
+    cross-covariance of :func:`gp_corr_blocks`; ``e_T = e_H + e_M``:
+    ``[[K_HH + D_H, K_HH + K_HM + D_HT], [·ᴴ, K_HH + K_HM + K_HMᴴ + K_MM + D_T]]`` with the
+    measurement variances ``D`` (the FRF's ``std²``, correlation ``noise_corr``). With
+    ``ρ = 0`` its real part is twice the per-re/im covariance of :func:`gp_covariance`."""
+    _, _, beta, _ = split_hyper(hyper)
+    b_H = a_H * jnp.exp(beta[0] * logw)
+    b_M = a_M * jnp.exp(beta[1] * logw)
+    KHH, KHM, KMM = gp_corr_blocks(logw, b_H, b_M, hyper)
+    N = logw.shape[0]
+    n2 = var_H.shape[-1] * var_H.shape[-2]
+    dH = jnp.moveaxis(var_H.reshape(N, n2), 0, 1)  # (E, N) complex variances std²
+    dT = jnp.moveaxis(var_T.reshape(N, n2), 0, 1)
+    dHT = noise_corr * jnp.sqrt(dH * dT)
+    nug = GP_NUGGET * (jnp.diag(KHH).real + jnp.diag(KMM).real) + _JITTER * (b_H + b_M) ** 2
+    top = jnp.concatenate([KHH, KHH + KHM], axis=1)
+    bot = jnp.concatenate([KHH + KHM.conj().T, KHH + KHM + KHM.conj().T + KMM], axis=1)
+    base = jnp.concatenate([top, bot], axis=0)
+    diag = jnp.concatenate([dH + nug, dT + nug], axis=1)  # (E, 2N)
+    off = jax.vmap(jnp.diag)(dHT)  # (E, N, N)
+    z = jnp.zeros_like(off)
+    offb = jnp.concatenate([jnp.concatenate([z, off], 2), jnp.concatenate([off, z], 2)], 1)
+    return base[None] + jax.vmap(jnp.diag)(diag) + offb
+
+
+def gp_complex_log_likelihood(rH, rT, C):
+    """Sum over elements of the circular complex Gaussian ``log CN([r_H; r_T]; 0, C_e) =
+    −log det(π C_e) − rᴴ C_e⁻¹ r``; residuals ``(N, n, n)`` complex, ``C`` from
+    :func:`gp_corr_covariance`."""
+    N = rH.shape[0]
+    flat = lambda r: jnp.moveaxis(r.reshape(N, -1), 0, 1)  # noqa: E731  (E, N)
+    Y = jnp.concatenate([flat(rH), flat(rT)], 1)[..., None]  # (E, 2N, 1)
+    L = jnp.linalg.cholesky(C)
+    W = jax.scipy.linalg.solve_triangular(L, Y, lower=True)
+    logdet = 2.0 * jnp.sum(jnp.log(jnp.real(jnp.diagonal(L, axis1=-2, axis2=-1))))
+    return -jnp.sum(jnp.abs(W) ** 2) - logdet - 2 * N * np.log(np.pi) * C.shape[0]
 
 
 def gp_log_likelihood(rH_re, rH_im, rT_re, rT_im, C):
@@ -358,10 +467,10 @@ class LogPosterior(eqx.Module):
     @property
     def n_tau(self) -> int:
         """Sampled model-error coordinates after θ: 0 (none, or gp with fixed
-        hyperparameters), 2 (white: log τ), 8 (gp: log τ, log ℓ, β, κ)."""
+        hyperparameters), 2 (white: log τ), 8 (gp: log τ, log ℓ, β, κ), 10 (gp_corr: and ρ)."""
         if not self.model_error or self.hyper_fixed is not None:
             return 0
-        return {"none": 0, "white": 2, "gp": N_GP_HYPER}[self.kind]
+        return {"none": 0, "white": 2, "gp": N_GP_HYPER, "gp_corr": N_GP_CORR_HYPER}[self.kind]
 
     @property
     def n_free(self) -> int:
@@ -470,9 +579,13 @@ class LogPosterior(eqx.Module):
         imH = w * mats[1] - jnp.imag(self.Z_H)
         reT = reH + mats[5] - w2 * mats[3] + jnp.real(self.Z_H) - jnp.real(self.Z_T)
         imT = imH + w * mats[4] + jnp.imag(self.Z_H) - jnp.imag(self.Z_T)
-        if self.kind == "gp" and self.model_error:
+        if self.kind in GP_KINDS and self.model_error:
             if not self.warp and hyper.shape[-1] >= N_GP_HYPER:
                 hyper = jnp.asarray(hyper).at[6:8].set(0.0)  # κ ≡ 0: log-frequency
+            if self.kind == "gp_corr":
+                C = gp_corr_covariance(jnp.log(w[:, 0, 0]), self.a_H, self.a_M, self.var_H,
+                                       self.var_T, self.noise_corr, hyper)  # fmt: skip
+                return gp_complex_log_likelihood(reH + 1j * imH, reT + 1j * imT, C)
             C = gp_covariance(jnp.log(w[:, 0, 0]), self.a_H, self.a_M, self.var_H, self.var_T,
                               self.noise_corr, hyper)  # fmt: skip
             return gp_log_likelihood(reH, imH, reT, imT, C)
@@ -491,12 +604,15 @@ class LogPosterior(eqx.Module):
         if self.n_tau > 0:
             z = (x[p : p + 2] - self.log_tau_mean) / self.log_tau_sd
             lp = lp - 0.5 * jnp.sum(z**2) - 2 * np.log(self.log_tau_sd * np.sqrt(2 * np.pi))
-        if self.n_tau == N_GP_HYPER:
+        if self.n_tau >= N_GP_HYPER:
             z = (x[p + 2 : p + 4] - self.log_ell_mean) / self.log_ell_sd
             lp = lp - 0.5 * jnp.sum(z**2) - 2 * np.log(self.log_ell_sd * np.sqrt(2 * np.pi))
             for lo, sd in ((4, DEFAULT_BETA_SD), (6, DEFAULT_KAPPA_SD)):
                 z = x[p + lo : p + lo + 2] / sd
                 lp = lp - 0.5 * jnp.sum(z**2) - 2 * np.log(sd * np.sqrt(2 * np.pi))
+        if self.n_tau == N_GP_CORR_HYPER:
+            z = x[p + N_GP_HYPER : p + N_GP_CORR_HYPER] / DEFAULT_RHO_SD
+            lp = lp - 0.5 * jnp.sum(z**2) - 2 * np.log(DEFAULT_RHO_SD * np.sqrt(2 * np.pi))
         if self.parameterization == "matrix" and self.psd_constraint:
             mats = self.model_matrices(self.full_theta(x))[np.asarray(self._sampled_blocks())]
             lp = jnp.where(_positive_definite(mats), lp, -jnp.inf)
@@ -518,7 +634,9 @@ class LogPosterior(eqx.Module):
         """Prior means of the model-error coordinates ``(n_tau,)``."""
         if self.n_tau == 0:
             return np.zeros(0)
-        extra = [self.log_ell_mean] * 2 + [0.0] * 4 if self.n_tau == N_GP_HYPER else []
+        extra = (
+            [self.log_ell_mean] * 2 + [0.0] * (self.n_tau - 4) if self.n_tau >= N_GP_HYPER else []
+        )
         return np.array([self.log_tau_mean] * 2 + extra)
 
     def predictive_data(self) -> dict:
@@ -547,7 +665,7 @@ class LogPosterior(eqx.Module):
         if self.hyper_fixed is not None:  # fixed gp hyperparameters: carried by every draw
             h = np.asarray(self.hyper_fixed)
             tau = np.broadcast_to(h, xs.shape[:-1] + h.shape).copy()
-        if self.kind == "gp" and not self.warp and tau.shape[-1] >= N_GP_HYPER:
+        if self.kind in GP_KINDS and not self.warp and tau.shape[-1] >= N_GP_HYPER:
             tau = np.array(tau)
             tau[..., 6:8] = 0.0  # κ ≡ 0 (its coordinates only carry the prior)
         if self.parameterization == "matrix":
@@ -611,7 +729,7 @@ def make_log_posterior(
     reference=None,
     log_ell_mean: float = DEFAULT_LOG_ELL_MEAN,
     log_ell_sd: float = DEFAULT_LOG_ELL_SD,
-    gp_hyper="map",
+    gp_hyper=None,
     warp: bool = True,
 ) -> LogPosterior:
     """Build the :class:`LogPosterior` of ``frf`` (module docstring for the model).
@@ -624,20 +742,30 @@ def make_log_posterior(
       ``log τ_H, log τ_M``, independent per frequency; ``"gp"``: the model error of each
       element is a smooth random function of log-frequency (a Matérn-5/2 Gaussian process
       with amplitudes ``τ_H a_H(ω), τ_M a_M(ω)`` (data RMS element sizes) and learned length scales ``ℓ_H, ℓ_M``,
-      marginalized in closed form: :func:`gp_covariance`); ``"none"`` (or ``False``): pure
-      measurement noise — then the FRF's stds must be > 0 everywhere.
+      marginalized in closed form: :func:`gp_covariance`); ``"gp_corr"``: the same with the
+      hand and mechanism errors of each element *correlated* through a shared latent
+      function (complex correlation ρ, two more hyperparameters ``rho_re, rho_im``), in
+      the frequency coordinate ``asinh(ω/ω_c)`` (linear below a learned knee ω_c, log above;
+      the κ slots hold ``log(ω_c/ω_ref)``: :func:`corr_warp`, :func:`gp_corr_blocks`,
+      :func:`gp_corr_covariance`); ``"none"`` (or
+      ``False``): pure measurement noise — then the FRF's stds must be > 0 everywhere.
     - ``reference`` (gp only, required): an :class:`~hapid.fit.NLSResult` or its θ (Cholesky,
       ``scale`` units): the shape of the GP amplitude outside the fit band
       (:func:`gp_amplitudes`; inside it, the data's RMS element sizes as for ``"white"``).
     - ``log_ell_mean``, ``log_ell_sd``: prior of ``log ℓ`` (ℓ in natural-log frequency
       units; default median 0.5, i.e. a factor e^0.5 ≈ 1.65 in frequency, sd 1). The
       amplitude slopes have the prior ``β ~ N(0, 1)``.
-    - ``gp_hyper`` (gp only): ``"map"`` (default, empirical Bayes) — the six hyperparameters
-      are held at their posterior mode (joint with θ, from the NLS start: ``reference`` must
-      then be the NLSResult) and the log-likelihood becomes an exact quadratic form in the
-      matrix entries (:func:`fix_gp_hyper`; ~100× cheaper per evaluation, only θ sampled);
-      ``"sample"`` — the hyperparameters are sampled with θ (``d = p + 8``; each evaluation
-      factors ``n²`` covariances of ``2N × 2N``); or 8 numbers (or 6: κ = 0) — held at those values.
+    - ``gp_hyper`` (gp kinds only; None = ``"map"`` for gp, ``"marginal"`` for gp_corr):
+      ``"map"`` (empirical Bayes) — the hyperparameters are held at their posterior mode
+      (joint with θ, from the NLS start: ``reference`` must then be the NLSResult) and the
+      log-likelihood becomes an exact quadratic form in the matrix entries
+      (:func:`fix_gp_hyper`; ~100× cheaper per evaluation, only θ sampled); ``"marginal"`` —
+      held at the mode of their *marginal* posterior, the matrices integrated out in closed
+      form (:func:`marginal_hyper`; type-II maximum likelihood: the joint mode's θ absorbs
+      part of the misfit and under-covers), then the same quadratic form; ``"sample"`` — the
+      hyperparameters are sampled with θ (``d = p + 8`` or ``p + 10``; each evaluation
+      factors ``n²`` covariances of ``2N × 2N``); or the numbers (6: κ = 0, 8, or 10 for
+      gp_corr) — held at those values.
     - ``warp`` (gp only): learn the Box–Cox warps κ of log-frequency (:func:`warp`; default
       True); False: κ ≡ 0 (stationary in log-frequency). Held-out coverage of P
       (benchmarks/calibrate_predictive.py, Laplace): learned κ 0.89 / 0.90 / 1.00 on cu5 /
@@ -723,7 +851,7 @@ def make_log_posterior(
     Z_H, Z_T = band.Z_H / zr, band.Z_T / zr
     rms = lambda Z: jnp.linalg.norm(Z, axis=(-2, -1)) / n  # noqa: E731
     a_H, a_M, ref_theta = rms(Z_H), rms(Z_T - Z_H), None
-    if kind == "gp":
+    if kind in GP_KINDS:
         ref_theta = _reference_theta(reference, scale, n)
     post = LogPosterior(
         s=1j * band.omega / scale.omega_ref,
@@ -748,8 +876,14 @@ def make_log_posterior(
         log_ell_sd=float(log_ell_sd),
         warp=bool(warp),
     )
-    if kind != "gp" or (isinstance(gp_hyper, str) and gp_hyper == "sample"):
+    if gp_hyper is None:  # the defaults: joint mode for gp, marginal mode for gp_corr
+        gp_hyper = "marginal" if kind == "gp_corr" else "map"
+    if kind not in GP_KINDS or (isinstance(gp_hyper, str) and gp_hyper == "sample"):
         return post
+    if isinstance(gp_hyper, str) and gp_hyper == "marginal":
+        h0 = jnp.asarray(post.hyper_mean())
+        gp_hyper, _ = marginal_hyper(post, h0)
+        return fix_gp_hyper(post, gp_hyper)
     if isinstance(gp_hyper, str):
         if gp_hyper != "map":
             raise ValueError(f"gp_hyper must be one of {GP_HYPER_MODES} or 8 numbers, got "
@@ -826,7 +960,7 @@ def boundary_fixed(nls_result) -> dict:
     return {name: np.asarray(mats[name]) for name in nls_result.boundary}
 
 
-GP_HYPER_MODES = ("map", "sample")
+GP_HYPER_MODES = ("map", "marginal", "sample")
 
 
 def fix_gp_hyper(post: LogPosterior, hyper) -> LogPosterior:
@@ -840,13 +974,14 @@ def fix_gp_hyper(post: LogPosterior, hyper) -> LogPosterior:
     autodiff, ``−∇²ℓ = RᵀR``, one Newton refinement of ``μ``); each evaluation is then one
     ``q × q`` triangular matrix-vector product (q = 90 at n = 5) instead of ``n²`` Cholesky
     factorizations of ``2N × 2N``. Draws carry ``hyper`` in their model-error columns."""
-    if not (post.model_error and post.kind == "gp"):
+    if not (post.model_error and post.kind in GP_KINDS):
         raise ValueError("fix_gp_hyper: the posterior has no gp model error")
     h = jnp.asarray(hyper, dtype=jnp.float64)
-    if h.shape not in ((6,), (N_GP_HYPER,)) or not bool(jnp.all(jnp.isfinite(h))):
-        raise ValueError(f"fix_gp_hyper: hyper must be 6 or {N_GP_HYPER} finite numbers, got "
-                         f"shape {h.shape}")  # fmt: skip
-    h = jnp.concatenate([h, jnp.zeros(N_GP_HYPER - h.shape[0])])
+    full = N_GP_CORR_HYPER if post.kind == "gp_corr" else N_GP_HYPER
+    if h.shape not in ((6,), (N_GP_HYPER,), (full,)) or not bool(jnp.all(jnp.isfinite(h))):
+        raise ValueError(f"fix_gp_hyper: hyper must be 6, {N_GP_HYPER} or {full} finite "
+                         f"numbers, got shape {h.shape}")  # fmt: skip
+    h = jnp.concatenate([h, jnp.zeros(full - h.shape[0])])
     base = dataclasses.replace(post, hyper_fixed=h, quad_R=None, quad_mu=None, quad_ll0=None)
     R, mu, ll0 = _quadratic_form(base, h)
     if not (np.all(np.isfinite(np.asarray(R))) and np.isfinite(float(ll0))):
@@ -872,3 +1007,91 @@ def _quadratic_form(post: LogPosterior, h):
     mu = jax.scipy.linalg.cho_solve((Lc, True), jax.grad(ll)(v0))
     mu = mu + jax.scipy.linalg.cho_solve((Lc, True), jax.grad(ll)(mu))  # rounding
     return Lc.T, mu, ll(mu)
+
+
+def marginal_hyper(post: LogPosterior, h0, *, max_steps: int = 2000) -> tuple[np.ndarray, bool]:
+    """``(hyper, converged)``: the gp hyperparameters that maximize their *marginal*
+    posterior, the six matrices integrated out in closed form (type-II maximum likelihood
+    with the hyperparameters' prior; ``gp_hyper="marginal"`` of :func:`make_log_posterior`).
+
+    For fixed hyperparameters the residual ``r(v) = y₀ − J v`` is linear in the free matrix
+    entries ``v`` (matrix parameterization) and Gaussian, so with the prior
+    ``v ~ N(0, prior_scale² I)`` (the PSD restriction left out)
+
+        log p(data | h) = c − ‖z‖² + ½ bᵀ P⁻¹ b − ½ log det P − (q/2) log prior_scale²,
+
+    ``z = L⁻¹ y₀``, ``W = L⁻¹ J`` per element (``C = L Lᴴ``), ``b = 2 Re Σ Wᴴ z``,
+    ``P = 2 Re Σ Wᴴ W + I/prior_scale²``, ``c = −Σ log det(π C)``. Unlike the joint mode
+    (``gp_hyper="map"``), whose θ absorbs part of the misfit and whose model-error scales
+    come out small, this counts the ``q`` fitted degrees of freedom (as REML does).
+    BFGS (optimistix) from ``h0``."""
+    if post.parameterization != "matrix" or post.kind not in GP_KINDS or post.n_tau == 0:
+        raise ValueError("marginal_hyper: needs a gp posterior in the matrix parameterization "
+                         "with sampled hyperparameters")  # fmt: skip
+    h0 = jnp.asarray(h0, dtype=jnp.float64)
+    h, ok = _marginal_mode(post, h0, max_steps)
+    return np.asarray(h), bool(ok)
+
+
+def _residual_design(post: LogPosterior):
+    """``(y₀ (E, 2N), J (E, 2N, q))``: complex residuals ``[r_H; r_T]`` per element at free
+    matrix entries ``v = 0`` and ``−∂r/∂v`` (exact: the model is linear in ``v``)."""
+    N, n = post.Z_H.shape[0], post.n
+
+    def resid(v):
+        mats = post.model_matrices(post.full_theta(v))
+        w = jnp.imag(post.s)[:, None, None]
+        ZH = mats[2] - w**2 * mats[0] + 1j * w * mats[1]
+        ZT = ZH + mats[5] - w**2 * mats[3] + 1j * w * mats[4]
+        flat = lambda r: jnp.moveaxis(r.reshape(N, n * n), 0, 1)  # noqa: E731
+        return jnp.concatenate([flat(post.Z_H - ZH), flat(post.Z_T - ZT)], 1)
+
+    v0 = jnp.zeros(post.n_free)
+    J = -jax.jacfwd(lambda v: jnp.stack([jnp.real(resid(v)), jnp.imag(resid(v))]))(v0)
+    return resid(v0), J[0] + 1j * J[1]
+
+
+def log_marginal_likelihood(post: LogPosterior, h, y0=None, J=None):
+    """``log p(data | h)`` of :func:`marginal_hyper` (the matrices integrated out)."""
+    if y0 is None:
+        y0, J = _residual_design(post)
+    hf = jnp.concatenate([h, jnp.zeros(N_GP_CORR_HYPER - h.shape[0])])
+    if not post.warp:
+        hf = hf.at[6:8].set(0.0)
+    w = jnp.imag(post.s)
+    C = gp_corr_covariance(jnp.log(w), post.a_H, post.a_M, post.var_H, post.var_T,
+                           post.noise_corr, hf)  # fmt: skip
+    L = jnp.linalg.cholesky(C)
+    z = jax.scipy.linalg.solve_triangular(L, y0[..., None], lower=True)[..., 0]
+    W = jax.scipy.linalg.solve_triangular(L, J, lower=True)  # (E, 2N, q)
+    b = 2.0 * jnp.real(jnp.einsum("eiq,ei->q", jnp.conj(W), z))
+    q = J.shape[-1]
+    P = 2.0 * jnp.real(jnp.einsum("eiq,eir->qr", jnp.conj(W), W)) + jnp.eye(q) / post.prior_scale**2
+    Lp = jnp.linalg.cholesky(P)
+    u = jax.scipy.linalg.solve_triangular(Lp, b, lower=True)
+    logdetC = 2.0 * jnp.sum(jnp.log(jnp.real(jnp.diagonal(L, axis1=-2, axis2=-1))))
+    logdetP = 2.0 * jnp.sum(jnp.log(jnp.diagonal(Lp)))
+    c = -logdetC - C.shape[0] * C.shape[-1] * np.log(np.pi)
+    return (
+        c
+        - jnp.sum(jnp.abs(z) ** 2)
+        + 0.5 * jnp.sum(u**2)
+        - 0.5 * logdetP
+        - q * np.log(post.prior_scale)
+    )
+
+
+@eqx.filter_jit
+def _marginal_mode(post: LogPosterior, h0, max_steps):
+    import optimistix as optx
+
+    y0, J = _residual_design(post)
+    prior = post.unconstrained()
+    x_th = jnp.zeros(post.n_free)
+
+    def neg(h, _):
+        v = log_marginal_likelihood(post, h, y0, J) + prior.log_prior(jnp.concatenate([x_th, h]))
+        return -jnp.where(jnp.isfinite(v), v, -1e300)
+
+    sol = optx.minimise(neg, optx.BFGS(rtol=1e-9, atol=1e-9), h0, max_steps=max_steps, throw=False)
+    return sol.value, sol.result == optx.RESULTS.successful

@@ -136,6 +136,9 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
       ``K_{*x} C⁻¹ (r − ỹ)``, Matheron's rule). Far from the fit band it reverts to the prior
       (amplitude ``τ a(ω)``, :func:`~hapid.uncertainty._likelihood.gp_amplitudes`, with the
       slope factor ``(ω/ω_ref)^β`` held at its band-edge value beyond the fit band).
+    - ``"gp_corr"`` samples: the same exact conditional for the correlated model (shared
+      latent function of ``e_H`` and ``e_M``, complex ρ, asinh knee coordinate:
+      :func:`hapid.uncertainty._likelihood.gp_corr_blocks`), in complex circular form.
     - ``"white"`` samples: independent circular errors of variance ``τ² a(ω)²`` at each new
       frequency (``a`` log-log interpolated from the fit band): the white model has no
       correlation to condition on.
@@ -194,6 +197,12 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
 
         ZH = ZH + circ(tau[:, :1] * aH[None])
         ZM = ZM + circ(tau[:, 1:2] * aM[None])
+    elif kind == "gp_corr":
+        gH, gM = _gp_corr_errors(ps, idx, ms, omega, rng)
+        if error_band is not None:
+            w = _taper(omega, *error_band, taper_width)[None, :, None, None]
+            gH, gM = gH * w, gM * w
+        ZH, ZM = ZH + gH, ZM + gM
     elif kind == "gp":
         hyper = ps.samples[idx, ps.n_theta :]
         om_fit = np.asarray(data["omega"])
@@ -269,6 +278,86 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
         ZH, ZM = ZH + gH, ZM + gM
     ZT = ZH + ZM
     return {"omega": omega, "Z_H": ZH, "Z_T": ZT, "P": np.asarray(plant(ZH, ZT))}
+
+
+def _gp_corr_errors(ps: PosteriorSamples, idx, ms, omega, rng):
+    """Model-error draws ``(e_H, e_M)``, each ``(S, N, n, n)`` complex, of gp_corr samples on
+    ``omega`` (rad/s): the exact GP conditional on each draw's fit residuals (Matheron's rule
+    in the complex circular form: a joint prior draw of the shared latent ``f₁`` and of ``f₂``
+    on fit ∪ new frequencies, corrected by ``Cov(e_*, r) C⁻¹ (r − r̃)``;
+    :func:`hapid.uncertainty._likelihood.gp_corr_blocks`)."""
+    from ._likelihood import (
+        GP_CORR_KERNEL,
+        KERNELS,
+        corr_warp,
+        gp_amplitudes,
+        gp_corr_blocks,
+        gp_corr_covariance,
+        hm_correlation,
+        split_hyper,
+    )
+
+    data = ps.predictive
+    n, E = ps.n, ps.n * ps.n
+    hyper = ps.samples[idx, ps.n_theta :]
+    om_fit = np.asarray(data["omega"])
+    Nf, N = om_fit.shape[0], omega.shape[0]
+    aH_f, aM_f = np.asarray(data["a_H"]), np.asarray(data["a_M"])
+    aH_n, aM_n = gp_amplitudes(omega, om_fit, (aH_f, aM_f), np.asarray(data["ref_theta"]), ps.scale)
+    sf = 1j * jnp.asarray(om_fit)
+    ZHf = np.asarray(jax.vmap(lambda m: m.hand(sf))(ms))
+    ZTf = np.asarray(jax.vmap(lambda m: m.total(sf))(ms))
+    rH, rT = np.asarray(data["Z_H"])[None] - ZHf, np.asarray(data["Z_T"])[None] - ZTf
+    S_ = rH.shape[0]
+    flat = lambda r: np.moveaxis(r.reshape(S_, Nf, E), 1, 2)  # noqa: E731  (S, E, Nf)
+    y_all = np.concatenate([flat(rH), flat(rT)], -1)  # (S, E, 2Nf) complex
+    var_H, var_T = np.asarray(data["var_H"]), np.asarray(data["var_T"])
+    rho_n = float(data["noise_corr"])
+    sdH = jnp.asarray(np.sqrt(var_H.reshape(Nf, E).T))  # (E, Nf)
+    sdT = jnp.asarray(np.sqrt(var_T.reshape(Nf, E).T))
+    u = jnp.asarray(np.log(np.concatenate([om_fit, omega]) / float(np.asarray(ps.scale.omega_ref))))
+    a_all = (jnp.asarray(np.concatenate([aH_f, aH_n])), jnp.asarray(np.concatenate([aM_f, aM_n])))
+
+    def circ(key, shape):  # circular complex, unit variance
+        z = jax.random.normal(key, (2,) + shape)
+        return (z[0] + 1j * z[1]) * np.sqrt(0.5)
+
+    def one(h, y, key):  # y (E, 2Nf) complex; returns e_H, e_M (E, N)
+        tau, ell, beta, kap = split_hyper(h)
+        rho = hm_correlation(h)
+        # the amplitude slope is learned on the fit band: held constant beyond it
+        b = [a_all[i] * jnp.exp(beta[i] * jnp.clip(u, u[0], u[Nf - 1])) for i in range(2)]
+        KHH, KHM, KMM = gp_corr_blocks(u, b[0], b[1], h)
+        C = gp_corr_covariance(u[:Nf], a_all[0][:Nf], a_all[1][:Nf], var_H, var_T, rho_n, h)
+        k = jax.random.split(key, 4)
+        f = []
+        for i in range(2):  # unit-variance latent draws (relative jitter: see the gp branch)
+            wi = corr_warp(u, kap[i])
+            R = KERNELS[GP_CORR_KERNEL](wi, wi, ell[i])
+            Lr = jnp.linalg.cholesky(R + 1e-9 * jnp.eye(R.shape[0]))
+            f.append(Lr @ circ(k[i], (Nf + N, E)))  # (Nf + N, E)
+        eH = (tau[0] * b[0])[:, None] * f[0]
+        eM = (tau[1] * b[1])[:, None] * (rho * f[0] + jnp.sqrt(1.0 - jnp.abs(rho) ** 2) * f[1])
+        z1, z2 = circ(k[2], (E, Nf)), circ(k[3], (E, Nf))
+        nH = sdH * z1
+        nT = sdT * (rho_n * z1 + np.sqrt(1.0 - rho_n**2) * z2)
+        sim = jnp.concatenate([eH[:Nf].T + nH, (eH[:Nf] + eM[:Nf]).T + nT], -1)  # (E, 2Nf)
+        Lc = jnp.linalg.cholesky(C)
+        alpha = jax.scipy.linalg.cho_solve((Lc, True), (y - sim)[..., None])[..., 0]
+        aH_, aT_ = alpha[:, :Nf], alpha[:, Nf:]  # (E, Nf)
+        KHH_s, KHM_s = KHH[Nf:, :Nf], KHM[Nf:, :Nf]  # E[e_H(*) e_X(fit)ᴴ]
+        KMH_s, KMM_s = KHM[:Nf, Nf:].conj().T, KMM[Nf:, :Nf]  # E[e_M(*) e_X(fit)ᴴ]
+        outH = eH[Nf:].T + aH_ @ KHH_s.T + aT_ @ (KHH_s + KHM_s).T
+        outM = eM[Nf:].T + aH_ @ KMH_s.T + aT_ @ (KMH_s + KMM_s).T
+        return outH, outM
+
+    run = jax.jit(jax.vmap(one))
+    keys = jax.random.split(jax.random.PRNGKey(int(rng.integers(2**31))), S_)
+    parts = [run(jnp.asarray(hyper[i : i + 50]), jnp.asarray(y_all[i : i + 50]), keys[i : i + 50])
+             for i in range(0, S_, 50)]  # fmt: skip
+    cplx = lambda o: np.moveaxis(o, 1, 2).reshape(S_, N, n, n)  # noqa: E731  (S, E, N) → (S, N, n, n)
+    return (cplx(np.concatenate([np.asarray(p[0]) for p in parts])),
+            cplx(np.concatenate([np.asarray(p[1]) for p in parts])))  # fmt: skip
 
 
 def band_calibration(draws, truth, level: float = 0.9, n_reference: int = 20) -> dict[str, float]:

@@ -41,10 +41,13 @@ plants (unstable: ``−inf``); :meth:`RobustReport.rows` keeps the signed values
 Compute path. ``backend="metrics"`` (the default): every plant is analysed by
 :func:`hapid.control.loop_metrics`'s program (XLA small-matrix kernels for det/inverse/σ̄ and
 the eigenvalues of the loci, no LAPACK inside; exact values only where the cheap bounds do
-not decide; refined crossings), once per plant (``vectorize=False``, the default: measured
-faster on the 2-core machine than ``vmap`` over large chunks, whose working set leaves the
-cache) or ``vmap``-ed over chunks of ``chunk`` plants (the last chunk padded, ``p_ol`` an
-array: one compile). Same verdicts as the reference on 1000 cu5 posterior draws
+not decide; refined crossings), once per plant (``vectorize=False``, the default: the plain
+jitted program, no ``vmap``) or ``vmap``-ed over chunks of ``chunk`` plants (the last chunk
+padded, ``p_ol`` an array: one compile). Measured on the 2-core machine, the per-plant
+program is the faster: under ``vmap`` the batch axis sits in front of the kernels'
+entry-major ``(n, n, N)`` layout and the grid kernels cost 2–3× more per plant (det/inverse
+7.3 vs 2.6 ms per plant at 8 plants × 1000 frequencies), which outweighs sharing the
+sequential refinement steps. Same verdicts as the reference on 1000 cu5 posterior draws
 (benchmarks/bench_fast.py, tests/test_control_metrics.py). ``backend="reference"``:
 :func:`hapid.control.analyze_loop` (the LAPACK reference, grid values) once per plant.
 """
@@ -235,14 +238,21 @@ def _metrics_chunk(P, p_ol, G, omega):
     return jax.vmap(one)(P, p_ol)
 
 
+@eqx.filter_jit
+def _metrics_one(P, p_ol, G, omega):
+    return _fields(metrics_screened(P, G, omega, p_ol, None, _SPEC))
+
+
 def _analyze_chunk(P, p_ol, G, omega, vectorize):
     """Per-plant fields of a (padded) chunk: :func:`~hapid.control.loop_metrics`'s program
     vmapped over the chunk (one compile for every chunk: same shapes, ``p_ol`` an array),
     or once per plant (``vectorize=False``)."""
     if vectorize:
         return {k: np.asarray(v) for k, v in _metrics_chunk(P, p_ol, G, omega).items()}
-    outs = [_metrics_chunk(P[i : i + 1], p_ol[i : i + 1], G, omega) for i in range(P.shape[0])]
-    return {k: np.concatenate([np.asarray(o[k]) for o in outs]) for k in _KEYS}
+    # not a vmap of size 1: a vmapped program keeps the batch axis in front of the kernels'
+    # entry-major layout, which measured ~2-3x slower per plant than the plain program
+    outs = [_metrics_one(P[i], p_ol[i], G, omega) for i in range(P.shape[0])]
+    return {k: np.stack([np.asarray(o[k]) for o in outs]) for k in _KEYS}
 
 
 def _pad(x, size):

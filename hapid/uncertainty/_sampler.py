@@ -133,7 +133,7 @@ class PosteriorSamples:
     def __post_init__(self):
         s = np.asarray(self.samples)
         p = n_params(self.n)
-        if s.ndim != 2 or s.shape[1] not in (p, p + 2, p + 6, p + 8):
+        if s.ndim != 2 or s.shape[1] not in (p, p + 2, p + 6, p + 8, p + 10):
             raise ValueError(
                 f"PosteriorSamples: samples must be (S, {p}) or (S, {p}+model-error) for n = "
                 f"{self.n}, got shape {s.shape}"
@@ -170,8 +170,10 @@ class PosteriorSamples:
 
     @property
     def error_kind(self) -> str:
-        """``"none"``, ``"white"`` or ``"gp"`` (from the number of model-error columns)."""
-        return {0: "none", 2: "white", 6: "gp", 8: "gp"}[self.samples.shape[1] - self.n_theta]
+        """``"none"``, ``"white"``, ``"gp"`` or ``"gp_corr"`` (from the number of model-error
+        columns: 0, 2, 6 or 8, 10)."""
+        k = self.samples.shape[1] - self.n_theta
+        return {0: "none", 2: "white", 6: "gp", 8: "gp", 10: "gp_corr"}[k]
 
     def models(self, idx=None) -> ImpedanceModel:
         """Batched :class:`ImpedanceModel` (arrays ``(S, n, n)``; physical units)."""
@@ -665,10 +667,10 @@ def load_samples(path, n: int | None = None) -> PosteriorSamples:
             f"{path}: samples are for an n = {file_n} rod device, but n = {n} was expected"
         )
     p = n_params(file_n)
-    if s.ndim != 2 or s.shape[1] not in (p, p + 2, p + 6, p + 8):
+    if s.ndim != 2 or s.shape[1] not in (p, p + 2, p + 6, p + 8, p + 10):
         raise ValueError(
             f"{path}: samples have shape {s.shape}, which does not fit n = {file_n} "
-            f"(expected (S, {p}), (S, {p + 2}), (S, {p + 6}) or (S, {p + 8}))"
+            f"(expected (S, {p}), (S, {p + 2}), (S, {p + 6}), (S, {p + 8}) or (S, {p + 10}))"
         )
     if not np.all(np.isfinite(s)):
         raise ValueError(f"{path}: samples contain NaN or inf")
