@@ -64,7 +64,7 @@ def design(
         ps = laplace_samples(nls, n_draws, key=seed)
     else:  # Laplace of the white/gp log-posterior (hapid posterior --method laplace)
         post = make_log_posterior(frf, nls.scale, f_max_hz=40.0, model_error=draws,
-                                  **({"reference": nls} if draws == "gp" else {}))  # fmt: skip
+                                  **({"reference": nls} if draws in ("gp", "gp_corr") else {}))  # fmt: skip
         ps = posterior_laplace_samples(post, n_draws, nls, key=seed)
     g0 = Compensator.paper() if g0 is None else g0
     t0 = time.perf_counter()
@@ -155,7 +155,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--devices", nargs="+", default=["cu5", "cu5_soft"])
     ap.add_argument("--quick", action="store_true", help="fewer draws and steps (smoke run)")
-    ap.add_argument("--draws", default="gp", choices=["nls", "white", "gp"],
+    ap.add_argument("--draws", default="gp", choices=["nls", "white", "gp", "gp_corr"],
                     help="posterior draws: Laplace of the gp (default) or white log-posterior, or of the NLS fit")  # fmt: skip
     ap.add_argument("--out", default=str(ROOT / "out" / "robust"))
     ap.add_argument(
