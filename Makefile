@@ -3,6 +3,7 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 OUT    ?= out/paper
+JOBS   ?= 2
 
 .PHONY: setup paper test test-all lint bench clean
 
@@ -20,10 +21,10 @@ paper: setup
 
 ## the test suite (what CI runs)
 test: setup
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -m "not slow" -n $(JOBS)
 
 test-all: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(JOBS)
 
 lint: setup
 	$(BIN)/ruff check hapid tests benchmarks paper_figures
