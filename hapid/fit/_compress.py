@@ -105,8 +105,7 @@ def compress(problem) -> CompressedProblem:
     y_u = jnp.concatenate([y[:, rows, cols], off * y[:, cols, rows]])  # (8N, t)
     M_u = jnp.moveaxis(M_u, 1, 0)  # (t, 8N, 6)
     y_u = jnp.moveaxis(y_u, 1, 0)  # (t, 8N)
-    # R of [M | y] holds R of M, Qᵀy (its last column) and ‖y − QQᵀy‖ (its corner): one
-    # Householder factorization with no Q formed (``mode="r"``: no orgqr, no products with Q)
-    Ra = jnp.linalg.qr(jnp.concatenate([M_u, y_u[..., None]], axis=-1), mode="r")  # (t, 7, 7)
-    R, yq = Ra[:, :6, :6], Ra[:, :6, 6]
-    return CompressedProblem(R=R, y=yq, c0=jnp.sum(Ra[:, 6, 6] ** 2), eps=problem.eps, n=n)
+    Q, R = jnp.linalg.qr(M_u)  # (t, 8N, 6), (t, 6, 6)
+    yq = jnp.einsum("tmk,tm->tk", Q, y_u)
+    rest = y_u - jnp.einsum("tmk,tk->tm", Q, yq)
+    return CompressedProblem(R=R, y=yq, c0=jnp.sum(rest**2), eps=problem.eps, n=n)
