@@ -32,6 +32,7 @@ units (docs/conventions.md: the starting Jacobian's condition number dropped 15â
 
 from __future__ import annotations
 
+import inspect
 import warnings
 
 import equinox as eqx
@@ -504,50 +505,22 @@ def fit_nls(
     singular Z (P residual).
     """
     dyn, static = _options(
-        weight=weight,
-        f_max_hz=f_max_hz,
-        omega_c=omega_c,
-        solver=solver,
-        use_P_residual=use_P_residual,
-        max_steps=max_steps,
-        rtol=rtol,
-        atol=atol,
-        throw=throw,
-        blend_floor=blend_floor,
-        p_weight=p_weight,
-        pd_eps=pd_eps,
-        init_floor=init_floor,
-        linear_solver=linear_solver,
-        boundary_rtol=boundary_rtol,
-        ftol=ftol,
-        patience=patience,
-    )
+        weight=weight, f_max_hz=f_max_hz, omega_c=omega_c, solver=solver,
+        use_P_residual=use_P_residual, max_steps=max_steps, rtol=rtol, atol=atol, throw=throw,
+        blend_floor=blend_floor, p_weight=p_weight, pd_eps=pd_eps, init_floor=init_floor,
+        linear_solver=linear_solver, boundary_rtol=boundary_rtol, ftol=ftol, patience=patience,
+    )  # fmt: skip
     _check_data(frf, f_max_hz, weight, use_P_residual)
     _warn_jacobian_size(frf, use_P_residual)
     return _fit_core(frf, init, dyn, static)
 
 
 def _options(
-    *,
-    weight: str = "relative",
-    f_max_hz: float | None = 40.0,
-    omega_c: float = OMEGA_C_PAPER,
-    solver: str = "lm",
-    use_P_residual: bool = False,
-    max_steps: int = 500,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
-    throw: bool = False,
-    blend_floor: float = 0.02,
-    p_weight: float = 1.0,
-    pd_eps: float = 0.0,
-    init_floor: float = 1e-6,
-    linear_solver: str = "cholesky",
-    boundary_rtol: float = 1e-6,
-    ftol: float = 1e-8,
-    patience: int = 20,
-):
-    """``(dyn, static)`` of :func:`fit_nls`'s options (same defaults), checked."""
+    *, weight, f_max_hz, omega_c, solver, use_P_residual, max_steps, rtol, atol, throw,
+    blend_floor, p_weight, pd_eps, init_floor, linear_solver, boundary_rtol, ftol, patience,
+):  # fmt: skip
+    """``(dyn, static)`` of :func:`fit_nls`'s options, every one given (the defaults live in
+    :func:`fit_nls`'s signature only: :data:`_NLS_DEFAULTS`), checked."""
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
     if linear_solver not in LINEAR_SOLVERS:
@@ -646,6 +619,14 @@ def _fit_core_batch(frfs, init, dyn, static):
     )
 
 
+_NLS_DEFAULTS = {
+    k: p.default
+    for k, p in inspect.signature(fit_nls).parameters.items()
+    if p.kind is inspect.Parameter.KEYWORD_ONLY
+}
+""":func:`fit_nls`'s keyword options and their defaults (read from its signature)."""
+
+
 def fit_nls_batch(frfs: FRF, init: ImpedanceModel | None = None, **options) -> NLSResult:
     """:func:`fit_nls` over a batch of FRFs (leading axis of every array), one compile.
 
@@ -657,11 +638,14 @@ def fit_nls_batch(frfs: FRF, init: ImpedanceModel | None = None, **options) -> N
     The default path (``solver="lm"``, ``linear_solver="cholesky"``, no P residual) runs as
     one batched program (:mod:`hapid.fit._lm_batch`); other options vmap :func:`fit_nls`.
     """
-    solver = options.get("solver", "lm")
+    unknown = set(options) - set(_NLS_DEFAULTS)
+    if unknown:
+        raise TypeError(f"fit_nls_batch: unknown option(s) {sorted(unknown)}")
+    opts = _NLS_DEFAULTS | options
     fast = (
-        solver == "lm"
-        and options.get("linear_solver", "cholesky") == "cholesky"
-        and not options.get("use_P_residual", False)
+        opts["solver"] == "lm"
+        and opts["linear_solver"] == "cholesky"
+        and not opts["use_P_residual"]
         and isinstance(frfs, FRF)
         and np.ndim(frfs.omega) == 2
     )
@@ -669,8 +653,8 @@ def fit_nls_batch(frfs: FRF, init: ImpedanceModel | None = None, **options) -> N
         if init is None:
             return eqx.filter_vmap(lambda f: fit_nls(f, **options))(frfs)
         return eqx.filter_vmap(lambda f, i: fit_nls(f, i, **options))(frfs, init)
-    dyn, static = _options(**options)
-    _check_data(frfs, options.get("f_max_hz", 40.0), static[0], False)
+    dyn, static = _options(**opts)
+    _check_data(frfs, opts["f_max_hz"], static[0], False)
     _warn_jacobian_size(frfs, False)
     if init is not None:
         if isinstance(init, NLSResult):
