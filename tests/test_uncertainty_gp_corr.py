@@ -38,6 +38,22 @@ def _knee(u, c):  # asinh(ω/ω_c), u = log(ω/ω_ref), c = log(ω_c/ω_ref)
     return np.arcsinh(np.exp(u - c))
 
 
+def _latent_blocks_np(h, aH, aM, u):
+    """``ρ`` and the complex covariances ``K_HH, K_HM, K_MM (N, N)`` of the (f₁, f₂)-driven
+    errors (E[e_H e_Mᴴ] = conj(ρ) …) for the 10 hyperparameters ``h``, magnitudes ``aH, aM``
+    and ``u = log(ω/ω_ref)`` — numpy, from the documented model."""
+    tau, ell, beta, kap = np.exp(h[0:2]), np.exp(h[2:4]), h[4:6], h[6:8]
+    z = h[8] + 1j * h[9]
+    rho = np.tanh(abs(z)) * z / abs(z)
+    bH, bM = tau[0] * aH * np.exp(beta[0] * u), tau[1] * aM * np.exp(beta[1] * u)
+    k1 = _matern52_np(_knee(u, kap[0]), ell[0])
+    k2 = _matern52_np(_knee(u, kap[1]), ell[1])
+    KHH = np.outer(bH, bH) * k1
+    KHM = np.conj(rho) * np.outer(bH, bM) * k1
+    KMM = np.outer(bM, bM) * (abs(rho) ** 2 * k1 + (1 - abs(rho) ** 2) * k2)
+    return rho, KHH, KHM, KMM
+
+
 def _reference_covariances(frf, nls, h, rho_n):
     """Per element, the real covariance of [Re r_H; Re r_T; Im r_H; Im r_T] built in numpy
     from the documented shared-latent model (e_H = τ_H b_H f₁, e_M = τ_M b_M (ρ f₁ +
@@ -48,16 +64,7 @@ def _reference_covariances(frf, nls, h, rho_n):
     n = frf.n
     aH = np.linalg.norm(np.asarray(frf.Z_H), axis=(1, 2)) / n / zr
     aM = np.linalg.norm(np.asarray(frf.Z_T) - np.asarray(frf.Z_H), axis=(1, 2)) / n / zr
-    tau, ell, beta, kap = np.exp(h[0:2]), np.exp(h[2:4]), h[4:6], h[6:8]
-    z = h[8] + 1j * h[9]
-    rho = np.tanh(abs(z)) * z / abs(z)
-    bH, bM = tau[0] * aH * np.exp(beta[0] * u), tau[1] * aM * np.exp(beta[1] * u)
-    k1 = _matern52_np(_knee(u, kap[0]), ell[0])
-    k2 = _matern52_np(_knee(u, kap[1]), ell[1])
-    # complex covariances of (f₁, f₂)-driven errors; E[e_H e_Mᴴ] = conj(ρ) …
-    KHH = np.outer(bH, bH) * k1
-    KHM = np.conj(rho) * np.outer(bH, bM) * k1
-    KMM = np.outer(bM, bM) * (abs(rho) ** 2 * k1 + (1 - abs(rho) ** 2) * k2)
+    rho, KHH, KHM, KMM = _latent_blocks_np(h, aH, aM, u)
     vH = (np.asarray(frf.Z_H_std) / zr) ** 2
     vT = (np.asarray(frf.Z_T_std) / zr) ** 2
     out = {}
@@ -169,15 +176,7 @@ def test_gp_corr_predictive_conditional_mean_and_file_round_trip(case, tmp_path)
     aH = np.concatenate([a_fit_H, interp(a_fit_H)])
     aM = np.concatenate([a_fit_M, interp(a_fit_M)])
     h = H10
-    tau, ell, beta, kap = np.exp(h[0:2]), np.exp(h[2:4]), h[4:6], h[6:8]
-    z = h[8] + 1j * h[9]
-    rho = np.tanh(abs(z)) * z / abs(z)
-    bH, bM = tau[0] * aH * np.exp(beta[0] * u), tau[1] * aM * np.exp(beta[1] * u)
-    k1 = _matern52_np(_knee(u, kap[0]), ell[0])
-    k2 = _matern52_np(_knee(u, kap[1]), ell[1])
-    KHH = np.outer(bH, bH) * k1
-    KHM = np.conj(rho) * np.outer(bH, bM) * k1
-    KMM = np.outer(bM, bM) * (abs(rho) ** 2 * k1 + (1 - abs(rho) ** 2) * k2)
+    rho, KHH, KHM, KMM = _latent_blocks_np(h, aH, aM, u)
     f, x = slice(0, Nf), slice(Nf, Nf + 1)
     for i, j in ((0, 0), (1, 0)):
         dH = (np.asarray(frf.Z_H_std)[:, i, j] / zr) ** 2

@@ -298,11 +298,18 @@ def gp_covariance(logw, a_H, a_M, var_H, var_T, noise_corr, hyper):
     n2 = var_H.shape[-1] * var_H.shape[-2]
     dH = 0.5 * jnp.moveaxis(var_H.reshape(N, n2), 0, 1)  # (E, N)
     dT = 0.5 * jnp.moveaxis(var_T.reshape(N, n2), 0, 1)
-    dHT = noise_corr * jnp.sqrt(dH * dT)
     nug = GP_NUGGET * (jnp.diag(KH) + jnp.diag(KM)) + _JITTER * 0.5 * (a_H + a_M) ** 2
     top = jnp.concatenate([KH, KH], axis=1)
     bot = jnp.concatenate([KH, KH + KM], axis=1)
-    base = jnp.concatenate([top, bot], axis=0)
+    return _plus_noise(jnp.concatenate([top, bot], axis=0), dH, dT, nug, noise_corr)
+
+
+def _plus_noise(base, dH, dT, nug, noise_corr):
+    """``base (2N, 2N)`` (the model-error covariance of ``[e_H; e_T]``) plus, per element,
+    the measurement-noise variances ``dH, dT (E, N)`` and the nugget ``nug (N,)`` on the
+    diagonal and the H–T noise covariance ``noise_corr·√(dH dT)`` on the off-diagonal
+    blocks' diagonals: ``(E, 2N, 2N)``."""
+    dHT = noise_corr * jnp.sqrt(dH * dT)
     diag = jnp.concatenate([dH + nug, dT + nug], axis=1)  # (E, 2N)
     off = jax.vmap(jnp.diag)(dHT)  # (E, N, N)
     z = jnp.zeros_like(off)
@@ -376,16 +383,10 @@ def gp_corr_covariance(logw, a_H, a_M, var_H, var_T, noise_corr, hyper):
     n2 = var_H.shape[-1] * var_H.shape[-2]
     dH = jnp.moveaxis(var_H.reshape(N, n2), 0, 1)  # (E, N) complex variances std²
     dT = jnp.moveaxis(var_T.reshape(N, n2), 0, 1)
-    dHT = noise_corr * jnp.sqrt(dH * dT)
     nug = GP_NUGGET * (jnp.diag(KHH).real + jnp.diag(KMM).real) + _JITTER * (b_H + b_M) ** 2
     top = jnp.concatenate([KHH, KHH + KHM], axis=1)
     bot = jnp.concatenate([KHH + KHM.conj().T, KHH + KHM + KHM.conj().T + KMM], axis=1)
-    base = jnp.concatenate([top, bot], axis=0)
-    diag = jnp.concatenate([dH + nug, dT + nug], axis=1)  # (E, 2N)
-    off = jax.vmap(jnp.diag)(dHT)  # (E, N, N)
-    z = jnp.zeros_like(off)
-    offb = jnp.concatenate([jnp.concatenate([z, off], 2), jnp.concatenate([off, z], 2)], 1)
-    return base[None] + jax.vmap(jnp.diag)(diag) + offb
+    return _plus_noise(jnp.concatenate([top, bot], axis=0), dH, dT, nug, noise_corr)
 
 
 def gp_complex_log_likelihood(rH, rT, C):
