@@ -216,3 +216,100 @@ def test_gp_corr_predictive_calibrated_on_second_order_truth(case):
     assert pe.diagnostics["converged_50tau"] and pe.error_kind == "gp_corr"
     c = band_calibration(predictive_plants(pe, om, max_samples=300)["P"], P_true)
     assert c["coverage"] >= 0.85, c
+
+
+def _exact_predictive_np(frf, scale, h, om_new, prior_scale):
+    """numpy reference: the exact Gaussian predictive of the true ``[Z_H; Z_T](ω_new)`` of
+    the gp_corr model with fixed hyperparameters ``h``, the six matrices integrated out
+    (prior N(0, prior_scale²) on their scaled entries, no PSD cone) and the GP + noise
+    conditioned on the data. Returns ``(mean (E·4N*,), cov)`` in physical units over the real
+    vector, per element ``[Re Z_H*, Re Z_T*, Im Z_H*, Im Z_T*]`` (:func:`_pack`'s order)."""
+    zr, wr = float(scale.z_ref), float(scale.omega_ref)
+    n, E = frf.n, frf.n**2
+    rows, cols = np.tril_indices(n)
+    t = len(rows)
+    om_f = np.asarray(frf.omega)
+    Nf, Ns = len(om_f), len(om_new)
+
+    def design(om):  # (N, 2, n, n, q): ∂[Z_H, Z_T]/∂v, Z = K − w²M + jwB (scaled units)
+        w = om / wr
+        D = np.zeros((len(om), 2, n, n, 6 * t), complex)
+        for blk in range(6):
+            c = (-(w**2), 1j * w, np.ones_like(w))[blk % 3]
+            for k in range(t):
+                S = np.zeros((n, n))
+                S[rows[k], cols[k]] = S[cols[k], rows[k]] = 1.0
+                D[:, 1, :, :, blk * t + k] += c[:, None, None] * S
+                if blk < 3:  # hand matrices enter Z_H and Z_T
+                    D[:, 0, :, :, blk * t + k] += c[:, None, None] * S
+        return D
+
+    Gf, Gs = design(om_f), design(om_new)
+    aH = np.linalg.norm(np.asarray(frf.Z_H), axis=(1, 2)) / n / zr
+    aM = np.linalg.norm(np.asarray(frf.Z_T) - np.asarray(frf.Z_H), axis=(1, 2)) / n / zr
+    interp = lambda a: np.exp(np.interp(np.log(om_new), np.log(om_f), np.log(a)))  # noqa: E731
+    u = np.log(np.concatenate([om_f, om_new]) / wr)
+    _, KHH, KHM, KMM = _latent_blocks_np(h, np.r_[aH, interp(aH)], np.r_[aM, interp(aM)], u)
+    KHT = KHH + KHM  # e_T = e_H + e_M
+    G = np.block([[KHH, KHT], [KHT.conj().T, KHT + KHM.conj().T + KMM]])
+    Na = Nf + Ns
+    fi = np.r_[np.arange(Nf), Na + np.arange(Nf)]
+    si = np.r_[Nf + np.arange(Ns), Na + Nf + np.arange(Ns)]
+    real = lambda C: 0.5 * np.block([[C.real, -C.imag], [C.imag, C.real]])  # noqa: E731  circular
+    vH, vT = (np.asarray(frf.Z_H_std) / zr) ** 2, (np.asarray(frf.Z_T_std) / zr) ** 2
+    ny, nt = 4 * Nf, 4 * Ns
+    Cy, Cty, Ct = np.zeros((E * ny, E * ny)), np.zeros((E * nt, E * ny)), np.zeros((E * nt, E * nt))
+    Jy, Jt, y = np.zeros((E * ny, 6 * t)), np.zeros((E * nt, 6 * t)), np.zeros(E * ny)
+    for e in range(E):
+        i, j = divmod(e, n)
+        sy, st = slice(e * ny, (e + 1) * ny), slice(e * nt, (e + 1) * nt)
+        Cy[sy, sy] = real(G[np.ix_(fi, fi)] + np.diag(np.r_[vH[:, i, j], vT[:, i, j]]))
+        Cty[st, sy] = real(G[np.ix_(si, fi)])
+        Ct[st, st] = real(G[np.ix_(si, si)])
+        gf = np.r_[Gf[:, 0, i, j], Gf[:, 1, i, j]]
+        gs = np.r_[Gs[:, 0, i, j], Gs[:, 1, i, j]]
+        Jy[sy], Jt[st] = np.r_[gf.real, gf.imag], np.r_[gs.real, gs.imag]
+        yc = np.r_[np.asarray(frf.Z_H)[:, i, j], np.asarray(frf.Z_T)[:, i, j]] / zr
+        y[sy] = np.r_[yc.real, yc.imag]
+    s2 = prior_scale**2
+    Cy, Cty, Ct = Cy + s2 * Jy @ Jy.T, Cty + s2 * Jt @ Jy.T, Ct + s2 * Jt @ Jt.T
+    K = np.linalg.solve(Cy, Cty.T).T
+    return K @ y * zr, (Ct - K @ Cty.T) * zr**2
+
+
+def _pack(ZH, ZT):
+    """Draws ``(S, N*, n, n)`` of Z_H, Z_T → ``(S, E·4N*)`` in :func:`_exact_predictive_np`'s
+    order."""
+    n = ZH.shape[-1]
+    cols = []
+    for e in range(n * n):
+        i, j = divmod(e, n)
+        c = np.concatenate([ZH[:, :, i, j], ZT[:, :, i, j]], 1)
+        cols.append(np.concatenate([c.real, c.imag], 1))
+    return np.concatenate(cols, 1)
+
+
+@pytest.mark.slow  # 2000 Laplace draws + their GP conditionals: ~20 s CPU alone
+def test_gp_corr_predictive_Z_H_Z_T_equal_exact_gaussian_predictive(case):
+    """The predictive draws of Z_H and Z_T (Laplace θ draws + each draw's conditional GP
+    model error, ``Z_T = Z_H + Z_M``) have the mean and covariance of the exact Gaussian
+    predictive computed in numpy (matrices integrated out in closed form, the H–M-correlated
+    GP and the noise conditioned jointly): the Z_H/Z_T bands are built from the right
+    covariance, conditioned on the right residuals."""
+    _, frf, nls = case
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp_corr", reference=nls,
+                              gp_hyper=H10)  # fmt: skip
+    om_new = 2 * np.pi * np.array([1.5, 4.0, 12.0, 27.0])
+    S = 2000
+    ps = posterior_laplace_samples(post, S, nls, key=0)
+    d = predictive_plants(ps, om_new, max_samples=None, seed=1)
+    X = _pack(d["Z_H"], d["Z_T"])
+    mean, cov = _exact_predictive_np(frf, nls.scale, H10, om_new, post.prior_scale)
+    sd = np.sqrt(np.diag(cov))
+    z = (X.mean(0) - mean) / (sd / np.sqrt(S))
+    assert np.max(np.abs(z)) < 4.5, np.max(np.abs(z))  # 64 means, each N(0, 1) if right
+    ratio = X.var(0) / sd**2  # each ≈ 1 ± 0.03 (sd of a variance ratio from 2000 draws)
+    assert 0.88 < ratio.min() and ratio.max() < 1.12, (ratio.min(), ratio.max())
+    Cs = np.cov(X.T)
+    corr = Cs / np.sqrt(np.outer(np.diag(Cs), np.diag(Cs)))
+    assert np.max(np.abs(corr - cov / np.outer(sd, sd))) < 0.12  # H–T cross terms included
