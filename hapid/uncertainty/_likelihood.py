@@ -225,6 +225,12 @@ def param_names(n: int, model_error=True, parameterization: str = "cholesky") ->
     return names + hyper_names(model_error)
 
 
+def matern32(x: Float[Array, " N"], y: Float[Array, " M"], ell) -> Float[Array, "N M"]:
+    """Matérn-3/2 correlation ``(1 + √3 r/ℓ) e^{−√3 r/ℓ}``, ``r = |x − y|``."""
+    r = jnp.abs(x[:, None] - y[None, :]) * (np.sqrt(3.0) / ell)
+    return (1.0 + r) * jnp.exp(-r)
+
+
 def matern52(x: Float[Array, " N"], y: Float[Array, " M"], ell) -> Float[Array, "N M"]:
     """Matérn-5/2 correlation ``(1 + √5 r/ℓ + 5r²/3ℓ²) e^{−√5 r/ℓ}``, ``r = |x − y|``."""
     r = jnp.abs(x[:, None] - y[None, :]) * (np.sqrt(5.0) / ell)
@@ -242,7 +248,12 @@ def squared_exponential(x: Float[Array, " N"], y: Float[Array, " M"], ell) -> Fl
     return jnp.exp(-0.5 * ((x[:, None] - y[None, :]) / ell) ** 2)
 
 
-KERNELS = {"se": squared_exponential, "matern52": matern52, "matern72": matern72}
+KERNELS = {
+    "se": squared_exponential,
+    "matern32": matern32,
+    "matern52": matern52,
+    "matern72": matern72,
+}
 GP_KERNEL = "matern52"
 # gp_corr's kernel and frequency coordinate (GP_CORR_WARP) were chosen on cu5 and tripod3_d2
 # (benchmarks/calibrate_predictive.py, Laplace, marginal hyperparameters; P coverage / width ratio):
@@ -984,7 +995,9 @@ def fix_gp_hyper(post: LogPosterior, hyper) -> LogPosterior:
                          f"numbers, got shape {h.shape}")  # fmt: skip
     h = jnp.concatenate([h, jnp.zeros(full - h.shape[0])])
     base = dataclasses.replace(post, hyper_fixed=h, quad_R=None, quad_mu=None, quad_ll0=None)
-    R, mu, ll0 = _quadratic_form(base, h)
+    R, mu, ll0 = (
+        _quadratic_form_corr(base, h) if post.kind == "gp_corr" else _quadratic_form(base, h)
+    )
     if not (np.all(np.isfinite(np.asarray(R))) and np.isfinite(float(ll0))):
         raise ValueError("fix_gp_hyper: the likelihood's curvature is not positive definite at "
                          "these hyperparameters")  # fmt: skip
@@ -1010,6 +1023,36 @@ def _quadratic_form(post: LogPosterior, h):
     return Lc.T, mu, ll(mu)
 
 
+def _quadratic_form_corr(post: LogPosterior, h):
+    """gp_corr's ``(R, μ, ℓ(μ))`` of :func:`fix_gp_hyper` in closed form, without autodiff:
+    with ``z = L⁻¹ y₀`` and ``W = L⁻¹ J`` per element (:func:`_compact_design` over all
+    ``6·n(n+1)/2`` entries, ``C = L Lᴴ``), ``ℓ(v) = c − ‖z‖² + bᵀv − ½ vᵀAv`` with
+    ``A = 2 Re Σ WᴴW = RᵀR``, ``b = 2 Re Σ Wᴴz``, ``μ = A⁻¹b`` and ``c = −Σ log det(πC)``."""
+    full = dataclasses.replace(post, free_idx=(), theta_fixed=None)
+    y0, Jc, idx = _compact_design(full)
+    return _quadratic_form_corr_jit(full, h, y0, Jc, idx, 6 * (post.n * (post.n + 1) // 2))
+
+
+@eqx.filter_jit
+def _quadratic_form_corr_jit(post: LogPosterior, h, y0, Jc, idx, q: int):
+    w = jnp.imag(post.s)
+    C = gp_corr_covariance(jnp.log(w), post.a_H, post.a_M, post.var_H, post.var_T,
+                           post.noise_corr, h)  # fmt: skip
+    L = jnp.linalg.cholesky(C)
+    z = jax.scipy.linalg.solve_triangular(L, y0[..., None], lower=True)[..., 0]
+    W = jax.scipy.linalg.solve_triangular(L, Jc, lower=True)  # (E, 2N, m)
+    bw = 2.0 * jnp.real(jnp.einsum("eiq,ei->eq", jnp.conj(W), z))
+    Aw = 2.0 * jnp.real(jnp.einsum("eiq,eir->eqr", jnp.conj(W), W))
+    b = jnp.zeros(q + 1).at[idx].add(bw)[:q]
+    A = jnp.zeros((q + 1, q + 1)).at[idx[:, :, None], idx[:, None, :]].add(Aw)[:q, :q]
+    A = 0.5 * (A + A.T)
+    Lc = jnp.linalg.cholesky(A)
+    mu = jax.scipy.linalg.cho_solve((Lc, True), b)
+    logdetC = 2.0 * jnp.sum(jnp.log(jnp.real(jnp.diagonal(L, axis1=-2, axis2=-1))))
+    c = -logdetC - C.shape[0] * C.shape[-1] * np.log(np.pi)
+    return Lc.T, mu, c - jnp.sum(jnp.abs(z) ** 2) + 0.5 * jnp.dot(b, mu)
+
+
 def marginal_hyper(post: LogPosterior, h0, *, max_steps: int = 2000) -> tuple[np.ndarray, bool]:
     """``(hyper, converged)``: the gp hyperparameters that maximize their *marginal*
     posterior, the six matrices integrated out in closed form (type-II maximum likelihood
@@ -1030,7 +1073,8 @@ def marginal_hyper(post: LogPosterior, h0, *, max_steps: int = 2000) -> tuple[np
         raise ValueError("marginal_hyper: needs a gp posterior in the matrix parameterization "
                          "with sampled hyperparameters")  # fmt: skip
     h0 = jnp.asarray(h0, dtype=jnp.float64)
-    h, ok = _marginal_mode(post, h0, max_steps)
+    y0, Jc, idx = _compact_design(post)
+    h, ok = _marginal_mode(post, h0, y0, Jc, idx, int(post.n_free), max_steps)
     return np.asarray(h), bool(ok)
 
 
@@ -1050,6 +1094,61 @@ def _residual_design(post: LogPosterior):
     v0 = jnp.zeros(post.n_free)
     J = -jax.jacfwd(lambda v: jnp.stack([jnp.real(resid(v)), jnp.imag(resid(v))]))(v0)
     return resid(v0), J[0] + 1j * J[1]
+
+
+def _compact_design(post: LogPosterior):
+    """``(y₀ (E, 2N), J_c (E, 2N, m), idx (E, m))``: :func:`_residual_design` with each
+    element's design restricted to the matrix entries it depends on. Element ``(i, j)`` of
+    ``Z_H, Z_T`` involves only entry ``(i, j)`` of each of the six symmetric matrices, so
+    ``m ≤ 6`` of the ``q = 6·n(n+1)/2`` columns are non-zero (``idx`` lists them, padded with
+    ``q``: a zero column). The marginal likelihood then costs ``O(E·N·m²)`` instead of
+    ``O(E·N·q²)`` per evaluation (q = 126 at n = 6)."""
+    y0, J = _residual_design_jit(post)
+    Jn = np.asarray(J)
+    E, N2, q = Jn.shape
+    nz = np.any(Jn != 0, axis=1)  # (E, q)
+    m = max(int(nz.sum(axis=1).max()), 1)
+    idx = np.full((E, m), q, dtype=np.int32)
+    for e in range(E):
+        cols = np.flatnonzero(nz[e])
+        idx[e, : len(cols)] = cols
+    Jp = np.concatenate([Jn, np.zeros((E, N2, 1), Jn.dtype)], axis=2)
+    Jc = np.take_along_axis(Jp, idx[:, None, :].astype(np.int64), axis=2)
+    return y0, jnp.asarray(Jc), jnp.asarray(idx)
+
+
+_residual_design_jit = eqx.filter_jit(_residual_design)
+
+
+def _log_marginal_compact(post: LogPosterior, h, y0, Jc, idx, q: int):
+    """:func:`log_marginal_likelihood` from the compact design of :func:`_compact_design`
+    (same value; ``b`` and ``P`` assembled by scatter-adding each element's ``m × m`` block)."""
+    hf = jnp.concatenate([h, jnp.zeros(N_GP_CORR_HYPER - h.shape[0])])
+    if not post.warp:
+        hf = hf.at[6:8].set(0.0)
+    w = jnp.imag(post.s)
+    C = gp_corr_covariance(jnp.log(w), post.a_H, post.a_M, post.var_H, post.var_T,
+                           post.noise_corr, hf)  # fmt: skip
+    L = jnp.linalg.cholesky(C)
+    z = jax.scipy.linalg.solve_triangular(L, y0[..., None], lower=True)[..., 0]
+    W = jax.scipy.linalg.solve_triangular(L, Jc, lower=True)  # (E, 2N, m)
+    bw = 2.0 * jnp.real(jnp.einsum("eiq,ei->eq", jnp.conj(W), z))
+    Pw = 2.0 * jnp.real(jnp.einsum("eiq,eir->eqr", jnp.conj(W), W))
+    b = jnp.zeros(q + 1).at[idx].add(bw)[:q]
+    P = jnp.zeros((q + 1, q + 1)).at[idx[:, :, None], idx[:, None, :]].add(Pw)[:q, :q]
+    P = P + jnp.eye(q) / post.prior_scale**2
+    Lp = jnp.linalg.cholesky(P)
+    u = jax.scipy.linalg.solve_triangular(Lp, b, lower=True)
+    logdetC = 2.0 * jnp.sum(jnp.log(jnp.real(jnp.diagonal(L, axis1=-2, axis2=-1))))
+    logdetP = 2.0 * jnp.sum(jnp.log(jnp.diagonal(Lp)))
+    c = -logdetC - C.shape[0] * C.shape[-1] * np.log(np.pi)
+    return (
+        c
+        - jnp.sum(jnp.abs(z) ** 2)
+        + 0.5 * jnp.sum(u**2)
+        - 0.5 * logdetP
+        - q * np.log(post.prior_scale)
+    )
 
 
 def log_marginal_likelihood(post: LogPosterior, h, y0=None, J=None):
@@ -1083,15 +1182,16 @@ def log_marginal_likelihood(post: LogPosterior, h, y0=None, J=None):
 
 
 @eqx.filter_jit
-def _marginal_mode(post: LogPosterior, h0, max_steps):
+def _marginal_mode(post: LogPosterior, h0, y0, Jc, idx, q: int, max_steps):
     import optimistix as optx
 
-    y0, J = _residual_design(post)
     prior = post.unconstrained()
     x_th = jnp.zeros(post.n_free)
 
     def neg(h, _):
-        v = log_marginal_likelihood(post, h, y0, J) + prior.log_prior(jnp.concatenate([x_th, h]))
+        v = _log_marginal_compact(post, h, y0, Jc, idx, q) + prior.log_prior(
+            jnp.concatenate([x_th, h])
+        )
         return -jnp.where(jnp.isfinite(v), v, -1e300)
 
     sol = optx.minimise(neg, optx.BFGS(rtol=1e-9, atol=1e-9), h0, max_steps=max_steps, throw=False)
