@@ -33,7 +33,10 @@ def case():
     plants = [_model(n, 0, jitter=0.03 * (k + 1)) for k in range(3)]
 
     def P_of(om, f_r=None, c=0.0):
-        P = np.stack([np.asarray(m.P(1j * om)) for m in plants]) * np.exp(-1j * om * TS)[:, None, None]
+        P = (
+            np.stack([np.asarray(m.P(1j * om)) for m in plants])
+            * np.exp(-1j * om * TS)[:, None, None]
+        )
         return P if f_r is None else P * _resonant(om, f_r, c)[:, None, None]
 
     # the paper g's phase crossover of the nominal-ish loci (largest |ℓ| with phase ≈ −180°)
@@ -80,7 +83,9 @@ def test_tune_with_dense_grid_meets_margins_between_training_points(case):
     ms = Requirements().ms
     opts = dict(mu_schedule=(100.0, 1e4), max_steps=120)
     fooled = tune([Family(sc_tr, quantile=1.0, name="train")], Compensator.paper(), **opts)
-    fixed = tune([Family(sc_tr, quantile=1.0, name="train", dense=sc_d)], Compensator.paper(), **opts)
+    fixed = tune(
+        [Family(sc_tr, quantile=1.0, name="train", dense=sc_d)], Compensator.paper(), **opts
+    )
     # without the dense grid the design misses the resonance (else this case shows nothing)
     assert locus_violation(fooled.g, sc_d, ms).max() > TOL
     assert sum(sum(h["grid_added"]) for h in fixed.history) >= 1
