@@ -60,5 +60,6 @@ from ._single import wls_single as wls_single
 from ._wls import OMEGA_C_PAPER as OMEGA_C_PAPER
 from ._wls import paper_weight as paper_weight
 from ._wls import wls as wls
+from ._wls import wls_batch_coefficients as wls_batch_coefficients
 from ._wls import wls_coefficients as wls_coefficients
 from ._wls import wls_operator as wls_operator
