@@ -81,13 +81,18 @@ def _wls_batch(B, n=5, seed=0):
 
 def _interleaved(fns: dict, repeat: int, warm: int = 0):
     """Best wall and CPU (process) seconds per name, the calls interleaved round-robin so that
-    load from other processes hits every contender alike. ``warm`` untimed calls precede each
-    timed one, so every contender finds its own data in cache as the one before it left it
-    (otherwise the one after a cache-thrashing contender pays for its misses)."""
+    load from other processes hits every contender alike, in an order that rotates each round.
+    ``warm`` untimed calls precede each timed one, so every contender finds its own data in
+    cache as the one before it left it (otherwise the one after a cache-thrashing contender
+    pays for its misses)."""
     wall = {k: float("inf") for k in fns}
     cpu = dict(wall)
-    for _ in range(repeat):
-        for k, fn in fns.items():
+    names = list(fns)
+    for r in range(repeat):
+        # the order rotates each round: whichever form came first in a round ran slower
+        # (measured 1.3–1.5×, whatever the form), so no form is always first
+        for k in names[r % len(names) :] + names[: r % len(names)]:
+            fn = fns[k]
             for _ in range(warm):
                 jax.block_until_ready(fn())
             t, c = time.perf_counter(), time.process_time()
@@ -138,7 +143,12 @@ def wls_throughput(sec: Section, quick: bool):
     z_bytes = Zb_np.nbytes
     big = 64 * 2**20 if quick else 256 * 2**20
     bws = {size: bandwidth(size) for size in (z_bytes, big)}
-    wall, cpu = _interleaved(fns, repeat=15, warm=1)  # ~1–2 ms each: cheap
+    # the forms that call OpenBLAS (numpy's zgemm, LAPACK under vmap) in their own group: the
+    # form timed right after them ran 1.3–1.7× slower (measured; OpenBLAS threads spin on)
+    xla = ("fused", "inlined", "shared", "split")
+    wall, cpu = _interleaved({k: fns[k] for k in xla}, repeat=15, warm=1)  # ~1–2 ms each
+    w_blas, c_blas = _interleaved({k: f for k, f in fns.items() if k not in xla}, repeat=15, warm=1)
+    wall.update(w_blas), cpu.update(c_blas)
     scale = np.max(np.abs(ref))
     dev_np = float(np.max(np.abs(numpy_gemm().reshape(ref.shape) - ref)) / scale)
     dev_split = float(np.max(np.abs(np.asarray(split(wj, Zf)) - ref)) / scale)
@@ -180,7 +190,8 @@ def wls_throughput(sec: Section, quick: bool):
             f"fused inside a jit {dev_inl:.1e}, numpy {dev_np:.1e}, real-part-only copy form "
             f"{dev_split:.1e}, vmap {dev_:.1e}. Compile: {fs(max(c1 - wall['vmap'], 0))} (vmap), "
             f"{fs(max(c2 - wall['shared'], 0))} (GEMM), {fs(max(c3 - wall['fused'], 0))} (fused). "
-            "Best of 15 interleaved calls, each after an untimed one (warm caches, as the bound's).\n\n" + table(rows))  # fmt: skip
+            "Best of 15 interleaved calls, each after an untimed one (warm caches, as the bound's); "
+            "numpy and vmap (OpenBLAS) interleaved in their own group.\n\n" + table(rows))  # fmt: skip
     frac = sec.rows["wls_fused_fraction"]
     # useful work of the real part: 3 rows × 2 real multiply-adds per complex input = 12 flops
     e_fit = 2 * N * n * n  # complex inputs per fit
