@@ -94,7 +94,7 @@ above it, the complex GEMM (``einsum``)."""
 _KERNEL_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
 """XLA:CPU option of the top-level :func:`wls_batch_coefficients` program only (no global
 flag): 512-bit vectors halve the shuffles that split complex128 into real and imaginary parts,
-the kernel's bottleneck (measured 1.4–1.8× on the benchmark machine)."""
+the kernel's bottleneck (measured 1.05–1.45×, typically 1.1–1.15×, on the benchmark machine)."""
 
 
 def _pairwise_sum(terms: list):
