@@ -207,7 +207,7 @@ def calibrate(Q, Q_true, f_hz) -> dict[str, dict[str, dict[str, float]]]:
 
 
 def run(name: str, kinds, *, n_draws: int = 400, how: str = "calibrate", n_freq: int = 300,
-        seed: int = 0) -> list[dict]:  # fmt: skip
+        seed: int = 0, on_row=None) -> list[dict]:  # fmt: skip
     dev, frf, nls = setup(name, how, seed)
     om = loop_grid(np.asarray(frf.omega) / TWO_PI, n_freq)
     f_hz = om / TWO_PI
@@ -227,6 +227,8 @@ def run(name: str, kinds, *, n_draws: int = 400, how: str = "calibrate", n_freq:
                      "f3_hz": float(f_hz[i3]), "frac_beyond_90_at_3hz": float(np.mean(ang > 90)),
                      "true_angle_at_3hz": float(ang_t)})  # fmt: skip
         print(f"  [{name} {kind}: {rows[-1]['wall_s']:.0f} s]", file=sys.stderr, flush=True)
+        if on_row is not None:
+            on_row(rows[-1])
     return rows
 
 
@@ -266,12 +268,18 @@ def main(argv=None):
     ap.add_argument("--json", help="also write the rows here")
     a = ap.parse_args(argv)
     rows = []
-    for name in a.devices.split(","):
-        rows += run(name, a.kinds.split(","), n_draws=a.draws, how=a.setup, n_freq=a.n_freq)
+
+    def on_row(r):  # each row as soon as it is measured (long runs on a shared machine)
+        rows.append(r)
+        print(table([r]).split("\n\n")[0].split("\n", 2)[2], flush=True)
+        if a.json:
+            Path(a.json).write_text(json.dumps(rows, indent=1))
+
     print(f"setup: {a.setup}; Q = P P̂⁻¹; 90 % bands; 0.1–100 Hz, measured frequencies held out\n")
-    print(table(rows))
-    if a.json:
-        Path(a.json).write_text(json.dumps(rows, indent=1))
+    print(table([]).split("\n\n")[0].rstrip("\n"), flush=True)
+    for name in a.devices.split(","):
+        run(name, a.kinds.split(","), n_draws=a.draws, how=a.setup, n_freq=a.n_freq, on_row=on_row)
+    print("\n" + "\n".join(table(rows).split("\n\n", 1)[1:]))
 
 
 if __name__ == "__main__":

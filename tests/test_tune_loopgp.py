@@ -135,3 +135,11 @@ def test_plants_hand_back_Q_to_the_scenarios():
     lam_ref = np.sort_complex(np.linalg.eigvals(Q).reshape(-1, 2))
     lam = np.sort_complex(np.asarray(sc.lam).reshape(-1, 2))
     np.testing.assert_allclose(lam, lam_ref, atol=1e-8)
+
+
+def test_cli_loop_draws_without_frf_is_a_clean_error(tmp_path):
+    from tests.helpers_cli import assert_clean_error, write_valid_files
+
+    write_valid_files(tmp_path)
+    assert_clean_error(["tune", "--model", "model.npz", "--loop-draws", "--out", "d.npz"], tmp_path,
+                       "--loop-draws needs the measured FRF")  # fmt: skip
