@@ -93,7 +93,9 @@ class Family:
 
     ``bw_quantile`` (default ``quantile``): the fraction of scenarios that must reach the
     claimed bandwidth (e.g. 0.5: the median scenario's bandwidth is maximized while the
-    margins hold for ``quantile`` of them)."""
+    margins hold for ``quantile`` of them). ``dense`` (optional): the same scenarios on a
+    denser grid; :func:`.tune` checks the margin constraint there after each stage and adds
+    the violated frequencies to the training grid (:mod:`._exchange`)."""
 
     scenarios: Scenarios
     quantile: float = 0.95
@@ -101,6 +103,7 @@ class Family:
     margins: bool = True
     name: str = "scenarios"
     bw_quantile: float | None = None
+    dense: Scenarios | None = None
 
     def __post_init__(self):
         for q in (self.quantile, self.bw_quantile):

@@ -138,6 +138,7 @@ def robust_design(
     n_holdout_subjects: int = 4,
     keep_dc_gain: bool = True,
     n_freq: int = 300,
+    dense_factor: int = 4,
     seed: int = 0,
     mu_schedule=(100.0, 1e3, 1e4),
     max_steps: int = 300,
@@ -211,6 +212,15 @@ def robust_design(
     fit data (40 Hz) as evidence, (2) acts from 40 Hz and costs bandwidth: give the whole
     measured FRF (``hapid tune --frf``) to use all the evidence.
 
+    **Between the grid points.** The margin constraints are imposed on ``n_freq`` points; a
+    lightly damped mode between two of them is invisible to the tuner. With ``dense_factor``
+    > 1 (default 4) the device variants and the posterior models are also evaluated on
+    ``dense_factor · n_freq`` points, and after each stage the tuner adds the dense
+    frequencies where the margin constraint is violated to its grid and repeats the stage
+    (:mod:`hapid.tune._exchange`). Measured on the paper scene (cu5): a design whose loci met
+    the disc at all 300 training points had GM 2.0 dB on every training variant on the
+    analysis grid (a chain mode at 171 Hz between two points).
+
     **Never worse than the start.** With validation on, the tuned g is kept only if, on the
     held-out evidence (posterior draws; device variants and the nominal true plant when a
     device is given), it is no worse than the start: the fraction of plants meeting the
@@ -275,8 +285,14 @@ def robust_design(
         else:
             P, pol = posterior_plants(_sample_models(samples, tr), omc)
             hold_models = _sample_models(samples, ho)
+        dense = None
+        if dense_factor > 1 and not pred:
+            omc_d = posterior_grid(dense_factor * n_freq)
+            P_d, pol_d = posterior_plants(_sample_models(samples, tr), omc_d)
+            dense = make_scenarios(P_d, model, omc_d, p_ol=pol_d)
         families.append(Family(make_scenarios(P, model, omc, p_ol=pol), quantile=quantile,
-                               bandwidth=posterior_bandwidth, bw_quantile=0.5, name="posterior"))  # fmt: skip
+                               bandwidth=posterior_bandwidth, bw_quantile=0.5, name="posterior",
+                               dense=dense))  # fmt: skip
         info["posterior"] = {"train": int(k), "held_out": int(len(ho)),
                              "plants": f"predictive ({samples.error_kind} model error)" if pred else "models"}  # fmt: skip
     variants = None
@@ -285,8 +301,18 @@ def robust_design(
         poses = [device.pose.moved(*o) for o in TRAIN_OFFSETS]
         labels, P = device_plants(device, omd, poses=poses, n_subjects=n_subjects, key=seed + 1,
                                   include_nominal=False)  # fmt: skip
+        dense = None
+        if dense_factor > 1:
+            omd_d = below_nyquist_grid(device.fs_hz, dense_factor * n_freq)
+            labels_d, P_d = device_plants(device, omd_d, poses=poses, n_subjects=n_subjects,
+                                          key=seed + 1, include_nominal=False)  # fmt: skip
+            if list(labels_d) != list(labels):
+                raise RuntimeError(
+                    "robust_design: dense device variants differ from the training ones"
+                )
+            dense = make_scenarios(P_d, model, omd_d, ts=device.ts, labels=labels)
         families.append(Family(make_scenarios(P, model, omd, ts=device.ts, labels=labels), quantile=1.0,
-                               bw_quantile=0.5, name="device"))  # fmt: skip
+                               bw_quantile=0.5, name="device", dense=dense))  # fmt: skip
         info["device"] = {"train": len(labels)}
         if validate_designs:
             omv = device_grid(device.fs_hz)
@@ -295,8 +321,8 @@ def robust_design(
                                      include_nominal=False)  # fmt: skip
             info["device"]["held_out"] = len(variants[0])
     if device is None:
-        families[0] = Family(families[0].scenarios, quantile=quantile, bandwidth=True,
-                             bw_quantile=0.5, name="posterior")  # fmt: skip
+        families[0] = dataclasses.replace(families[0], quantile=quantile, bandwidth=True,
+                                          bw_quantile=0.5)  # fmt: skip
     # the box of g's frequencies as without the evidence family (whose grid ends at ω_e)
     f_max_hz = 0.45 * device.fs_hz if device is not None else float(omc[-1]) / TWO_PI / 4.0
     ev = None

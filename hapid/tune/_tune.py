@@ -25,6 +25,7 @@ import optimistix as optx
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
 from ..control import Compensator
+from ._exchange import exchange
 from ._objective import Box, Requirements, aggregate, penalized
 from ._params import ParamMap
 from ._response import g_response
@@ -154,6 +155,7 @@ def tune(
     rho: float = 1e-4,
     f_max_hz: float | None = None,
     progress=None,
+    max_exchanges: int = 4,
 ) -> TuneResult:
     """Tune g's parameters (log coordinates) for the largest robust isotropic bandwidth.
 
@@ -164,6 +166,9 @@ def tune(
       up to ``f_max_hz``: 0.45·f_s for a sampled design, else a quarter of the grid's top).
     - ``mu_schedule``, ``max_steps``: continuation stages and BFGS steps per stage.
     - ``rho``: weight of ``‖x − x₀‖²`` (keeps flat directions near the start).
+    - ``max_exchanges``: how many times, in all, a stage may be repeated after families with a
+      dense grid (:attr:`.Family.dense`) had violated frequencies added to their training
+      grid (:mod:`._exchange`; ``history[i]["grid_added"]`` counts them per family).
     """
     t0 = time.perf_counter()
     families = list(families)
@@ -207,7 +212,10 @@ def tune(
             np.all((cnt == count0) & res | ~keep)
         )
 
-    for mu in mu_schedule:
+    stages = [float(m) for m in mu_schedule]
+    n_exchange = 0
+    while stages:
+        mu = stages[0]
         ts_ = time.perf_counter()
         # scenarios whose loop is stable at the stage start must stay so (same count,
         # resolved); chance-constrained scenarios that are unstable are free to change
@@ -230,15 +238,25 @@ def tune(
         stop = frac <= 1e-3
         if not stop:
             z = z_new
+        # grid exchange: the margin constraint must hold between the training points too
+        added = [0] * len(families)
+        if not stop and n_exchange < max_exchanges:
+            families, added = exchange(pm.compensator(z[:-1]), families, req.ms)
+            scens = [f.scenarios for f in families]
         c = {k: float(v) for k, v in cons(z, scens, counted_at(z)[0]).items()}
         rec = {"mu": float(mu), "steps": int(sol.stats["num_steps"]), "result": str(sol.result),
                "bandwidth_hz": float(np.exp(z[-1]) / TWO_PI), "constraints": c,
-               "wall_s": time.perf_counter() - ts_, "step_fraction": 0.0 if stop else frac}  # fmt: skip
+               "wall_s": time.perf_counter() - ts_, "step_fraction": 0.0 if stop else frac,
+               "grid_added": added}  # fmt: skip
         history.append(rec)
         if progress:
             progress(rec)
         if stop:
             break
+        if sum(added):
+            n_exchange += 1  # repeat this stage on the enlarged grid
+        else:
+            stages.pop(0)
     x = np.asarray(z[:-1])
     c = {k: float(v) for k, v in cons(z, scens, counted_at(z)[0]).items()}
     return TuneResult(
