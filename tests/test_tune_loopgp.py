@@ -143,3 +143,12 @@ def test_cli_loop_draws_without_frf_is_a_clean_error(tmp_path):
     write_valid_files(tmp_path)
     assert_clean_error(["tune", "--model", "model.npz", "--loop-draws", "--out", "d.npz"], tmp_path,
                        "--loop-draws needs the measured FRF")  # fmt: skip
+
+
+def test_robust_design_loop_gp_needs_an_frf():
+    from hapid.tune import robust_design
+
+    with pytest.raises(ValueError, match="needs a measured FRF"):
+        robust_design(_model(2, 0), draw_family="loop_gp")
+    with pytest.raises(ValueError, match="draw_family"):
+        robust_design(_model(2, 0), draw_family="gp_loop")

@@ -260,12 +260,20 @@ def robust_design(
         get = (lambda k: src[k]) if isinstance(src, dict) else (lambda k: getattr(src, k))  # noqa: E731
         om_e = np.asarray(get("omega"), dtype=float)
         lgp = fit_loop_gp(om_e, measured_plant(get("Z_H"), get("Z_T")), model)
-        P = loop_gp_plants(lgp, model, omc, n_train, seed)
+        dense = None
+        if dense_factor > 1:  # the same draws on the dense grid (one joint GP draw)
+            omc_d = posterior_grid(dense_factor * n_freq)
+            P_all = loop_gp_plants(lgp, model, np.concatenate([omc, omc_d]), n_train, seed)
+            P, P_d = P_all[:, : omc.size], P_all[:, omc.size :]
+            dense = make_scenarios(P_d, model, omc_d)
+        else:
+            P = loop_gp_plants(lgp, model, omc, n_train, seed)
         hold_models = loop_gp_plants(
             lgp, model, posterior_grid(n_holdout_freq), n_holdout, seed + 1
         )
         families.append(Family(make_scenarios(P, model, omc), quantile=quantile,
-                               bandwidth=posterior_bandwidth, bw_quantile=0.5, name="posterior"))  # fmt: skip
+                               bandwidth=posterior_bandwidth, bw_quantile=0.5, name="posterior",
+                               dense=dense))  # fmt: skip
         info["posterior"] = {"train": int(n_train), "held_out": int(n_holdout),
                              "plants": "loop GP (Q = P P̂⁻¹ conditioned on the measured FRF)",
                              "loop_gp": {"ell": lgp.ell, "eta": lgp.eta, "sigma2": lgp.sigma2}}  # fmt: skip
