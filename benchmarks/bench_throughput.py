@@ -6,10 +6,14 @@
    bandwidth measured in the same run: a fit must at least read its FRF (Z_H and Z_T,
    complex128) and write its 6 real n×n matrices, so fits/s ≤ bandwidth ÷ those bytes.
    Bandwidth = the larger of a numpy copy and a jitted JAX ``x + 1`` of a 256 MB array
-   (bytes read + written per second, the STREAM "copy" convention). Two batched forms:
+   (bytes read + written per second, the STREAM "copy" convention), each at two sizes — the
+   WLS's own working set (Z's bytes: the same cache level the fit reads from) and a large
+   array — the bound taking the largest of the four. Batched forms:
+   ``wls_batch_coefficients`` on a batch-first stack ``(B, N, 2, n, n)`` sharing one grid
+   (the real part only, one fused pass over Z: the goal row), the same traced inside a
+   caller's ``jit``, ``wls_coefficients`` on a frequency-first batch (one complex GEMM), and
    ``jax.vmap(wls)`` over FRFs that each carry their own grid (the regressor is rebuilt per
-   fit), and ``wls_coefficients`` on a frequency-first batch sharing one grid (one regressor,
-   one matmul for the whole batch).
+   fit).
 2. Batched NLS fits/s (``hapid.fit.fit_nls_batch``, one batched program) against a loop of
    ``fit_nls`` calls, on noisy FRFs of a second-order truth, B = 16 and 64 (also with
    ``--quick``: the goal row is the issue's B = 64).
@@ -47,7 +51,8 @@ from hapid.frf import as_frf  # noqa: E402
 
 
 def bandwidth(nbytes: int = 256 * 2**20):
-    """(numpy copy GB/s, jax x+1 GB/s), read + written bytes per second, best of 5."""
+    """(numpy copy GB/s, jax x+1 GB/s, jax x+1 CPU/wall), read + written bytes per second,
+    best of 9 (XLA splits the in-place ``x + 1`` over the CPU threads when it is large)."""
     a = np.ones(nbytes // 8)
     b = np.empty_like(a)
     t_np = timeit(lambda: np.copyto(b, a), repeat=5)
@@ -58,9 +63,9 @@ def bandwidth(nbytes: int = 256 * 2**20):
         box[0] = f(box[0])
         return box[0]
 
-    t_j = timeit(step, repeat=5)
-
-    return 2 * nbytes / t_np / 1e9, 2 * nbytes / t_j / 1e9
+    wall, cpu = _interleaved({"x+1": step}, repeat=9)
+    t_j = wall["x+1"]
+    return 2 * nbytes / t_np / 1e9, 2 * nbytes / t_j / 1e9, cpu["x+1"] / t_j
 
 
 def _wls_batch(B, n=5, seed=0):
@@ -74,13 +79,22 @@ def _wls_batch(B, n=5, seed=0):
     return w, ZH[None] + noise(), ZT[None] + noise()
 
 
-def _interleaved(fns: dict, repeat: int):
+def _interleaved(fns: dict, repeat: int, warm: int = 0):
     """Best wall and CPU (process) seconds per name, the calls interleaved round-robin so that
-    load from other processes hits every contender alike."""
+    load from other processes hits every contender alike, in an order that rotates each round.
+    ``warm`` untimed calls precede each timed one, so every contender finds its own data in
+    cache as the one before it left it (otherwise the one after a cache-thrashing contender
+    pays for its misses)."""
     wall = {k: float("inf") for k in fns}
     cpu = dict(wall)
-    for _ in range(repeat):
-        for k, fn in fns.items():
+    names = list(fns)
+    for r in range(repeat):
+        # the order rotates each round: whichever form came first in a round ran slower
+        # (measured 1.3–1.5×, whatever the form), so no form is always first
+        for k in names[r % len(names) :] + names[: r % len(names)]:
+            fn = fns[k]
+            for _ in range(warm):
+                jax.block_until_ready(fn())
             t, c = time.perf_counter(), time.process_time()
             jax.block_until_ready(fn())
             wall[k] = min(wall[k], time.perf_counter() - t)
@@ -89,19 +103,19 @@ def _interleaved(fns: dict, repeat: int):
 
 
 def wls_throughput(sec: Section, quick: bool):
-    from hapid.fit import wls, wls_coefficients, wls_operator
+    from hapid.fit import wls, wls_batch_coefficients, wls_coefficients, wls_operator
 
     B = 512 if quick else 4096
     n, N = 5, 28
     w, ZH, ZT = _wls_batch(B, n)
     frfs = as_frf(np.broadcast_to(w / (2 * np.pi), (B, N)), ZH, ZT)
     vm = jax.jit(jax.vmap(wls))
-    Zf_np = np.ascontiguousarray(
-        np.stack([ZH, ZT], axis=2).transpose(1, 0, 2, 3, 4)
-    )  # (N, B, 2, n, n)
-    Zf = jnp.asarray(Zf_np)
+    Zb_np = np.ascontiguousarray(np.stack([ZH, ZT], axis=2))  # (B, N, 2, n, n), batch first
+    Zf_np = np.ascontiguousarray(Zb_np.transpose(1, 0, 2, 3, 4))  # (N, B, 2, n, n)
+    Zb, Zf = jnp.asarray(Zb_np), jnp.asarray(Zf_np)
     wj = jnp.asarray(w)
     shared = jax.jit(lambda om, Z: wls_coefficients(om, Z))
+    inlined = jax.jit(lambda om, Z: wls_batch_coefficients(om, Z))  # traced in a caller's jit
     K_np = np.asarray(wls_operator(wj))
     flat_np = Zf_np.reshape(N, -1)
 
@@ -115,26 +129,44 @@ def wls_throughput(sec: Section, quick: bool):
     def numpy_gemm():  # the same operator in numpy (one zgemm): the numpy side of the row
         return np.real(K_np @ flat_np)
 
-    ref = np.asarray(shared(wj, Zf))
+    ref = np.asarray(shared(wj, Zf))  # (3, B, 2, n, n)
+    ref_b = np.moveaxis(ref, 0, 1).reshape(B, 3, -1)  # (B, 3, 2n²), batch first
     m1 = vm(frfs)
     _, c1, _ = measure(lambda: vm(frfs), repeat=1)
     _, c2, _ = measure(lambda: shared(wj, Zf), repeat=1)
-    split(wj, Zf)
-    wall, cpu = _interleaved({"vmap": lambda: vm(frfs), "shared": lambda: shared(wj, Zf),
-                              "split": lambda: split(wj, Zf), "numpy": numpy_gemm}, repeat=7)  # fmt: skip
-    dev_np = float(np.max(np.abs(numpy_gemm().reshape(ref.shape) - ref)) / np.max(np.abs(ref)))
-    dev_split = float(np.max(np.abs(np.asarray(split(wj, Zf)) - ref)) / np.max(np.abs(ref)))
+    _, c3, _ = measure(lambda: wls_batch_coefficients(wj, Zb), repeat=1)
+    split(wj, Zf), inlined(wj, Zb)
+    fns = {"fused": lambda: wls_batch_coefficients(wj, Zb), "inlined": lambda: inlined(wj, Zb),
+           "shared": lambda: shared(wj, Zf), "split": lambda: split(wj, Zf),
+           "numpy": numpy_gemm, "vmap": lambda: vm(frfs)}  # fmt: skip
+    # the bandwidth in the same run: at Z's size (the cache level the fit reads from) and large
+    z_bytes = Zb_np.nbytes
+    big = 64 * 2**20 if quick else 256 * 2**20
+    bws = {size: bandwidth(size) for size in (z_bytes, big)}
+    # the forms that call OpenBLAS (numpy's zgemm, LAPACK under vmap) in their own group: the
+    # form timed right after them ran 1.3–1.7× slower (measured; OpenBLAS threads spin on)
+    xla = ("fused", "inlined", "shared", "split")
+    wall, cpu = _interleaved({k: fns[k] for k in xla}, repeat=15, warm=1)  # ~1–2 ms each
+    w_blas, c_blas = _interleaved({k: f for k, f in fns.items() if k not in xla}, repeat=15, warm=1)
+    wall.update(w_blas), cpu.update(c_blas)
+    scale = np.max(np.abs(ref))
+    dev_np = float(np.max(np.abs(numpy_gemm().reshape(ref.shape) - ref)) / scale)
+    dev_split = float(np.max(np.abs(np.asarray(split(wj, Zf)) - ref)) / scale)
+    dev_fused = float(np.max(np.abs(np.asarray(wls_batch_coefficients(wj, Zb)) - ref_b)) / scale)
+    dev_inl = float(np.max(np.abs(np.asarray(inlined(wj, Zb)) - ref_b)) / scale)
     dev_ = float(jnp.max(jnp.abs(m1.hand.M - ref[0, :, 0])) / np.max(np.abs(ref[0, :, 0])))
-    bw_np, bw_j = bandwidth(64 * 2**20 if quick else 256 * 2**20)
-    bw = max(bw_np, bw_j)
+    bw = max(max(v[:2]) for v in bws.values())
     shared_bytes = 2 * N * n * n * 16 + 6 * n * n * 8  # read Z_H, Z_T; write 6 n×n matrices
-    per_fit = {"vmap": shared_bytes + N * 8, "shared": shared_bytes, "numpy": shared_bytes,
-               "split": shared_bytes}  # fmt: skip
+    per_fit = {k: shared_bytes for k in fns}
+    per_fit["vmap"] = shared_bytes + N * 8  # + its own grid
+    forms = (("hapid `wls_batch_coefficients`: batch first (B, N, …), real part only, one fused pass", "fused"),
+             ("the same, traced inside a caller's `jit` (256-bit vectors)", "inlined"),
+             ("numpy: Re(K @ Z), one zgemm, shared grid", "numpy"),
+             ("hapid `wls_coefficients` (one complex GEMM), frequency first (N, B, …)", "shared"),
+             ("real part only: [Re K, −Im K] @ [Re Z; Im Z] (copy + dgemm)", "split"),
+             ("hapid `jax.vmap(wls)`, grid per FRF", "vmap"))  # fmt: skip
     rows = []
-    for name, key in (("numpy: Re(K @ Z), one zgemm, shared grid", "numpy"),
-                      ("hapid `wls_coefficients` (one GEMM), shared grid (N, B, …)", "shared"),
-                      ("real part only: [Re K, −Im K] @ [Re Z; Im Z] (copy + dgemm)", "split"),
-                      ("hapid `jax.vmap(wls)`, grid per FRF", "vmap")):  # fmt: skip
+    for name, key in forms:
         t = wall[key]
         rate = B / t
         bound = bw * 1e9 / per_fit[key]
@@ -143,50 +175,63 @@ def wls_throughput(sec: Section, quick: bool):
                      "bound fits/s": f"{bound:,.0f}", "fraction of bound": f"{100 * rate / bound:.1f} %",
                      "CPU/wall": f"{cpu[key] / t:.2f}"})  # fmt: skip
         sec.rows[f"wls_{key}_fraction"] = rate / bound
+    bw_txt = "; ".join(
+        f"{size / 2**20:.1f} MB: numpy copy {v[0]:.1f}, jax x+1 {v[1]:.1f} GB/s (CPU/wall {v[2]:.2f})"
+        for size, v in bws.items()
+    )
     sec.add(f"### 1. Batched WLS (n = {n}, N = {N}) vs the memory-bandwidth bound\n\n"
-            f"Measured bandwidth in this run (read + write): numpy copy {bw_np:.1f} GB/s, jax x+1 "
-            f"{bw_j:.1f} GB/s; the bound uses the larger, {bw:.1f} GB/s, and the bytes a fit must "
-            "move (read its FRF's Z_H, Z_T as complex128, write 6 real n×n matrices). hapid builds "
-            "the 3×N operator K = (Re AᴴA)⁻¹Aᴴdiag(h) once per grid (`wls_operator`) and applies it "
-            f"to all 2n²·B elements as one complex matmul. Max rel. diff: numpy vs hapid {dev_np:.1e}, "
-            f"real-part-only form vs hapid {dev_split:.1e}, "
-            f"vmap vs shared form {dev_:.1e}. Compile: {fs(max(c1 - wall['vmap'], 0))} (vmap), "
-            f"{fs(max(c2 - wall['shared'], 0))} (shared). Best of 7 interleaved calls.\n\n"
-            + table(rows))  # fmt: skip
-    frac = sec.rows["wls_shared_fraction"]
-    # arithmetic intensity: 3 complex multiply-adds (8 real flops each) per complex input of
-    # 16 bytes = 1.5 flop/byte; the real part alone needs half (0.75 flop/byte)
+            f"Measured bandwidth in this run (read + write), {bw_txt}; the bound uses the largest, "
+            f"{bw:.1f} GB/s, and the bytes a fit must move (read its FRF's Z_H, Z_T as complex128 "
+            "once, write 6 real n×n matrices). hapid builds the 3×N operator K = (Re AᴴA)⁻¹Aᴴdiag(h) "
+            "once per grid (`wls_operator`); `wls_batch_coefficients` forms only Re(K z) = K_r z_r − "
+            "K_i z_i, unrolled over the N frequencies in one XLA loop over the batch (Z read once; "
+            "its own program with 512-bit vectors), `wls_coefficients` applies K to all 2n²·B "
+            f"elements as one complex matmul. Max rel. diff vs `wls_coefficients`: fused {dev_fused:.1e}, "
+            f"fused inside a jit {dev_inl:.1e}, numpy {dev_np:.1e}, real-part-only copy form "
+            f"{dev_split:.1e}, vmap {dev_:.1e}. Compile: {fs(max(c1 - wall['vmap'], 0))} (vmap), "
+            f"{fs(max(c2 - wall['shared'], 0))} (GEMM), {fs(max(c3 - wall['fused'], 0))} (fused). "
+            "Best of 15 interleaved calls, each after an untimed one (warm caches, as the bound's); "
+            "numpy and vmap (OpenBLAS) interleaved in their own group.\n\n" + table(rows))  # fmt: skip
+    frac = sec.rows["wls_fused_fraction"]
+    # useful work of the real part: 3 rows × 2 real multiply-adds per complex input = 12 flops
     e_fit = 2 * N * n * n  # complex inputs per fit
-    gflops = 3 * 8 * e_fit * B / wall["shared"] / 1e9
-    need = 3 * 8 * e_fit / (per_fit["shared"] / (bw * 1e9)) / 1e9  # to run at the bound
+    gflops = 12 * e_fit * B / wall["fused"] / 1e9
+    gbs = per_fit["fused"] * B / wall["fused"] / 1e9
+    threads = cpu["fused"] / wall["fused"]
+    need = 12 * e_fit / (per_fit["fused"] / (bw * 1e9)) / 1e9  # flop rate at the bound
     reason = (
         ""
         if frac >= 0.5
         else (
-            f" — not met: compute-bound, not memory-bound. XLA:CPU runs the 3-row complex GEMM "
-            f"on one thread (CPU/wall {cpu['shared'] / wall['shared']:.2f}) at {gflops:.1f} GFLOP/s "
-            f"(8 flops per complex multiply-add); reading Z at {bw:.0f} GB/s needs {need:.0f} GFLOP/s "
-            f"({need / 2:.0f} for the real part alone, arithmetic intensity 0.75 flop/byte), 50 % of "
-            f"the bound half that. The real-part-only form needs Z as float64 pairs, which XLA cannot "
-            f"view without a copy (no bitcast of complex): with the copy it ran at "
-            f"{100 * sec.rows['wls_split_fraction']:.0f} % of the bound"
+            f" — not met: compute-bound on this machine, not memory-bound. The fused kernel moves "
+            f"{gbs:.1f} GB/s at {gflops:.1f} GFLOP/s (12 flops per complex input), CPU/wall "
+            f"{threads:.2f}; at the bound it would need {need:.0f} GFLOP/s (50 %: {need / 2:.0f}). "
+            "Its floor is splitting complex128 into real and imaginary parts: XLA vectorizes over "
+            "the output's last axis, so each of the 3 rows shuffles the interleaved (re, im) pairs "
+            "again (2 shuffles per 8 complex at 512 bits, one shuffle port), and XLA offers no "
+            "float64 view of complex data that would avoid them"
         )
     )
     sec.goal("batched WLS ≥ 50 % of the memory-bandwidth bound (same run)",
-             f"hapid shared grid {100 * frac:.0f} % ({fs(wall['shared'])} per {B} fits; numpy zgemm "
+             f"hapid fused {100 * frac:.0f} % ({fs(wall['fused'])} per {B} fits; inside a jit "
+             f"{100 * sec.rows['wls_inlined_fraction']:.0f} %, complex GEMM "
+             f"{100 * sec.rows['wls_shared_fraction']:.0f} %, numpy zgemm "
              f"{100 * sec.rows['wls_numpy_fraction']:.0f} %), vmap {100 * sec.rows['wls_vmap_fraction']:.0f} %"
              + reason, frac >= 0.5)  # fmt: skip
-    t_fit = wall["shared"] / B
-    t_bound = per_fit["shared"] / (bw * 1e9)  # time per fit at the bound
+    t_fit = wall["fused"] / B
+    t_bound = per_fit["fused"] / (bw * 1e9)  # time per fit at the bound
     return {"id": "wls_bound",
-            "work": f"batched WLS, `wls_coefficients` (one GEMM, shared grid), n = {n}, N = {N}, "
-                    f"B = {B}, per fit",
-            "reference": f"memory-bandwidth bound ({bw:.1f} GB/s measured, {per_fit['shared']} B/fit)",
+            "work": f"batched WLS, `wls_batch_coefficients` (shared grid, batch first, one fused pass), "
+                    f"n = {n}, N = {N}, B = {B}, per fit",
+            "reference": f"memory-bandwidth bound ({bw:.1f} GB/s measured, {per_fit['fused']} B/fit)",
             "reference_s": t_bound, "hapid_s": t_fit, "ratio": t_bound / t_fit,
             "goal": ISSUE_GOAL["wls_bound"], "met": bool(frac >= 0.5),
             "reason": reason.removeprefix(" — ")
-            + f"{'; ' if reason else ''}numpy zgemm {100 * sec.rows['wls_numpy_fraction']:.0f} % of "
-            f"its bound, jax.vmap(wls) {100 * sec.rows['wls_vmap_fraction']:.0f} %"}  # fmt: skip
+            + f"{'; ' if reason else ''}{gflops:.1f} GFLOP/s, {gbs:.1f} GB/s, CPU/wall {threads:.2f}; "
+            f"inside a jit {100 * sec.rows['wls_inlined_fraction']:.0f} %, complex GEMM "
+            f"{100 * sec.rows['wls_shared_fraction']:.0f} %, numpy zgemm "
+            f"{100 * sec.rows['wls_numpy_fraction']:.0f} % of the bound, jax.vmap(wls) "
+            f"{100 * sec.rows['wls_vmap_fraction']:.0f} %"}  # fmt: skip
 
 
 def _nls_batch_vs_loop(B: int, repeat: int):

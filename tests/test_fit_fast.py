@@ -7,7 +7,7 @@ import jax.scipy.linalg as jsl
 import numpy as np
 import pytest
 
-from hapid.fit import OMEGA_C_PAPER, paper_weight, wls, wls_coefficients
+from hapid.fit import OMEGA_C_PAPER, paper_weight, wls, wls_batch_coefficients, wls_coefficients
 from hapid.fit._checks import band_mask
 
 
@@ -63,9 +63,44 @@ def test_wls_batch_on_shared_grid_equals_per_frf_wls():
     Z = jnp.moveaxis(Z, 2, 0)  # (N, B, 2, n, n)
     mask = band_mask(frfs.omega[0], 40.0)
     m, b, k = wls_coefficients(frfs.omega[0], Z, OMEGA_C_PAPER, mask)
-    for got, want in ((m[:, 0], one.hand.M), (b[:, 1], one.total.B), (k[:, 1], one.total.K)):
+    Zb = jnp.stack([frfs.Z_H, frfs.Z_T], axis=2)  # (B, N, 2, n, n), batch first
+    th = wls_batch_coefficients(frfs.omega[0], Zb, OMEGA_C_PAPER, mask).reshape(
+        (Zb.shape[0], 3) + Zb.shape[2:]
+    )
+    for got, want in ((m[:, 0], one.hand.M), (b[:, 1], one.total.B), (k[:, 1], one.total.K),
+                      (th[:, 0, 0], one.hand.M), (th[:, 1, 0], one.hand.B),
+                      (th[:, 2, 1], one.total.K)):  # fmt: skip
         np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-12,
                                    atol=1e-12 * float(jnp.max(jnp.abs(want))))  # fmt: skip
+
+
+@pytest.mark.parametrize("n,N,f_max", [(3, 17, None), (5, 28, 40.0), (4, 70, 25.0)])
+def test_wls_batch_coefficients_equal_the_cholesky_form(n, N, f_max):
+    """The batch-first real-part kernel (N ≤ 64: unrolled fused pass; N = 70: the GEMM
+    fallback) equals the Cholesky form of the normal equations to 1e-12, called on its own
+    (its own program) and traced inside a caller's jit (inlined), on random FRFs with a band."""
+    rng = np.random.default_rng(10 + n)
+    f = np.sort(rng.uniform(0.5, 80.0, N))
+    w = 2 * np.pi * f
+    B = 3
+    Z = rng.standard_normal((B, N, 2, n, n)) + 1j * rng.standard_normal((B, N, 2, n, n))
+    Z *= (1 + w**2)[None, :, None, None, None]
+    mask = None if f_max is None else (f <= f_max).astype(float)
+    ref = _cho_solve_wls(jnp.asarray(w), jnp.asarray(np.moveaxis(Z, 1, 0)), OMEGA_C_PAPER,
+                         np.ones(N) if mask is None else mask)  # fmt: skip
+    ref = np.moveaxis(np.asarray(ref), 0, 1).reshape(B, 3, -1)  # (B, 3, 2n²)
+    scale = np.abs(ref).max(axis=(0, 2))[None, :, None]
+    own = np.asarray(wls_batch_coefficients(jnp.asarray(w), jnp.asarray(Z), OMEGA_C_PAPER, mask))
+    traced = jax.jit(lambda w_, Z_: wls_batch_coefficients(w_, Z_, OMEGA_C_PAPER, mask))
+    inl = np.asarray(traced(jnp.asarray(w), jnp.asarray(Z)))
+    assert own.shape == (B, 3, 2 * n * n)
+    assert np.max(np.abs(own - ref) / scale) < 1e-12
+    assert np.max(np.abs(inl - ref) / scale) < 1e-12
+
+
+def test_wls_batch_coefficients_rejects_a_grid_of_the_wrong_length():
+    with pytest.raises(ValueError, match=r"\(B, N, \.\.\.\) with N = len\(omega\) = 5"):
+        wls_batch_coefficients(jnp.linspace(1.0, 5.0, 5), jnp.ones((2, 4, 3, 3), complex))
 
 
 @pytest.mark.parametrize(

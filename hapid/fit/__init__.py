@@ -1,6 +1,7 @@
 """Identification: the paper's WLS baseline, positizing, and PD-constrained nonlinear fits.
 
-- :func:`wls` — paper section 4.2, element-wise weighted least squares (one batched solve).
+- :func:`wls` — paper section 4.2, element-wise weighted least squares (one batched solve);
+  :func:`wls_batch_coefficients` — the same for a batch of FRFs on one grid (one fused pass).
 - :func:`positize`, :func:`crhp_report` — paper section 5.1 and its root check.
 - :func:`fit_nls` — hapid's fit: PSD hand and mechanism matrices (``L Lᵀ``, free-sign
   diagonal), joint Z_H/Z_T residuals, optimistix solvers, Laplace covariance.
@@ -60,5 +61,6 @@ from ._single import wls_single as wls_single
 from ._wls import OMEGA_C_PAPER as OMEGA_C_PAPER
 from ._wls import paper_weight as paper_weight
 from ._wls import wls as wls
+from ._wls import wls_batch_coefficients as wls_batch_coefficients
 from ._wls import wls_coefficients as wls_coefficients
 from ._wls import wls_operator as wls_operator
