@@ -222,6 +222,7 @@ COMMON: dict[str, tuple] = {
     "free_dc": FLAG,
     "predictive": FLAG,
     "evidence_bandwidth": FLAG,
+    "loop_draws": FLAG,
     "no_cache": FLAG,
     "outputs": ANY,  # checked with the scene (run)
     "set": ANY,  # checked with the scene (run)
@@ -353,8 +354,12 @@ def _analyze_cross(a):
 
 
 def _tune_cross(a):
-    if a.samples is None and a.device is None:
-        raise ValueError("hapid tune needs --samples, --device, or both")
+    if getattr(a, "loop_draws", False) and a.frf is None:
+        raise ValueError("hapid tune --loop-draws needs the measured FRF (--frf)")
+    if a.samples is None and a.device is None and not getattr(a, "loop_draws", False):
+        raise ValueError(
+            "hapid tune needs --samples, --device, or both (or --loop-draws with --frf)"
+        )
 
 
 def _robust_cross(a):

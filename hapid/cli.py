@@ -564,8 +564,10 @@ def cmd_tune(a):
 
     from .tune import tune_from_files
 
-    if a.samples is None and a.device is None:
-        raise CLIError("hapid tune needs --samples, --device, or both")
+    if a.loop_draws and a.frf is None:
+        raise CLIError("hapid tune --loop-draws needs the measured FRF (--frf)")
+    if a.samples is None and a.device is None and not a.loop_draws:
+        raise CLIError("hapid tune needs --samples, --device, or both (or --loop-draws with --frf)")
     import time
 
     t = time.perf_counter()
@@ -573,7 +575,8 @@ def cmd_tune(a):
                           evidence_ts=None if a.fs is None else 1.0 / a.fs, n_train=a.n_train,
                           n_holdout=a.n_holdout, quantile=a.quantile, n_subjects=a.subjects,
                           seed=a.seed, max_steps=a.max_steps, keep_dc_gain=not a.free_dc,
-                          model_error_draws=a.predictive, evidence_bandwidth=a.evidence_bandwidth)  # fmt: skip
+                          model_error_draws=a.predictive, evidence_bandwidth=a.evidence_bandwidth,
+                          draw_family="loop_gp" if a.loop_draws else "samples")  # fmt: skip
     r = res["result"]
     print(res.get("decision", ""))
     print(f"tuned in {r.wall_s:.1f} s: claimed robust bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, "
@@ -638,6 +641,9 @@ def _register_tune(sub):
     tu.add_argument("--evidence-bandwidth", action="store_true",
                     help="the measured FRF (--frf) claims the bandwidth, the draws keep the margins (chance "
                     "constraint); default: the median draw claims it")  # fmt: skip
+    tu.add_argument("--loop-draws", action="store_true",
+                    help="tune and re-check on draws of Q = P P̂⁻¹ conditioned on the measured FRF (--frf; "
+                    "hapid.tune._loopgp) instead of posterior samples")  # fmt: skip
     tu.add_argument("--seed", type=int, default=0)
     tu.set_defaults(func=cmd_tune)
 

@@ -16,7 +16,7 @@ used to choose tuning settings.
     python paper_figures/robust_table.py [--devices cu5 cu5_soft] [--quick] [--draws gp|white|nls]
                                          [--n-train 150] [--n-holdout N] [--quantile 0.975]
                                          [--predictive] [--free-dc] [--evidence-bandwidth]
-                                         [--out out/robust]
+                                         [--freqs paper|dense] [--periods 4] [--out out/robust]
     # the held-out check reported in docs/robust-design.md:
     python paper_figures/robust_table.py --devices cu5_soft --quick --evidence-bandwidth
     python paper_figures/robust_table.py --oracle     # the paper-form g tuned on the true plant
@@ -31,6 +31,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 GOAL_HZ, GM_DB, PM_DEG = 6.0, 6.0, 30.0
+# more evidence around the crossover: every 1 Hz from 1 to 60 Hz, then the paper's 5 Hz steps
+DENSE_FREQS = [float(f) for f in range(1, 61)] + [float(f) for f in range(65, 101, 5)]
 
 
 def design(
@@ -42,9 +44,12 @@ def design(
     g0=None,
     draws: str = "gp",
     sampled: bool = True,
+    protocol: dict | None = None,
     **options,
 ):
-    """Simulate → FRF → NLS → Laplace samples → robust_design; returns (row dict, raw)."""
+    """Simulate → FRF → NLS → Laplace samples → robust_design; returns (row dict, raw).
+    ``protocol``: scene ``[protocol]`` options (e.g. ``{"freqs": DENSE_FREQS, "periods": 16}``:
+    more evidence) over the paper's."""
     import hapid  # noqa: F401  (float64 first)
     from hapid import scene
     from hapid.control import Compensator
@@ -53,14 +58,18 @@ def design(
     from hapid.uncertainty._sampler import posterior_laplace_samples
 
     cache = str(ROOT / ".hapid_cache" / "stages") if cache is None else cache
-    res, _ = scene.run_scene(scene.merge({"device": {"preset": device}}), ["device", "frf", "nls"],
+    cfg = {"device": {"preset": device}} | ({"protocol": protocol} if protocol else {})
+    res, _ = scene.run_scene(scene.merge(cfg), ["device", "frf", "nls"],
                              cache_dir=cache, out_dir=str(ROOT / "out" / "robust"))  # fmt: skip
     dev, frf, nls = res["device"], res["frf"], res["nls"]["result"]
     model = res["nls"]["model"]
     n_train = options.pop("n_train", None) or 150
     n_holdout = options.pop("n_holdout", None) or (100 if quick else 200)
     n_draws = max(200 if quick else 400, n_train + n_holdout)
-    if draws == "nls":  # Laplace of the NLS fit (hapid.uncertainty.laplace_samples)
+    if draws == "loop_gp":  # draws of Q = P P̂⁻¹ conditioned on the FRF: no posterior
+        ps = None
+        options["draw_family"] = "loop_gp"
+    elif draws == "nls":  # Laplace of the NLS fit (hapid.uncertainty.laplace_samples)
         ps = laplace_samples(nls, n_draws, key=seed)
     else:  # Laplace of the white/gp log-posterior (hapid posterior --method laplace)
         post = make_log_posterior(frf, nls.scale, f_max_hz=40.0, model_error=draws,
@@ -147,7 +156,9 @@ def table(results) -> str:
                          f"{f(None if x['held_out_frac'] is None else 100 * x['held_out_frac'], '.1f')} % | "
                          f"{x['certified']} |")  # fmt: skip
     for r in results:
-        lines.append(f"\n{r['device']}: {r['decision']} ({r['wall_s']:.0f} s). Goals: {verdict(r)}")
+        p = r["families"].get("posterior", {})
+        lines.append(f"\n{r['device']}: {r['decision']} ({r['wall_s']:.0f} s; {p.get('train')} "
+                     f"training / {p.get('held_out')} held-out draws). Goals: {verdict(r)}")  # fmt: skip
     return "\n".join(lines)
 
 
@@ -155,8 +166,9 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--devices", nargs="+", default=["cu5", "cu5_soft"])
     ap.add_argument("--quick", action="store_true", help="fewer draws and steps (smoke run)")
-    ap.add_argument("--draws", default="gp", choices=["nls", "white", "gp", "gp_corr"],
-                    help="posterior draws: Laplace of the gp (default) or white log-posterior, or of the NLS fit")  # fmt: skip
+    ap.add_argument("--draws", default="gp", choices=["nls", "white", "gp", "gp_corr", "loop_gp"],
+                    help="posterior draws: Laplace of the gp (default) or white log-posterior, or of the "
+                         "NLS fit; loop_gp: draws of Q = P P̂⁻¹ conditioned on the measured FRF")  # fmt: skip
     ap.add_argument("--out", default=str(ROOT / "out" / "robust"))
     ap.add_argument(
         "--predictive",
@@ -176,6 +188,9 @@ def main(argv=None):
         help="the measured FRF claims the bandwidth (the draws keep the margins)",
     )
     ap.add_argument("--free-dc", action="store_true", help="|g(0)| may drop below the paper g's")
+    ap.add_argument("--freqs", choices=["paper", "dense"], default="paper",
+                    help="excited frequencies: the paper's 28, or dense (1 Hz steps to 60 Hz)")  # fmt: skip
+    ap.add_argument("--periods", type=int, help="measured periods per experiment (default 4)")
     a = ap.parse_args(argv)
     if a.oracle:
         for d in a.devices:
@@ -191,7 +206,11 @@ def main(argv=None):
     }
     if a.quantile is not None:
         opts["quantile"] = a.quantile
-    results = [design(d, quick=a.quick, draws=a.draws, **opts)[0] for d in a.devices]
+    prot = {"freqs": DENSE_FREQS} if a.freqs == "dense" else {}
+    if a.periods is not None:
+        prot["periods"] = a.periods
+    results = [design(d, quick=a.quick, draws=a.draws, protocol=prot or None, **opts)[0]
+               for d in a.devices]  # fmt: skip
     Path(a.out).mkdir(parents=True, exist_ok=True)
     (Path(a.out) / "robust_table.json").write_text(json.dumps(results, indent=1, default=float))
     txt = table(results)

@@ -35,7 +35,7 @@ from .._constants import TWO_PI
 from .._grids import below_nyquist_grid
 from .._grids import continuous_grid as posterior_grid
 from ..control import Compensator
-from ._evidence import KAPPA, beyond_grid, certificate, evidence_from_frf
+from ._evidence import KAPPA, beyond_grid, certificate, evidence_from_frf, measured_plant
 from ._objective import Family, Requirements
 from ._scenarios import make_scenarios
 from ._tune import tune
@@ -151,6 +151,7 @@ def robust_design(
     mismatch: float | None = None,
     evidence_ts: float | None = None,
     evidence_bandwidth: bool = False,
+    draw_family: str = "samples",
     progress=None,
 ) -> dict:
     """Tune g for ``model`` over posterior ``samples`` and/or ``device`` variants, then
@@ -184,6 +185,13 @@ def robust_design(
     cu5 2.41 Hz, GM 6.9 dB, PM 54° (median-draw bandwidth: 1.19 Hz); tripod3 2.77 Hz, GM
     7.6 dB, PM 44° (2.42 Hz) — all certified (docs/robust-design.md). Off by default: it relies on draws
     wide enough to cover the plant between the measured frequencies.
+
+    ``draw_family="loop_gp"``: the training and held-out plants are draws of the loop
+    coordinate ``Q = P P̂⁻¹`` itself, conditioned on the whole measured FRF
+    (:mod:`hapid.tune._loopgp`: a GP of ``Q − I`` in ln ω, hyperparameters by leave-one-out;
+    ``frf`` required, ``samples`` not used) instead of posterior draws of the second-order
+    fit. Calibrated in loop coordinates on cu5 and tripod3 + 2 ms where the gp posterior's
+    draws are not (benchmarks/calibrate_loop.py, docs/robust-design.md).
 
     **Chance constraint.** The margins on the posterior draws must hold on ``quantile``
     (0.975) of the ``n_train`` (150) training draws: a CVaR of the smooth disc constraint in
@@ -227,7 +235,15 @@ def robust_design(
     """
     from ..uncertainty import device_plants
 
-    if samples is None and device is None:
+    if draw_family not in ("samples", "loop_gp"):
+        raise ValueError(
+            f"robust_design: draw_family must be 'samples' or 'loop_gp', got {draw_family!r}"
+        )
+    if draw_family == "loop_gp":
+        src = frf if frf is not None else getattr(samples, "predictive", None)
+        if src is None:
+            raise ValueError("robust_design: draw_family='loop_gp' needs a measured FRF (frf=…)")
+    elif samples is None and device is None:
         raise ValueError("robust_design: give posterior samples, a device, or both")
     g0 = Compensator.paper() if g0 is None else g0
     req = Requirements() if requirements is None else requirements
@@ -237,14 +253,37 @@ def robust_design(
     rng = np.random.default_rng(seed)
     families, info = [], {}
     hold_models = None
-    if samples is not None:
+    omc = posterior_grid(n_freq)
+    if draw_family == "loop_gp":
+        from ._loopgp import fit_loop_gp, loop_gp_plants
+
+        get = (lambda k: src[k]) if isinstance(src, dict) else (lambda k: getattr(src, k))  # noqa: E731
+        om_e = np.asarray(get("omega"), dtype=float)
+        lgp = fit_loop_gp(om_e, measured_plant(get("Z_H"), get("Z_T")), model)
+        dense = None
+        if dense_factor > 1:  # the same draws on the dense grid (one joint GP draw)
+            omc_d = posterior_grid(dense_factor * n_freq)
+            P_all = loop_gp_plants(lgp, model, np.concatenate([omc, omc_d]), n_train, seed)
+            P, P_d = P_all[:, : omc.size], P_all[:, omc.size :]
+            dense = make_scenarios(P_d, model, omc_d)
+        else:
+            P = loop_gp_plants(lgp, model, omc, n_train, seed)
+        hold_models = loop_gp_plants(
+            lgp, model, posterior_grid(n_holdout_freq), n_holdout, seed + 1
+        )
+        families.append(Family(make_scenarios(P, model, omc), quantile=quantile,
+                               bandwidth=posterior_bandwidth, bw_quantile=0.5, name="posterior",
+                               dense=dense))  # fmt: skip
+        info["posterior"] = {"train": int(n_train), "held_out": int(n_holdout),
+                             "plants": "loop GP (Q = P P̂⁻¹ conditioned on the measured FRF)",
+                             "loop_gp": {"ell": lgp.ell, "eta": lgp.eta, "sigma2": lgp.sigma2}}  # fmt: skip
+    elif samples is not None:
         S = _n_models(samples)
         if S < 2:
             raise ValueError("robust_design: need at least 2 posterior samples (train + held out)")
         perm = rng.permutation(S)
         k = min(n_train, S // 2)
         tr, ho = perm[:k], perm[k : k + n_holdout]
-        omc = posterior_grid(n_freq)
         pred = model_error_draws and _has_error_term(samples)
         if pred:
             P, pol = predictive_scenario_plants(samples, tr, omc, seed=seed)

@@ -1,0 +1,154 @@
+"""Loop-coordinate draws (hapid.tune._loopgp): the GP conditional against a dense numpy
+solve, the closed-form leave-one-out against refitting without each point, the draws'
+moments against the conditional, the continuations beyond the data, calibration on a truth
+drawn from the GP itself, and the plants handing back Q to the tuner's scenarios."""
+
+import numpy as np
+import pytest
+
+from hapid._constants import TWO_PI
+from hapid.tune import make_scenarios
+from hapid.tune._loopgp import (
+    TOP_TAPER,
+    LoopGP,
+    _loo,
+    conditional,
+    fit_loop_gp,
+    loop_gp_draws,
+    loop_gp_plants,
+    measured_delta,
+)
+from tests.test_tune import _model
+
+
+def _m52(d, ell):  # Matérn-5/2, written out independently
+    r = abs(d) / ell
+    return (1 + np.sqrt(5) * r + 5 * r * r / 3) * np.exp(-np.sqrt(5) * r)
+
+
+def _gp(rng, K=9, n=2, ell=0.6, eta=1e-3, s2=0.7):
+    u = np.log(TWO_PI * np.geomspace(1.0, 100.0, K))
+    D = rng.normal(size=(K, n * n)) + 1j * rng.normal(size=(K, n * n))
+    r = 0.2 + np.abs(np.sin(u))
+    return LoopGP(u, D, r, ell, eta, s2, n, 0.0)
+
+
+def test_conditional_matches_dense_numpy_solve():
+    gp = _gp(np.random.default_rng(0))
+    un = np.linspace(gp.u[0] + 0.1, gp.u[-1] - 0.1, 7)
+    mean, cov = conditional(gp, un)
+    a, an = gp.envelope(gp.u), gp.envelope(un)
+    K = np.array([[a[i] * a[j] * (_m52(gp.u[i] - gp.u[j], gp.ell) + gp.eta * (i == j))
+                   for j in range(gp.u.size)] for i in range(gp.u.size)])  # fmt: skip
+    Ks = np.array([[an[i] * a[j] * _m52(un[i] - gp.u[j], gp.ell) for j in range(gp.u.size)]
+                   for i in range(un.size)])  # fmt: skip
+    Kss = np.array([[an[i] * an[j] * _m52(un[i] - un[j], gp.ell) for j in range(un.size)]
+                    for i in range(un.size)])  # fmt: skip
+    np.testing.assert_allclose(mean, Ks @ np.linalg.solve(K, gp.D), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(cov, gp.sigma2 * (Kss - Ks @ np.linalg.solve(K, Ks.T)), atol=1e-10)
+
+
+def test_closed_form_loo_matches_refitting_without_each_point():
+    gp = _gp(np.random.default_rng(1))
+    a = gp.envelope(gp.u)
+    lpd, s2 = _loo(gp.u, gp.D, a, gp.ell, gp.eta)
+    z2 = []
+    for k in range(gp.u.size):
+        keep = np.arange(gp.u.size) != k
+        R = (a[keep, None] * a[None, keep]
+             * (_m52(gp.u[keep, None] - gp.u[None, keep], gp.ell) + gp.eta * np.eye(keep.sum())))  # fmt: skip
+        kx = a[k] * a[keep] * _m52(gp.u[k] - gp.u[keep], gp.ell)
+        mu = kx @ np.linalg.solve(R, gp.D[keep])
+        v = a[k] ** 2 * (1 + gp.eta) - kx @ np.linalg.solve(R, kx)  # unit-σ² variance
+        z2.append(np.abs(gp.D[k] - mu) ** 2 / v)
+    s2_ref = float(np.mean(z2))
+    assert s2 == pytest.approx(s2_ref, rel=1e-8)
+    ref = 0.0
+    for k in range(gp.u.size):  # circular complex densities with σ² = s2_ref
+        keep = np.arange(gp.u.size) != k
+        R = (a[keep, None] * a[None, keep]
+             * (_m52(gp.u[keep, None] - gp.u[None, keep], gp.ell) + gp.eta * np.eye(keep.sum())))  # fmt: skip
+        kx = a[k] * a[keep] * _m52(gp.u[k] - gp.u[keep], gp.ell)
+        v = s2_ref * (a[k] ** 2 * (1 + gp.eta) - kx @ np.linalg.solve(R, kx))
+        res = gp.D[k] - kx @ np.linalg.solve(R, gp.D[keep])
+        ref += float(np.sum(-np.log(np.pi * v) - np.abs(res) ** 2 / v))
+    assert lpd == pytest.approx(ref, rel=1e-8)
+
+
+def test_draws_match_the_conditional_and_continue_as_stated():
+    gp = _gp(np.random.default_rng(2))
+    om = np.exp(np.concatenate([[gp.u[0] - 6.0, gp.u[0] - 1.0], np.linspace(gp.u[0] + 0.2, gp.u[-1] - 0.2, 4),
+                                [gp.u[-1] + 2 * TOP_TAPER]]))  # fmt: skip
+    Q = loop_gp_draws(gp, om, 20000, seed=3)
+    D = Q - np.eye(2)
+    mean, cov = conditional(gp, np.log(om[2:6]))
+    Di = D[:, 2:6].reshape(20000, 4, 4)
+    np.testing.assert_allclose(Di.mean(0), mean, atol=0.05 * np.sqrt(np.max(np.diag(cov))) + 1e-9)
+    emp = np.einsum("sme,ske->mk", Di - mean, np.conj(Di - mean)).real / (20000 * 4)
+    np.testing.assert_allclose(emp, cov, atol=0.05 * np.max(np.diag(cov)))
+    assert np.all(Q[:, -1] == np.eye(2))  # the model's own plant above ω_e e^{2·taper}
+    # below ω_1: imaginary part scaled by ω/ω_1 (→ real at DC); real part the GP's
+    assert np.max(np.abs(D[:, 0].imag)) <= np.exp(-6.0) * 10 * np.max(np.abs(D[:, 1]))
+    assert np.std(D[:, 0].real) > 0.1 * np.sqrt(gp.sigma2) * gp.envelope(gp.u[:1])[0]
+
+
+def test_band_is_calibrated_on_a_truth_drawn_from_the_gp():
+    """A smooth Δ drawn from the GP prior, 'measured' at 12 frequencies: the fitted GP's
+    90 % intervals cover the held-out truth at ≈ 90 % of (frequency, element, re/im)."""
+    rng = np.random.default_rng(4)
+    n, ell, s = 3, 0.5, 0.3
+    u_all = np.log(TWO_PI * np.geomspace(1.0, 100.0, 60))
+    C = s**2 * _m52(u_all[:, None] - u_all[None], ell) + 1e-10 * np.eye(60)
+    L = np.linalg.cholesky(C)
+    cov, n_tot = [], 0
+    model = _model(n, 0)
+    meas = np.arange(60) % 5 == 0
+    for rep in range(8):
+        Z = (rng.normal(size=(60, n * n)) + 1j * rng.normal(size=(60, n * n))) / np.sqrt(2)
+        Delta = (L @ Z).reshape(60, n, n)
+        Ph = np.asarray(model.P(1j * np.exp(u_all)))
+        P_true = (np.eye(n) + Delta) @ Ph
+        gp = fit_loop_gp(np.exp(u_all[meas]), P_true[meas], model)
+        np.testing.assert_allclose(measured_delta(np.exp(u_all[meas]), P_true[meas], model),
+                                   Delta[meas], atol=1e-9)  # fmt: skip
+        held = ~meas & (u_all > u_all[meas][0]) & (u_all < u_all[meas][-1])
+        Qd = loop_gp_draws(gp, np.exp(u_all[held]), 400, seed=rep) - np.eye(n)
+        for part in (np.real, np.imag):
+            lo, hi = np.quantile(part(Qd), [0.05, 0.95], axis=0)
+            t = part(Delta[held])
+            cov.append(np.sum((t >= lo) & (t <= hi)))
+            n_tot += t.size
+    assert 0.82 <= sum(cov) / n_tot <= 0.97
+
+
+def test_plants_hand_back_Q_to_the_scenarios():
+    model = _model(2, 0)
+    om = TWO_PI * np.array([1.0, 3.0, 10.0, 30.0, 100.0])
+    rng = np.random.default_rng(5)
+    Ph = np.asarray(model.P(1j * om))
+    P_meas = (np.eye(2) + 0.2 * (rng.normal(size=(5, 2, 2)) + 1j * rng.normal(size=(5, 2, 2)))) @ Ph
+    gp = fit_loop_gp(om, P_meas, model)
+    omg = TWO_PI * np.geomspace(0.1, 300.0, 40)
+    P = loop_gp_plants(gp, model, omg, 6, seed=1)
+    Q = loop_gp_draws(gp, omg, 6, seed=1)
+    sc = make_scenarios(P, model, omg)
+    lam_ref = np.sort_complex(np.linalg.eigvals(Q).reshape(-1, 2))
+    lam = np.sort_complex(np.asarray(sc.lam).reshape(-1, 2))
+    np.testing.assert_allclose(lam, lam_ref, atol=1e-8)
+
+
+def test_cli_loop_draws_without_frf_is_a_clean_error(tmp_path):
+    from tests.helpers_cli import assert_clean_error, write_valid_files
+
+    write_valid_files(tmp_path)
+    assert_clean_error(["tune", "--model", "model.npz", "--loop-draws", "--out", "d.npz"], tmp_path,
+                       "--loop-draws needs the measured FRF")  # fmt: skip
+
+
+def test_robust_design_loop_gp_needs_an_frf():
+    from hapid.tune import robust_design
+
+    with pytest.raises(ValueError, match="needs a measured FRF"):
+        robust_design(_model(2, 0), draw_family="loop_gp")
+    with pytest.raises(ValueError, match="draw_family"):
+        robust_design(_model(2, 0), draw_family="gp_loop")
