@@ -38,7 +38,8 @@ class TuneResult:
     ``g`` tuned compensator, ``g0`` the start; ``x``, ``x0`` their log-parameters;
     ``bandwidth_hz`` the claimed smooth robust bandwidth ω_b/2π at the end (``bandwidth0_hz``
     at the start); ``constraints`` the final CVaR constraint values (≤ 0 met, in log
-    units); ``history`` one dict per μ stage (μ, steps, result, claimed bandwidth,
+    units); ``gain_backoff`` the factor on ``k`` the tuner started from (< 1 when ``g0``
+    left training scenarios unstable, :func:`gain_backoff`); ``history`` one dict per μ stage (μ, steps, result, claimed bandwidth,
     constraints, wall time); ``names`` parameter names; ``requirements``.
     """
 
@@ -53,6 +54,7 @@ class TuneResult:
     names: list
     requirements: Requirements
     wall_s: float
+    gain_backoff: float = 1.0
 
     @property
     def feasible(self) -> bool:
@@ -70,7 +72,7 @@ class TuneResult:
     def summary(self) -> dict:
         """Plain-python summary: verdict, claimed bandwidths (Hz), constraints, parameters."""
         return {"ok": self.ok, "status": self.status, "bandwidth_hz": float(self.bandwidth_hz),
-                "bandwidth0_hz": float(self.bandwidth0_hz),
+                "bandwidth0_hz": float(self.bandwidth0_hz), "gain_backoff": float(self.gain_backoff),
                 "constraints": {k: float(v) for k, v in self.constraints.items()},
                 "parameters": self.parameters(), "wall_s": float(self.wall_s)}  # fmt: skip
 
@@ -82,22 +84,45 @@ class TuneResult:
 
 
 def phase_counts(g: Compensator, families) -> tuple[np.ndarray, np.ndarray]:
-    """Net phase change of ``det(I + g Q) = Π_i (1 + g λ_i)`` along each scenario's grid, in
-    units of π (rounded), and whether the grid resolved it (every step < π/2).
+    """Net phase of ``det(I + g Q) = Π_i (1 + g λ_i)`` from DC to the top of each scenario's
+    grid, in units of π (an even integer), and whether the grid resolved it (every step
+    < π/2).
+
+    The grid starts at a finite frequency where ``det(I + L)`` need not be near the real
+    axis (measured on cu5 with 3 samples of delay: −89.9° at 0.1 Hz), so the net phase
+    *along the grid* rounded to a multiple of π flips with any small step. Instead the phase
+    is taken from DC (``det`` real and positive there) to the first point as that point's
+    principal angle, and from the last point back to the real axis likewise: the count is
+    ``2 · round((φ_unwrapped(ω_e) − arg det(ω_e)) / 2π)`` (:func:`_turns`), which changes
+    only when a locus crosses −1 or an end point crosses the negative real axis.
 
     The closed-loop RHP-pole count of a scenario can only change when this count does (same
     open-loop poles, same grid): :func:`tune` uses it as the non-smooth guard that the smooth
     margin constraints cannot give — a BFGS step may jump a locus across −1 between iterates.
+    Counted on the family's dense grid when it has one (:attr:`.Family.dense`).
     """
     counts, ok = [], []
     for f in families:
-        sc = f.scenarios
+        sc = f.scenarios if f.dense is None else f.dense
         gam = np.asarray(g_response(g, sc.omega, sc.ts))
         d = np.prod(1.0 + gam[None, :, None] * np.asarray(sc.lam), axis=-1)
         ang = np.unwrap(np.angle(d), axis=1)
-        counts.append(np.round((ang[:, -1] - ang[:, 0]) / np.pi))
+        counts.append(_turns(ang[:, -1], np.angle(d[:, -1])))
         ok.append(np.all(np.abs(np.diff(ang, axis=1)) < np.pi / 2, axis=1))
     return np.concatenate(counts), np.concatenate(ok)
+
+
+def _turns(phi_end, arg_end):
+    """``2 · round((φ_end − arg_end) / 2π)``: the phase (units of π) accumulated from DC along
+    an unwrapped phase that starts at its principal value (``np.unwrap``), closed back to the
+    real axis at the end."""
+    return 2.0 * np.round((np.asarray(phi_end) - np.asarray(arg_end)) / (2.0 * np.pi))
+
+
+def same_count(a, b):
+    """Equal closed-loop counts from two :func:`phase_counts` results (even integers, units
+    of π)."""
+    return np.abs(np.asarray(a) - np.asarray(b)) < 1.0
 
 
 def stable_scenarios(g: Compensator, families) -> list:
@@ -111,13 +136,74 @@ def stable_scenarios(g: Compensator, families) -> list:
         if f.quantile >= 1.0:
             out.append(None)
             continue
-        sc = f.scenarios
+        sc = f.scenarios if f.dense is None else f.dense  # the grid phase_counts uses
         cnt, res = phase_counts(g, [f])
         gam = np.asarray(g_response(g, sc.omega, sc.ts))
         ang = np.unwrap(np.angle(1.0 + gam))
-        ref = np.round(sc.lam.shape[-1] * (ang[-1] - ang[0]) / np.pi)
-        out.append(np.where(np.asarray(sc.p_ol) > 0, True, res & (cnt == ref)))
+        n = sc.lam.shape[-1]
+        ref = _turns(n * ang[-1], np.angle((1.0 + gam[-1]) ** n))
+        out.append(np.where(np.asarray(sc.p_ol) > 0, True, res & same_count(cnt, ref)))
     return out
+
+
+def _start_ok(g: Compensator, families, ms: float | None = None) -> bool:
+    """Does ``g`` leave no scenario of a strict family (``quantile`` 1) and at most ``K − 1``
+    of a chance-constrained one with an unstable closed loop (the Nyquist count of
+    :func:`phase_counts` against the nominal loop's ``(1 + g)^n``; scenarios with open-loop
+    RHP poles or a grid that does not resolve the count are not judged)? With ``ms``: and
+    with every counted locus outside the disc of radius ``1/ms`` around −1 (margins). On the
+    family's dense grid when it has one (:attr:`.Family.dense`)."""
+    for f in families:
+        sc = f.scenarios if f.dense is None else f.dense  # the grid phase_counts uses
+        cnt, res = phase_counts(g, [f])
+        gam = np.asarray(g_response(g, sc.omega, sc.ts))
+        ang = np.unwrap(np.angle(1.0 + gam))
+        n = sc.lam.shape[-1]
+        ref = _turns(n * ang[-1], np.angle((1.0 + gam[-1]) ** n))
+        # unresolved grids are not judged (as in the guard); RHP open-loop poles neither
+        bad = (np.asarray(sc.p_ol) == 0) & res & ~same_count(cnt, ref)
+        if ms is not None and f.margins:
+            d = np.abs(1.0 + gam[None, :, None] * np.asarray(sc.lam)).min(axis=(1, 2))
+            bad |= d < 1.0 / ms
+        if np.sum(bad) > (0 if f.quantile >= 1.0 else f.k_worst() - 1):
+            return False
+    return True
+
+
+def gain_backoff(g: Compensator, families, ms: float = 1.0, alpha_min: float = 1e-3,
+                 iters: int = 12):  # fmt: skip
+    """``(g', α)``: the tuner's start when ``g`` leaves training scenarios unstable — ``g``
+    with its gain ``k`` scaled by ``α < 1`` — else ``(g, 1.0)``.
+
+    The tuner's topology guard keeps every stable scenario stable, and its smooth margin
+    constraints cannot carry a locus across −1; from a start that is unstable on a scenario
+    of a strict family (the paper g on cu5 with 3 samples of delay and compliant rods,
+    measured) no stage can move. A lower gain everywhere stabilizes loops whose loci
+    encircle −1 at high gain. ``α`` is the largest found (bisection in log α) at which the
+    scenarios are stable as their families require *and* their loci stay outside the
+    ``1/ms`` disc (:func:`_start_ok`); if no gain down to ``alpha_min`` meets the disc, half
+    the largest stable gain (6 dB below the stability boundary); if none is stable, ``g``
+    unchanged. The tuner then restores bandwidth and static gain (``min_dc_gain``)."""
+    scaled = lambda a: eqx.tree_at(lambda c: c.k, g, g.k * a)  # noqa: E731
+
+    def largest(pred):
+        lo, hi = np.log(alpha_min), 0.0
+        if not pred(scaled(alpha_min)):
+            return None
+        for _ in range(iters):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if pred(scaled(np.exp(mid))) else (lo, mid)
+        return float(np.exp(lo))
+
+    if _start_ok(g, families):
+        return g, 1.0
+    alpha = largest(lambda gg: _start_ok(gg, families, ms))
+    if alpha is None:
+        a_stable = largest(lambda gg: _start_ok(gg, families))
+        if a_stable is None:
+            return g, 1.0
+        alpha = 0.5 * a_stable
+    return scaled(alpha), alpha
 
 
 def smooth_bandwidth(g: Compensator, families, req: Requirements, n_grid: int = 200) -> float:
@@ -177,14 +263,16 @@ def tune(
     req = Requirements() if requirements is None else requirements
     g0 = Compensator.paper() if g0 is None else g0
     pm = ParamMap.from_template(g0)
-    x0 = pm.vector(g0)
+    x_given = pm.vector(g0)
+    g_start, alpha = gain_backoff(g0, families, req.ms)
+    x0 = pm.vector(g_start)
     if f_max_hz is None:
         ts = next((f.scenarios.ts for f in families if f.scenarios.ts), None)
         top = min(float(f.scenarios.omega[-1]) for f in families) / TWO_PI
         # a sampled g lives below Nyquist; a continuous one must roll off inside the grid
         f_max_hz = 0.45 / ts if ts else top / 4.0
     box = Box.default(pm, f_max_hz) if box is None else box
-    wb0 = smooth_bandwidth(g0, families, req)
+    wb0 = smooth_bandwidth(g_start, families, req)
     z = jnp.concatenate([x0, jnp.array([np.log(wb0)])])
     scens = [f.scenarios for f in families]
 
@@ -209,7 +297,7 @@ def tune(
     def same_topology(zc, count0, keep):
         cnt, res = phase_counts(pm.compensator(zc[:-1]), families)
         return bool(np.all(np.isfinite(np.asarray(zc)))) and bool(
-            np.all((cnt == count0) & res | ~keep)
+            np.all(same_count(cnt, count0) & res | ~keep)
         )
 
     stages = [float(m) for m in mu_schedule]
@@ -260,8 +348,8 @@ def tune(
     x = np.asarray(z[:-1])
     c = {k: float(v) for k, v in cons(z, scens, counted_at(z)[0]).items()}
     return TuneResult(
-        g=pm.compensator(x), g0=g0, x=x, x0=np.asarray(x0),
+        g=pm.compensator(x), g0=g0, x=x, x0=np.asarray(x_given),
         bandwidth_hz=float(np.exp(z[-1]) / TWO_PI), bandwidth0_hz=wb0 / TWO_PI,
         constraints=c, history=history, names=pm.names, requirements=req,
-        wall_s=time.perf_counter() - t0,
+        wall_s=time.perf_counter() - t0, gain_backoff=alpha,
     )  # fmt: skip
