@@ -312,12 +312,17 @@ def robust_design(
         dense = None
         if dense_factor > 1:
             omd_d = below_nyquist_grid(device.fs_hz, dense_factor * n_freq)
-            labels_d, P_d = device_plants(device, omd_d, poses=poses, n_subjects=n_subjects,
-                                          key=seed + 1, include_nominal=False)  # fmt: skip
-            if list(labels_d) != list(labels):
-                raise RuntimeError(
-                    "robust_design: dense device variants differ from the training ones"
-                )
+            # in chunks of the training grid's size: the compiled plant program is reused
+            P_d = []
+            for chunk in omd_d.reshape(dense_factor, n_freq):
+                labels_d, P_c = device_plants(device, chunk, poses=poses, n_subjects=n_subjects,
+                                              key=seed + 1, include_nominal=False)  # fmt: skip
+                if list(labels_d) != list(labels):
+                    raise RuntimeError(
+                        "robust_design: dense device variants differ from the training ones"
+                    )
+                P_d.append(np.asarray(P_c))
+            P_d = np.concatenate(P_d, axis=1)
             dense = make_scenarios(P_d, model, omd_d, ts=device.ts, labels=labels)
         families.append(Family(make_scenarios(P, model, omd, ts=device.ts, labels=labels), quantile=1.0,
                                bw_quantile=0.5, name="device", dense=dense))  # fmt: skip
