@@ -66,16 +66,12 @@ def test_violations_find_the_mode_between_points_and_merge_is_exact(case):
     assert v_d.max() > max(v_tr.max(), 0.0) + TOL  # the training grid misses it
     merged = merge_freqs(sc_tr, sc_d, idx)
     om_m = np.asarray(merged.omega)
-    assert np.all(np.diff(om_m) > 0) and om_m.size == om_tr_size(sc_tr) + idx.size
+    assert np.all(np.diff(om_m) > 0) and om_m.size == np.asarray(sc_tr.omega).size + idx.size
     # merged entries are the dense scenarios' own (no recomputation, same order)
     pos = np.searchsorted(om_m, om_d[idx])
     np.testing.assert_array_equal(np.asarray(merged.lam)[:, pos], np.asarray(sc_d.lam)[:, idx])
     # after the merge the training grid sees the dense worst case
     assert locus_violation(g, merged, ms).max() == pytest.approx(v_d.max(), abs=TOL)
-
-
-def om_tr_size(sc):
-    return int(np.asarray(sc.omega).size)
 
 
 def test_tune_with_dense_grid_meets_margins_between_training_points(case):

@@ -101,15 +101,24 @@ def phase_counts(g: Compensator, families) -> tuple[np.ndarray, np.ndarray]:
     margin constraints cannot give — a BFGS step may jump a locus across −1 between iterates.
     Counted on the family's dense grid when it has one (:attr:`.Family.dense`).
     """
-    counts, ok = [], []
-    for f in families:
-        sc = f.scenarios if f.dense is None else f.dense
-        gam = np.asarray(g_response(g, sc.omega, sc.ts))
-        d = np.prod(1.0 + gam[None, :, None] * np.asarray(sc.lam), axis=-1)
-        ang = np.unwrap(np.angle(d), axis=1)
-        counts.append(_turns(ang[:, -1], np.angle(d[:, -1])))
-        ok.append(np.all(np.abs(np.diff(ang, axis=1)) < np.pi / 2, axis=1))
-    return np.concatenate(counts), np.concatenate(ok)
+    per = [_family_counts(g, f) for f in families]
+    return np.concatenate([p[2] for p in per]), np.concatenate([p[3] for p in per])
+
+
+def _family_counts(g: Compensator, f):
+    """One family's Nyquist counts on the grid :func:`phase_counts` uses (the dense one when
+    there is one): ``(scenarios, g(jω) (N,), counts (S,), resolved (S,), nominal (S,))`` with
+    ``nominal`` true where the count equals the nominal loop's ``(1 + g)^n``."""
+    sc = f.scenarios if f.dense is None else f.dense
+    gam = np.asarray(g_response(g, sc.omega, sc.ts))
+    d = np.prod(1.0 + gam[None, :, None] * np.asarray(sc.lam), axis=-1)
+    ang = np.unwrap(np.angle(d), axis=1)
+    cnt = _turns(ang[:, -1], np.angle(d[:, -1]))
+    res = np.all(np.abs(np.diff(ang, axis=1)) < np.pi / 2, axis=1)
+    n = sc.lam.shape[-1]
+    ang1 = np.unwrap(np.angle(1.0 + gam))
+    ref = _turns(n * ang1[-1], np.angle((1.0 + gam[-1]) ** n))
+    return sc, gam, cnt, res, same_count(cnt, ref)
 
 
 def _turns(phi_end, arg_end):
@@ -136,13 +145,8 @@ def stable_scenarios(g: Compensator, families) -> list:
         if f.quantile >= 1.0:
             out.append(None)
             continue
-        sc = f.scenarios if f.dense is None else f.dense  # the grid phase_counts uses
-        cnt, res = phase_counts(g, [f])
-        gam = np.asarray(g_response(g, sc.omega, sc.ts))
-        ang = np.unwrap(np.angle(1.0 + gam))
-        n = sc.lam.shape[-1]
-        ref = _turns(n * ang[-1], np.angle((1.0 + gam[-1]) ** n))
-        out.append(np.where(np.asarray(sc.p_ol) > 0, True, res & same_count(cnt, ref)))
+        sc, _, _, res, nominal = _family_counts(g, f)
+        out.append(np.where(np.asarray(sc.p_ol) > 0, True, res & nominal))
     return out
 
 
@@ -154,14 +158,9 @@ def _start_ok(g: Compensator, families, ms: float | None = None) -> bool:
     with every counted locus outside the disc of radius ``1/ms`` around −1 (margins). On the
     family's dense grid when it has one (:attr:`.Family.dense`)."""
     for f in families:
-        sc = f.scenarios if f.dense is None else f.dense  # the grid phase_counts uses
-        cnt, res = phase_counts(g, [f])
-        gam = np.asarray(g_response(g, sc.omega, sc.ts))
-        ang = np.unwrap(np.angle(1.0 + gam))
-        n = sc.lam.shape[-1]
-        ref = _turns(n * ang[-1], np.angle((1.0 + gam[-1]) ** n))
+        sc, gam, _, res, nominal = _family_counts(g, f)
         # unresolved grids are not judged (as in the guard); RHP open-loop poles neither
-        bad = (np.asarray(sc.p_ol) == 0) & res & ~same_count(cnt, ref)
+        bad = (np.asarray(sc.p_ol) == 0) & res & ~nominal
         if ms is not None and f.margins:
             d = np.abs(1.0 + gam[None, :, None] * np.asarray(sc.lam)).min(axis=(1, 2))
             bad |= d < 1.0 / ms
