@@ -1120,9 +1120,9 @@ def _compact_design(post: LogPosterior):
 _residual_design_jit = eqx.filter_jit(_residual_design)
 
 
-def _log_marginal_compact(post: LogPosterior, h, y0, Jc, idx, q: int):
-    """:func:`log_marginal_likelihood` from the compact design of :func:`_compact_design`
-    (same value; ``b`` and ``P`` assembled by scatter-adding each element's ``m × m`` block)."""
+def _whiten(post: LogPosterior, h, y0, J):
+    """``(L, z, W)``: the Cholesky factor of the gp_corr covariance at hyperparameters ``h``
+    and the residual ``y0`` and design ``J`` whitened by it (``L⁻¹ y0``, ``L⁻¹ J``)."""
     hf = jnp.concatenate([h, jnp.zeros(N_GP_CORR_HYPER - h.shape[0])])
     if not post.warp:
         hf = hf.at[6:8].set(0.0)
@@ -1131,54 +1131,43 @@ def _log_marginal_compact(post: LogPosterior, h, y0, Jc, idx, q: int):
                            post.noise_corr, hf)  # fmt: skip
     L = jnp.linalg.cholesky(C)
     z = jax.scipy.linalg.solve_triangular(L, y0[..., None], lower=True)[..., 0]
-    W = jax.scipy.linalg.solve_triangular(L, Jc, lower=True)  # (E, 2N, m)
+    W = jax.scipy.linalg.solve_triangular(L, J, lower=True)
+    return L, z, W
+
+
+def _marginal_from(L, z, b, P, q: int, prior_scale):
+    """``log p(data | h)`` from the whitened pieces: ``L`` (E, 2N, 2N) the covariance's
+    Cholesky factors, ``z`` the whitened residual, ``b = 2 Re Wᴴz`` (q,) and ``P = 2 Re WᴴW``
+    (q, q), the Gaussian prior of scale ``prior_scale`` on the q matrix entries added here."""
+    Lp = jnp.linalg.cholesky(P + jnp.eye(q) / prior_scale**2)
+    u = jax.scipy.linalg.solve_triangular(Lp, b, lower=True)
+    logdetC = 2.0 * jnp.sum(jnp.log(jnp.real(jnp.diagonal(L, axis1=-2, axis2=-1))))
+    logdetP = 2.0 * jnp.sum(jnp.log(jnp.diagonal(Lp)))
+    c = -logdetC - L.shape[0] * L.shape[-1] * np.log(np.pi)
+    return (
+        c - jnp.sum(jnp.abs(z) ** 2) + 0.5 * jnp.sum(u**2) - 0.5 * logdetP - q * np.log(prior_scale)
+    )
+
+
+def _log_marginal_compact(post: LogPosterior, h, y0, Jc, idx, q: int):
+    """:func:`log_marginal_likelihood` from the compact design of :func:`_compact_design`
+    (same value; ``b`` and ``P`` assembled by scatter-adding each element's ``m × m`` block)."""
+    L, z, W = _whiten(post, h, y0, Jc)  # W (E, 2N, m)
     bw = 2.0 * jnp.real(jnp.einsum("eiq,ei->eq", jnp.conj(W), z))
     Pw = 2.0 * jnp.real(jnp.einsum("eiq,eir->eqr", jnp.conj(W), W))
     b = jnp.zeros(q + 1).at[idx].add(bw)[:q]
     P = jnp.zeros((q + 1, q + 1)).at[idx[:, :, None], idx[:, None, :]].add(Pw)[:q, :q]
-    P = P + jnp.eye(q) / post.prior_scale**2
-    Lp = jnp.linalg.cholesky(P)
-    u = jax.scipy.linalg.solve_triangular(Lp, b, lower=True)
-    logdetC = 2.0 * jnp.sum(jnp.log(jnp.real(jnp.diagonal(L, axis1=-2, axis2=-1))))
-    logdetP = 2.0 * jnp.sum(jnp.log(jnp.diagonal(Lp)))
-    c = -logdetC - C.shape[0] * C.shape[-1] * np.log(np.pi)
-    return (
-        c
-        - jnp.sum(jnp.abs(z) ** 2)
-        + 0.5 * jnp.sum(u**2)
-        - 0.5 * logdetP
-        - q * np.log(post.prior_scale)
-    )
+    return _marginal_from(L, z, b, P, q, post.prior_scale)
 
 
 def log_marginal_likelihood(post: LogPosterior, h, y0=None, J=None):
     """``log p(data | h)`` of :func:`marginal_hyper` (the matrices integrated out)."""
     if y0 is None:
         y0, J = _residual_design(post)
-    hf = jnp.concatenate([h, jnp.zeros(N_GP_CORR_HYPER - h.shape[0])])
-    if not post.warp:
-        hf = hf.at[6:8].set(0.0)
-    w = jnp.imag(post.s)
-    C = gp_corr_covariance(jnp.log(w), post.a_H, post.a_M, post.var_H, post.var_T,
-                           post.noise_corr, hf)  # fmt: skip
-    L = jnp.linalg.cholesky(C)
-    z = jax.scipy.linalg.solve_triangular(L, y0[..., None], lower=True)[..., 0]
-    W = jax.scipy.linalg.solve_triangular(L, J, lower=True)  # (E, 2N, q)
+    L, z, W = _whiten(post, h, y0, J)  # W (E, 2N, q)
     b = 2.0 * jnp.real(jnp.einsum("eiq,ei->q", jnp.conj(W), z))
-    q = J.shape[-1]
-    P = 2.0 * jnp.real(jnp.einsum("eiq,eir->qr", jnp.conj(W), W)) + jnp.eye(q) / post.prior_scale**2
-    Lp = jnp.linalg.cholesky(P)
-    u = jax.scipy.linalg.solve_triangular(Lp, b, lower=True)
-    logdetC = 2.0 * jnp.sum(jnp.log(jnp.real(jnp.diagonal(L, axis1=-2, axis2=-1))))
-    logdetP = 2.0 * jnp.sum(jnp.log(jnp.diagonal(Lp)))
-    c = -logdetC - C.shape[0] * C.shape[-1] * np.log(np.pi)
-    return (
-        c
-        - jnp.sum(jnp.abs(z) ** 2)
-        + 0.5 * jnp.sum(u**2)
-        - 0.5 * logdetP
-        - q * np.log(post.prior_scale)
-    )
+    P = 2.0 * jnp.real(jnp.einsum("eiq,eir->qr", jnp.conj(W), W))
+    return _marginal_from(L, z, b, P, J.shape[-1], post.prior_scale)
 
 
 @eqx.filter_jit
