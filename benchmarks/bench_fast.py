@@ -86,10 +86,12 @@ def _breakdown(P, G, w, p_ol, specs=("verdict", "bandwidth", "margins", "peaks",
     for key in specs:
         name, fl = variants[key]
         sp = MetricsSpec(**(base | fl))
-        # every output (returning only the verdict lets XLA drop the asked-for work)
+        # every output (returning only the verdict lets XLA drop the asked-for work); ω and
+        # p_ol as arguments, as in loop_metrics (closed over, XLA constant-folds the program:
+        # 20-70 s compiles)
         parts[name] = (
-            jax.jit(lambda P, G, sp=sp: metrics_screened(P, G, w, p_ol, None, sp)),
-            (P, G),
+            jax.jit(lambda P, G, w, p, sp=sp: metrics_screened(P, G, w, p, None, sp)),
+            (P, G, jnp.asarray(w), jnp.asarray(p_ol, dtype=jnp.float64)),
         )
     rows = []
     for name, (f, args) in parts.items():
