@@ -565,6 +565,20 @@ def _register_sweep(sub):
     sw.set_defaults(func=cmd_sweep)
 
 
+def uncertified_warning(row: dict) -> str:
+    """One warning line when the returned design's re-check row says the evidence does not
+    certify it (``certified`` False, :func:`hapid.tune._evidence.certificate`), else ``""``."""
+    if row.get("certified", True):
+        return ""
+    return (f"WARNING: the returned g is NOT certified by the evidence (measured min σ̲(I + L) "
+            f"{row.get('frf_min_sigma_I_plus_L', float('nan')):.3g}, floor 0.5; loop gain beyond "
+            f"{row.get('evidence_hz', float('nan')):.3g} Hz {row.get('beyond_loop_gain', float('nan')):.3g}, "
+            "bound 0.5; nominal loop stable: "
+            f"{row.get('nominal_stable')}): the measured FRF cannot exclude a crossing of −1 "
+            "between its frequencies, so the real loop may be unstable. Measure the FRF densely "
+            "around the crossover and tune on it (hapid tune --loop-draws --frf).")  # fmt: skip
+
+
 def cmd_tune(a):
 
     from .tune import tune_from_files
@@ -594,6 +608,9 @@ def cmd_tune(a):
 
         print("non-smooth re-check (held-out samples / true plant / time domain):")
         print(recheck_table(tab["start"], tab["tuned"]))
+        warn = uncertified_warning(tab["start"] if res.get("kept_start") else tab["tuned"])
+        if warn:
+            print(warn)
     if a.report:
         from .io import save_json
 

@@ -215,3 +215,15 @@ def test_fit_nls_on_the_haptic_pair_defaults_to_the_40_hz_band(tmp_path, capsys)
     assert f_q.max() <= 40.0 and f_q.max() > 30.0
     assert main(["fit", str(fp), "--method", "wls", "--out", str(tmp_path / "w.npz")]) == 0
     assert np.load(tmp_path / "w.npz")["quality_freq_hz"].max() > 90.0
+
+
+def test_uncertified_design_gets_a_warning_line():
+    """``hapid tune`` prints a warning naming the failed evidence figures when the returned
+    design is not certified, and nothing when it is."""
+    from hapid.cli import uncertified_warning
+
+    row = {"certified": False, "frf_min_sigma_I_plus_L": 0.476, "beyond_loop_gain": 0.48,
+           "evidence_hz": 100.0, "nominal_stable": True}  # fmt: skip
+    w = uncertified_warning(row)
+    assert w.startswith("WARNING") and "NOT certified" in w and "0.476" in w and "100 Hz" in w
+    assert uncertified_warning(row | {"certified": True}) == ""
