@@ -69,7 +69,9 @@ def test_extend_structure_starts_at_the_same_response_and_rejects_bad_input():
     assert pm.dim == pm0.dim + 2 * 2 + 3 * 1
     assert h.order == g.order + 2 + 2
     x = pm.vector(h)
-    np.testing.assert_allclose(np.asarray(pm.compensator(x).at_omega(om)), np.asarray(h.at_omega(om)))
+    np.testing.assert_allclose(
+        np.asarray(pm.compensator(x).at_omega(om)), np.asarray(h.at_omega(om))
+    )
     assert extend_structure(g).order == g.order
     for bad in ({"lag_hz": [0.0]}, {"notch_hz": [-3.0]}, {"lag_hz": [np.nan]}):
         with pytest.raises(ValueError, match="extend_structure"):
@@ -120,7 +122,10 @@ def test_richer_template_never_does_worse_than_the_paper_template(plant):
     g0 = Compensator.paper()
     req = Requirements(min_dc_gain=abs(complex(g0(np.array([0.0]))[0])))
     out = {}
-    for name, tpl in (("paper", g0), ("rich", extend_structure(g0, lag_hz=[8.0], notch_hz=[F_BUMP]))):
+    for name, tpl in (
+        ("paper", g0),
+        ("rich", extend_structure(g0, lag_hz=[8.0], notch_hz=[F_BUMP])),
+    ):
         r = tune([fam], tpl, requirements=req, mu_schedule=(100.0, 1e4), max_steps=150)
         rep = analyze_loop(P, np.asarray(inverse_model_response(model, r.g, om)), om)
         assert bool(rep.stable), name
