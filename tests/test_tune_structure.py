@@ -6,8 +6,9 @@
   plant at a known frequency (the loci disc binds there), a |g(0)| floor above g's, a
   small-gain level below |g| beyond the data, a parameter at the box's edge — checked against
   a direct numpy evaluation.
-- A richer template tuned by the same route never does worse than the paper template on the
-  plant it is tuned on, judged by the non-smooth analysis (:func:`hapid.control.analyze_loop`).
+- (slow) A richer template continued from the tuned paper g does no worse than the paper form
+  on the plant it is tuned on, judged by the non-smooth analysis
+  (:func:`hapid.control.analyze_loop`).
 """
 
 from __future__ import annotations
@@ -113,22 +114,28 @@ def test_binding_constraints_find_imposed_limits(plant):
 
 
 @pytest.mark.slow
-def test_richer_template_never_does_worse_than_the_paper_template(plant):
-    """Same plant, same route (one strict family, |g(0)| floor): the template with an extra
-    lag/lead pair and notch reaches at least the paper template's bandwidth, both meeting the
-    margins on the non-smooth analysis. ~40 s on 2 cores (two tuner compilations)."""
-    model, om, P = plant
+def test_richer_template_continued_from_the_tuned_paper_g_does_no_worse():
+    """The recipe of docs/robust-design.md: tune the paper form, then add a lag/lead pair and
+    a notch (identity at the start, :func:`extend_structure`) to the *tuned* g and continue on
+    the same scenarios. The richer design meets the margins on the non-smooth analysis
+    (:func:`analyze_loop`) and reaches at least the paper form's bandwidth. ~60 s on 2 cores.
+    (A cold start of the richer template is not monotone: measured here with a
+    (100, 1e4) schedule, the richer template ended with its smooth margin constraint violated.)"""
+    model = _model()
+    om = TWO_PI * np.geomspace(1e-3, 3000.0, 300)  # the loop rolls off inside the grid
+    P = _bump(om, zd=0.06)[:, None, None] * np.asarray(model.P(1j * om))
     fam = Family(make_scenarios(P, model, om), quantile=1.0, name="plant")
     g0 = Compensator.paper()
     req = Requirements(min_dc_gain=abs(complex(g0(np.array([0.0]))[0])))
-    out = {}
-    for name, tpl in (
-        ("paper", g0),
-        ("rich", extend_structure(g0, lag_hz=[8.0], notch_hz=[F_BUMP])),
-    ):
-        r = tune([fam], tpl, requirements=req, mu_schedule=(100.0, 1e4), max_steps=150)
+    r1 = tune([fam], g0, requirements=req, mu_schedule=(100.0, 1e4), max_steps=150)
+    tpl = extend_structure(r1.g, lag_hz=[8.0], notch_hz=[F_BUMP])
+    r2 = tune([fam], tpl, requirements=req, mu_schedule=(1e3, 1e4), max_steps=150)
+    assert r1.feasible and r2.feasible, (r1.constraints, r2.constraints)
+    assert r2.bandwidth_hz >= r1.bandwidth_hz
+    bw = []
+    for r in (r1, r2):
         rep = analyze_loop(P, np.asarray(inverse_model_response(model, r.g, om)), om)
-        assert bool(rep.stable), name
-        assert float(rep.gm_db) >= 6.0 - 0.3 and abs(float(rep.pm_deg)) >= 30.0 - 1.0, name
-        out[name] = float(rep.iso_bandwidth_hz)
-    assert out["rich"] >= 0.98 * out["paper"], out
+        assert bool(rep.stable)
+        assert float(rep.gm_db) >= 6.0 - 0.3 and abs(float(rep.pm_deg)) >= 30.0 - 1.0
+        bw.append(float(rep.iso_bandwidth_hz))
+    assert bw[1] >= 0.98 * bw[0], bw
