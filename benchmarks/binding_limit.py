@@ -229,6 +229,7 @@ def main(argv=None):
         rec |= {"rows": row["rows"], "claimed_bandwidth_hz": row["claimed_bandwidth_hz"],
                 "decision": row["decision"], "kept_start": row["kept_start"],
                 "constraints": constraints, "parameters": row["parameters"],
+                "history": row["history"],
                 "wall_s": time.perf_counter() - t0}  # fmt: skip
         print(json.dumps(row["rows"], indent=1, default=float))
     rec["g"] = {f: np.asarray(getattr(g, f)).tolist() for f in
