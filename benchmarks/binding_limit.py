@@ -156,6 +156,40 @@ def relax(which: str, g, prob, *, max_steps=150, mu_schedule=(1e3, 1e4)):
                 f_max_hz=f_max, box=box if which == "box" else None)  # fmt: skip
 
 
+def oracle(g0, model, frf, dev, *, max_steps=300) -> dict:
+    """What the template ``g0`` reaches when the plant is KNOWN: tuned on the device's true
+    sampled plant itself (one scenario, 300 points, |g(0)| ≥ the paper g's), alone, with the
+    small-gain bound beyond the FRF, and with that bound and the measured-FRF disc. Not a
+    design method: the measurement of which limit binds when the draws are taken out."""
+    from hapid._grids import below_nyquist_grid
+    from hapid.control import Compensator
+    from hapid.tune import Family, binding_constraints, make_scenarios, tune
+
+    prob = problem(model, frf, dev, Compensator.paper(), n_train=2)
+    om = below_nyquist_grid(dev.fs_hz, 300)
+    fam = Family(make_scenarios(np.asarray(dev.sampled_P(om)), model, om, ts=dev.ts),
+                 quantile=1.0, name="true")  # fmt: skip
+    req, fam_frf = prob["requirements"], prob["families"][1]
+    f_max = 0.45 * dev.fs_hz
+    out = {}
+    for lab, fams, rq in (
+        ("true plant", [fam], dataclasses.replace(req, sg_omega=None, sg_g_max=None)),
+        ("true plant + small gain", [fam], req),
+        ("true plant + small gain + FRF disc", [fam, fam_frf], req),
+    ):
+        t0 = time.perf_counter()
+        r = tune(fams, g0, requirements=rq, max_steps=max_steps, f_max_hz=f_max)
+        b = binding_constraints(r.g, [fam, fam_frf], req, f_max_hz=f_max)
+        out[lab] = {"claimed_hz": r.bandwidth_hz, "feasible": r.feasible,
+                    "true": _true(r.g, model, dev),
+                    "beyond_loop_gain": float(req.sg_g_max * np.exp(b["evidence/small_gain"]["value"])
+                                              * prob["evidence"].mismatch),
+                    "frf_disc": b["frf/ms"]["value"], "true_limits": true_limits(r.g, model, dev),
+                    "wall_s": time.perf_counter() - t0}  # fmt: skip
+        print(lab, json.dumps(out[lab], default=float), flush=True)
+    return out
+
+
 def exclude_frf_from_counts() -> None:
     """MEASUREMENT ONLY (not a fix): make the tuner's Nyquist-count guard ignore the measured-FRF
     family. Its grid starts at the lowest measured frequency (1 Hz), where ``det(I + L)`` of a
@@ -198,6 +232,8 @@ def main(argv=None):
     ap.add_argument("--continue-from", help="an earlier run's JSON: add --extra-lag/--extra-notch to "
                     "ITS tuned g and continue tuning on the same problem (warm start)")  # fmt: skip
     ap.add_argument("--out", default=str(ROOT / "out" / "binding"))
+    ap.add_argument("--oracle", action="store_true",
+                    help="instead: tune the template on the true plant (alone / + small gain / + FRF disc)")  # fmt: skip
     ap.add_argument("--no-frf-count", action="store_true",
                     help="measurement only: the count guard ignores the measured-FRF family "
                     "(exclude_frf_from_counts)")  # fmt: skip
@@ -224,6 +260,13 @@ def main(argv=None):
     dev, frf, model = res["device"], res["frf"], res["nls"]["model"]
     tag += "-nofrfcount" if a.no_frf_count else ""
     rec = {"device": a.device, "structure": tag, "n_train": a.n_train, "n_holdout": a.n_holdout}
+    if a.oracle:
+        rec["oracle"] = oracle(g0, model, frf, dev)
+        Path(a.out).mkdir(parents=True, exist_ok=True)
+        path = Path(a.out) / f"{a.device}-{tag}-oracle.json"
+        path.write_text(json.dumps(rec, indent=1, default=float))
+        print(f"→ {path}")
+        return 0
     if a.continue_from:
         old = json.loads(Path(a.continue_from).read_text())
         g1 = Compensator(**{k: np.asarray(v) for k, v in old["g"].items()})
