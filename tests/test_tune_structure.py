@@ -139,3 +139,12 @@ def test_richer_template_continued_from_the_tuned_paper_g_does_no_worse():
         assert float(rep.gm_db) >= 6.0 - 0.3 and abs(float(rep.pm_deg)) >= 30.0 - 1.0
         bw.append(float(rep.iso_bandwidth_hz))
     assert bw[1] >= 0.98 * bw[0], bw
+
+
+@pytest.mark.parametrize("flag", ["--extra-lag", "--extra-notch"])
+def test_cli_rejects_a_non_positive_added_frequency(tmp_path, flag):
+    from helpers_cli import assert_clean_error, write_valid_files
+
+    write_valid_files(tmp_path)
+    argv = ["tune", "--model", "model.npz", "--device", "cu5", flag, "20", "0", "--out", "d.npz"]
+    assert_clean_error(argv, tmp_path, f"{flag} must be one or more frequencies > 0 Hz, got 20 0")
