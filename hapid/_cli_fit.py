@@ -63,15 +63,25 @@ def _pair_wls(frf, a, band) -> Fitted:
 
 
 def _pair_nls(frf, a, band) -> Fitted:
-    from .fit import fit_nls
+    from . import pipeline
 
-    res = fit_nls(frf, weight=a.weight, solver=a.solver, f_max_hz=None,
-                  omega_c=TWO_PI * a.omega_c_hz, max_steps=a.max_steps)  # fmt: skip
+    o = dict(weight=a.weight, solver=a.solver, f_max_hz=None, omega_c_hz=a.omega_c_hz,
+             max_steps=a.max_steps)  # fmt: skip
+    if getattr(a, "keep_boundary", False):
+        f, refit = pipeline.fit(frf, "nls", **o), None
+    else:  # a Ẑ_H with a root at ∞ / on the imaginary axis: refit strictly PD
+        f, refit = pipeline.fit_for_control(frf, **o)
+    res = f.result
     _nls_refuse(res, a)
     meta = dict(method="nls", status=res.status, cost=float(res.cost), steps=int(res.n_steps),
                 weight=a.weight, solver=a.solver, covariance=np.asarray(res.covariance),
                 theta=np.asarray(res.theta))  # fmt: skip
     notes = (f"at the PSD boundary: {', '.join(res.boundary)}",) if res.boundary else ()
+    if refit is not None:
+        meta["pd_eps"] = refit
+        notes += (f"refitted with pd_eps = {refit:g}: the PSD-boundary fit put a root of "
+                  "det Ẑ_H at ∞ or on the imaginary axis, where the inverse-model controller "
+                  "is improper or marginal (--keep-boundary keeps that fit)",)  # fmt: skip
     status = f"{res.status} after {int(res.n_steps)} steps, cost {float(res.cost):.4g}"
     return Fitted(res.model, meta, status, notes=notes)
 
@@ -390,5 +400,9 @@ def register_fit(sub, func) -> None:
     f.add_argument("--band-hz", type=float, default=30.0,
                    help="report the P·P̂⁻¹ band to here (haptic pair)")  # fmt: skip
     f.add_argument("--allow-unconverged", action="store_true")
+    f.add_argument("--keep-boundary", action="store_true",
+                   help="nls: keep a fit whose det Ẑ_H has a root at ∞ or on the imaginary axis "
+                   "(default: refit with every matrix strictly PD, pd_eps = 1e-3, so that the "
+                   "inverse-model controller is proper and stable)")  # fmt: skip
     f.add_argument("--out", required=True, help="model file (.npz)")
     f.set_defaults(func=func)

@@ -129,6 +129,7 @@ def summary(out_dir, device, frf, wls, nls, mimo, siso, tuned=None, tuned_mimo=N
             }
         else:
             entry["status"], entry["steps"] = nls["status"], nls["steps"]
+            entry["refit_pd_eps"] = nls.get("refit_pd_eps")
         res["fits"][key] = entry
     res["siso"] = {k: {"c": _f(v["c"]), **loop_numbers(v["report"])} for k, v in siso.items()}
     # third column: the same NLS + PD model with g(s) tuned by gradients (the scene's tuned stages)
@@ -141,7 +142,8 @@ def summary(out_dir, device, frf, wls, nls, mimo, siso, tuned=None, tuned_mimo=N
             from .tune import save_design as io_save
         io_save(dfile, tuned["g"], constraints=tuned["constraints"], history=tuned["history"])
         res["tuned"] = {"label": "hapid NLS + PD + tuned g", "mimo": loop_numbers(tuned_mimo["report"]),
-                        "g": tuned["parameters"], "design_file": str(dfile)}  # fmt: skip
+                        "g": tuned["parameters"], "design_file": str(dfile),
+                        "status": tuned.get("status"), "decision": tuned.get("decision")}  # fmt: skip
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     from . import io
@@ -217,13 +219,19 @@ def summary_markdown(res: dict) -> str:
         "|---|---|---|---|---|",
     ]
     lines += [f"| {a} | {b} | {c} | {d} | {e} |" for a, b, c, d, e in rows]
-    lines += ["", f"NLS status: {N.get('status')} after {N.get('steps')} steps.", ""]
+    refit = N.get("refit_pd_eps")
+    lines += ["", f"NLS status: {N.get('status')} after {N.get('steps')} steps."
+              + ("" if refit is None else
+                 f" Refitted with pd_eps = {refit:g}: the PSD-boundary fit put a root of det Ẑ_H "
+                 "at ∞ or on the imaginary axis, where the inverse-model controller is improper "
+                 "or marginal."), ""]  # fmt: skip
     if X is not None:
         lines += [
             "Tuned g (hapid.tune, robust over the device's pose/subject variants, nominal plant "
             "held out): "
             + ", ".join(f"{k} {v:.3g}" for k, v in X["g"].items())
-            + " (Hz for frequencies).",
+            + " (Hz for frequencies)."
+            + (f" Tuner: {X['status']}; {X['decision']}." if X.get("status") else ""),
             "",
         ]
     lines += [

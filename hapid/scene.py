@@ -23,7 +23,10 @@ light_damping, extra_modes, encoder; ``[protocol]`` freqs ("paper" or list, Hz),
 transient, pattern, phases, amplitude, seed, noise, position_noise, encoder_res, synthesis
 ("periodic" | "time_domain"), friction; ``[fit]`` omega_c_hz, positize, weight, f_max_hz,
 solver, max_steps, rtol, atol, ftol, patience, blend_floor, p_weight, pd_eps, init_floor
-(the NLS options of :func:`hapid.fit.fit_nls`); ``[controller]`` k, lag_zero_hz, lag_pole_hz,
+(the NLS options of :func:`hapid.fit.fit_nls`), boundary_refit (default true: with
+``pd_eps = 0``, a fit whose Ẑ_H has a root at ∞ or within 10⁻³ Hz of the imaginary axis —
+an inverse-model controller that is improper or marginal — is refitted with
+``pd_eps = PD_EPS``, and the summary says so); ``[controller]`` k, lag_zero_hz, lag_pole_hz,
 notch_hz, zeta_num, zeta_den, lowpass_hz, siso_gm_db, siso_pm_deg; ``[analysis]`` f_min_hz, n_freq, band_hz;
 ``[posterior]`` walkers, steps, seed, samples; ``[outputs]`` want = [...], dir.
 """
@@ -50,7 +53,7 @@ DEFAULTS: dict = {
     "fit": {"omega_c_hz": 7.0, "positize": True, "weight": "relative", "f_max_hz": 40.0,
             "solver": "lm", "max_steps": 500, "rtol": 1e-8, "atol": 1e-10, "ftol": 1e-8,
             "patience": 20, "blend_floor": 0.02, "p_weight": 1.0, "pd_eps": 0.0,
-            "init_floor": 1e-6},
+            "init_floor": 1e-6, "boundary_refit": True},
     "controller": {"k": 0.85, "lag_zero_hz": 30.0, "lag_pole_hz": 0.6,
                    "notch_hz": [17.0, 55.0, 100.0], "zeta_num": 0.2, "zeta_den": 0.5,
                    "lowpass_hz": [100.0, 200.0], "siso_gm_db": 6.0, "siso_pm_deg": 30.0},
@@ -144,10 +147,14 @@ def _wls(o, frf):
 def _nls(o, frf):
     from . import pipeline
 
-    f = pipeline.fit(frf, "nls", **o)
+    o = dict(o)
+    if o.pop("boundary_refit", True):
+        f, refit = pipeline.fit_for_control(frf, **o)
+    else:
+        f, refit = pipeline.fit(frf, "nls", **o), None
     res = f.result
     return {"fit": f, "model": f.model, "result": res, "status": f.status, "steps": int(res.n_steps),
-            "cost": float(res.cost)}  # fmt: skip
+            "cost": float(res.cost), "refit_pd_eps": refit}  # fmt: skip
 
 
 def compensator(o):
@@ -228,7 +235,7 @@ STAGES = [
     Stage("run", ("device",), lambda c: c["protocol"], _run),
     Stage("frf", ("run",), lambda c: {}, _frf),
     Stage("wls", ("frf",), lambda c: {k: c["fit"][k] for k in WLS_KEYS}, _wls),
-    Stage("nls", ("frf",), lambda c: {k: c["fit"][k] for k in NLS_KEYS}, _nls),
+    Stage("nls", ("frf",), lambda c: {k: c["fit"][k] for k in NLS_KEYS + ("boundary_refit",)}, _nls),
     Stage("controller", (), lambda c: c["controller"], lambda o: _controller(o)),
     Stage("plant", ("device",), lambda c: c["analysis"], _plant),
     Stage("mimo", ("plant", "wls", "nls", "controller"), lambda c: {}, _mimo),

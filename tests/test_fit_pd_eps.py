@@ -83,3 +83,25 @@ def test_hexapod6_nls_has_no_crhp_roots():
     assert res.ok
     c = crhp_report(res.model)
     assert int(c.hand) == 0 and int(c.total) == 0
+
+
+def test_scene_refits_a_boundary_hand_for_a_realizable_controller():
+    """The scene's NLS stage: a fit whose Ẑ_H has a root at ∞ or on the imaginary axis (an
+    inverse-model controller that is improper or marginal) is refitted with ``PD_EPS`` and
+    says so; a fit off the boundary is left alone (bit for bit), and ``boundary_refit =
+    False`` keeps the boundary fit."""
+    from hapid import pipeline, scene
+    from hapid.control import controller_is_stable
+
+    o = {k: scene.DEFAULTS["fit"][k] for k in scene.NLS_KEYS}
+    frf = synthetic_frf(_subspace_hand_truth(), rel_noise=1e-2, seed=15)
+    out = scene._nls(o, frf)
+    assert out["refit_pd_eps"] == PD_EPS
+    assert pipeline.controller_ready(out["model"])
+    kept = scene._nls(o | {"boundary_refit": False}, frf)
+    assert kept["refit_pd_eps"] is None and not pipeline.controller_ready(kept["model"])
+    assert not bool(controller_is_stable(kept["model"]))
+    regular = synthetic_frf(random_truth(3, 5), rel_noise=1e-2, seed=15)
+    a, b = scene._nls(o, regular), fit_nls(regular, pd_eps=0.0)
+    assert a["refit_pd_eps"] is None
+    np.testing.assert_array_equal(np.asarray(a["model"].hand.M), np.asarray(b.model.hand.M))

@@ -52,3 +52,35 @@ def test_stable_scenarios_agree_with_the_nyquist_verdict():
     ref = [bool(analyze_loop(P[i], G, om).summary()["stable"]) for i in range(len(gains))]
     assert list(st) == ref and any(ref) and not all(ref)
     assert stable_scenarios(g, [Family(make_scenarios(P, model, om), quantile=1.0)]) == [None]
+
+
+def test_stable_scenarios_count_open_loop_rhp_poles_as_the_analysis():
+    """Plants with one open-loop RHP pole, ``P = P̂ · a/(s − a)`` (``a > 0``): the loop
+    ``c·g·a/(s − a)`` (per direction) needs one counter-clockwise encirclement of −1 —
+    stable for ``c·g(0) > 1`` up to its upper gain margin. The tuner's verdict (with the plant's RHP
+    pole in ``p_ol``) agrees with :func:`hapid.control.analyze_loop` on every scenario, and
+    calls some stable and some not (the earlier rule compared against the nominal ``(1 + g)^n``
+    count and could never call such a loop stable)."""
+    rng = np.random.default_rng(5)
+    n = 2
+    hand = hapid.SecondOrder(
+        random_spd(rng, n, 0.3), random_spd(rng, n, 10.0), random_spd(rng, n, 800.0)
+    )
+    mech = hapid.SecondOrder(
+        random_spd(rng, n, 0.6), random_spd(rng, n, 40.0), random_spd(rng, n, 200.0)
+    )
+    model = hapid.ImpedanceModel(hand, hapid.SecondOrder(hand.M + mech.M, hand.B + mech.B, hand.K + mech.K))  # fmt: skip
+    om = np.geomspace(2 * np.pi * 1e-3, 2 * np.pi * 5e3, 3000)
+    g = Compensator.paper()
+    a = 2 * np.pi * 0.05
+    gains = np.array([0.001, 0.1, 1.0, 10.0, 30.0])
+    Ph = np.asarray(model.P(1j * om))
+    unst = (a / (1j * om - a))[:, None, None]
+    P = gains[:, None, None, None] * (unst * Ph)[None]
+    fam = Family(make_scenarios(P, model, om, p_ol=n), quantile=0.5)
+    st = stable_scenarios(g, [fam])[0]
+    G = np.asarray(model.P_inv(1j * om)) * np.asarray(g(1j * om))[:, None, None]
+    ref = [
+        bool(analyze_loop(P[i], G, om, P_ol_rhp=n).summary()["stable"]) for i in range(len(gains))
+    ]
+    assert list(st) == ref and any(ref) and not all(ref)

@@ -148,3 +148,32 @@ def fit(frf, estimator: str = "nls", **options) -> Fit:
             f"unknown estimator {estimator!r}; known: {', '.join(sorted(ESTIMATORS))}"
         ) from None
     return fn(frf, **dict(options))
+
+
+def controller_ready(model) -> bool:
+    """Is the inverse-model controller ``g Ẑ_T Ẑ_H⁻¹`` of ``model`` proper and strictly
+    stable: every root of det Ẑ_H finite, with Re < −2π·10⁻³ rad/s (slower than the analysis
+    grid's lowest frequency, :data:`hapid._grids.NYQUIST_F_MIN_HZ`)? A root closer to the
+    imaginary axis acts as an integrator the loop analysis cannot resolve; a root at ∞ (a
+    singular M̂_H) makes the controller improper. At the edge (python bool)."""
+    from .._grids import NYQUIST_F_MIN_HZ
+    from ..control import controller_is_stable
+
+    return bool(controller_is_stable(model, tol=TWO_PI * NYQUIST_F_MIN_HZ))
+
+
+def fit_for_control(frf, **options) -> tuple[Fit, float | None]:
+    """``(fit, refit_pd_eps)``: the NLS fit (:func:`fit` with ``"nls"`` and ``options``)
+    whose inverse-model controller is realizable. With ``pd_eps = 0`` (the default) a fit
+    that lands on the PSD boundary with a root of det Ẑ_H at ∞ or on the imaginary axis
+    (:func:`controller_ready` false: hexapod6, whose hand acts on 3 of its 6 rod directions)
+    is refitted with ``pd_eps = PD_EPS`` (every matrix strictly PD; ≤ 0.3 dB of P·P̂⁻¹ band)
+    and ``refit_pd_eps`` is that value, else ``None``. The loops the paper's controller
+    would close through the boundary fit cannot be certified by any analysis. At the edge
+    (python control flow); sweeps call :func:`fit` and get the bare fit."""
+    from ..fit._nls import PD_EPS
+
+    f = fit(frf, "nls", **options)
+    if float(options.get("pd_eps", 0.0)) == 0.0 and not controller_ready(f.model):
+        return fit(frf, "nls", **(dict(options) | {"pd_eps": PD_EPS})), float(PD_EPS)
+    return f, None

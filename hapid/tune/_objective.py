@@ -95,7 +95,10 @@ class Family:
     claimed bandwidth (e.g. 0.5: the median scenario's bandwidth is maximized while the
     margins hold for ``quantile`` of them). ``dense`` (optional): the same scenarios on a
     denser grid; :func:`.tune` checks the margin constraint there after each stage and adds
-    the violated frequencies to the training grid (:mod:`._exchange`)."""
+    the violated frequencies to the training grid (:mod:`._exchange`), and counts the
+    Nyquist encirclements there. ``contour`` (default True): the grid is a Nyquist contour
+    (low enough and high enough for the count); False for a measured FRF's points, whose
+    scenarios are then judged on the margin disc only."""
 
     scenarios: Scenarios
     quantile: float = 0.95
@@ -104,6 +107,7 @@ class Family:
     name: str = "scenarios"
     bw_quantile: float | None = None
     dense: Scenarios | None = None
+    contour: bool = True
 
     def __post_init__(self):
         for q in (self.quantile, self.bw_quantile):

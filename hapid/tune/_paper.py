@@ -18,8 +18,10 @@ from .. import _config  # noqa: F401  (float64)
 
 
 def tuned_design(device, model, *, fast: bool | None = None) -> dict:
-    """``{"g": Compensator, "parameters": {name: value (Hz for frequencies)}, "constraints",
-    "history"}``: g tuned for ``model`` on ``device``'s variants. ``fast`` (default
+    """``{"g": Compensator, "status", "decision", "training_stable", "parameters": {name:
+    value (Hz for frequencies)}, "constraints", "history"}``: g tuned for ``model`` on
+    ``device``'s variants (``status``: :attr:`.TuneResult.status`; ``decision``: why the
+    tuned g or the start was returned, :func:`.robust_design`). ``fast`` (default
     ``HAPID_FAST=1``): a short tuning, fewer variants and steps (CI, notebooks)."""
     from ._params import ParamMap
     from ._recipe import robust_design
@@ -27,10 +29,14 @@ def tuned_design(device, model, *, fast: bool | None = None) -> dict:
     if fast is None:
         fast = os.environ.get("HAPID_FAST", "0") == "1"
     opts = dict(n_subjects=4, n_freq=150, mu_schedule=(1e2, 1e4), max_steps=100) if fast else {}
-    res = robust_design(model, device=device, validate_designs=False, **opts)["result"]
+    out = robust_design(model, device=device, validate_designs=False, **opts)
+    res = out["result"]
     pm = ParamMap.from_template(res.g)
     return {
         "g": res.g,
+        "status": res.status,
+        "decision": out["decision"],
+        "training_stable": {k: list(v) for k, v in res.training.items()},
         "parameters": {k: float(v) for k, v in pm.describe(pm.vector(res.g)).items()},
         "constraints": res.constraints,
         "history": res.history,

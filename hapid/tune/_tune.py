@@ -24,7 +24,7 @@ import optimistix as optx
 
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
-from ..control import Compensator
+from ..control import Compensator, MetricsSpec, nyquist_encirclements, nyquist_verdict
 from ._exchange import exchange
 from ._objective import Box, Requirements, aggregate, penalized
 from ._params import ParamMap
@@ -40,7 +40,10 @@ class TuneResult:
     at the start); ``constraints`` the final CVaR constraint values (≤ 0 met, in log
     units); ``gain_backoff`` the factor on ``k`` the tuner started from (< 1 when ``g0``
     left training scenarios unstable, :func:`gain_backoff`); ``history`` one dict per μ stage (μ, steps, result, claimed bandwidth,
-    constraints, wall time); ``names`` parameter names; ``requirements``.
+    constraints, wall time); ``names`` parameter names; ``requirements``; ``training`` and
+    ``training0``: ``{family: (stable, required, total)}`` training scenarios whose closed
+    loop is stable under ``g`` and ``g0`` by the analysis' Nyquist rule
+    (:func:`training_verdict`).
     """
 
     g: Compensator
@@ -55,23 +58,34 @@ class TuneResult:
     requirements: Requirements
     wall_s: float
     gain_backoff: float = 1.0
+    training: dict = dataclasses.field(default_factory=dict)
+    training0: dict = dataclasses.field(default_factory=dict)
 
     @property
     def feasible(self) -> bool:
         """Every smooth constraint met (to 1e-3 in log units) on the training scenarios."""
         return all(v <= 1e-3 for v in self.constraints.values())
 
+    @property
+    def stable_on_training(self) -> bool:
+        """Enough training scenarios of every Nyquist-contour family stable under ``g`` (all
+        of a strict family; a chance-constrained one's quantile) — :attr:`training`."""
+        return all(st >= req for st, req, _ in self.training.values())
+
     ok = property(
-        lambda self: self.feasible, doc="The smooth constraints are met (:attr:`feasible`)."
+        lambda self: self.feasible and self.stable_on_training,
+        doc="The smooth constraints are met and every training loop is stable.",
     )
     status = property(
-        lambda self: "feasible" if self.feasible else "infeasible",
-        doc="``feasible``/``infeasible``.",
-    )
+        lambda self: "feasible" if self.ok else (
+            "infeasible" if self.stable_on_training else "unstable on training plants"),
+        doc="``feasible``/``infeasible``/``unstable on training plants``.",
+    )  # fmt: skip
 
     def summary(self) -> dict:
         """Plain-python summary: verdict, claimed bandwidths (Hz), constraints, parameters."""
         return {"ok": self.ok, "status": self.status, "bandwidth_hz": float(self.bandwidth_hz),
+                "training_stable": {k: list(v) for k, v in self.training.items()},
                 "bandwidth0_hz": float(self.bandwidth0_hz), "gain_backoff": float(self.gain_backoff),
                 "constraints": {k: float(v) for k, v in self.constraints.items()},
                 "parameters": self.parameters(), "wall_s": float(self.wall_s)}  # fmt: skip
@@ -84,22 +98,16 @@ class TuneResult:
 
 
 def phase_counts(g: Compensator, families) -> tuple[np.ndarray, np.ndarray]:
-    """Net phase of ``det(I + g Q) = Π_i (1 + g λ_i)`` from DC to the top of each scenario's
-    grid, in units of π (an even integer), and whether the grid resolved it (every step
-    < π/2).
-
-    The grid starts at a finite frequency where ``det(I + L)`` need not be near the real
-    axis (measured on cu5 with 3 samples of delay: −89.9° at 0.1 Hz), so the net phase
-    *along the grid* rounded to a multiple of π flips with any small step. Instead the phase
-    is taken from DC (``det`` real and positive there) to the first point as that point's
-    principal angle, and from the last point back to the real axis likewise: the count is
-    ``2 · round((φ_unwrapped(ω_e) − arg det(ω_e)) / 2π)`` (:func:`_turns`), which changes
-    only when a locus crosses −1 or an end point crosses the negative real axis.
+    """Clockwise encirclements of 0 by ``det(I + g Q) = Π_i (1 + g λ_i)`` over the full
+    Nyquist contour, per scenario, and whether the grid resolved them — the count of every
+    loop analysis in hapid (:func:`hapid.control.nyquist_encirclements`), on the family's
+    dense grid when it has one (:attr:`.Family.dense`).
 
     The closed-loop RHP-pole count of a scenario can only change when this count does (same
-    open-loop poles, same grid): :func:`tune` uses it as the non-smooth guard that the smooth
-    margin constraints cannot give — a BFGS step may jump a locus across −1 between iterates.
-    Counted on the family's dense grid when it has one (:attr:`.Family.dense`).
+    open-loop poles): :func:`tune` uses it as the non-smooth guard that the smooth margin
+    constraints cannot give — a BFGS step may jump a locus across −1 between iterates.
+    Families whose grid is not a Nyquist contour (``Family.contour`` False: the measured
+    FRF's points) are reported unresolved.
     """
     per = [_family_counts(g, f) for f in families]
     return np.concatenate([p[2] for p in per]), np.concatenate([p[3] for p in per])
@@ -107,66 +115,70 @@ def phase_counts(g: Compensator, families) -> tuple[np.ndarray, np.ndarray]:
 
 def _family_counts(g: Compensator, f):
     """One family's Nyquist counts on the grid :func:`phase_counts` uses (the dense one when
-    there is one): ``(scenarios, g(jω) (N,), counts (S,), resolved (S,), nominal (S,))`` with
-    ``nominal`` true where the count equals the nominal loop's ``(1 + g)^n``."""
+    there is one): ``(scenarios, g(jω) (N,), encirclements (S,), resolved (S,), stable
+    (S,))``. ``stable`` is THE stability rule of every analysis,
+    :func:`hapid.control.nyquist_verdict`, with each scenario's open-loop RHP poles
+    (``Scenarios.p_ol``: the plant's and the controller matrix part's): the tuner calls a
+    loop stable exactly when :func:`hapid.pipeline.loop` would on the same grid."""
     sc = f.scenarios if f.dense is None else f.dense
     gam = np.asarray(g_response(g, sc.omega, sc.ts))
-    d = np.prod(1.0 + gam[None, :, None] * np.asarray(sc.lam), axis=-1)
-    ang = np.unwrap(np.angle(d), axis=1)
-    cnt = _turns(ang[:, -1], np.angle(d[:, -1]))
-    res = np.all(np.abs(np.diff(ang, axis=1)) < np.pi / 2, axis=1)
-    n = sc.lam.shape[-1]
-    ang1 = np.unwrap(np.angle(1.0 + gam))
-    ref = _turns(n * ang1[-1], np.angle((1.0 + gam[-1]) ** n))
-    return sc, gam, cnt, res, same_count(cnt, ref)
+    one_plus = 1.0 + gam[None, :, None] * np.asarray(sc.lam)
+    d = np.prod(one_plus, axis=-1)
+    n_enc, _, res = (np.asarray(a) for a in _encirclements(jnp.asarray(d)))
+    if not f.contour:
+        res = np.zeros_like(res)
+    singular = np.min(np.abs(one_plus), axis=(1, 2)) <= SINGULAR_RTOL
+    stable = np.asarray(nyquist_verdict(n_enc, np.asarray(sc.p_ol), res, singular))
+    return sc, gam, n_enc, res, stable
 
 
-def _turns(phi_end, arg_end):
-    """``2 · round((φ_end − arg_end) / 2π)``: the phase (units of π) accumulated from DC along
-    an unwrapped phase that starts at its principal value (``np.unwrap``), closed back to the
-    real axis at the end."""
-    return 2.0 * np.round((np.asarray(phi_end) - np.asarray(arg_end)) / (2.0 * np.pi))
+_encirclements = jax.jit(jax.vmap(nyquist_encirclements))
+SINGULAR_RTOL = MetricsSpec().singular_rtol
+"""``|1 + g λ_i|`` at or below this counts as a singular ``I + L`` (as the analysis)."""
 
 
 def same_count(a, b):
-    """Equal closed-loop counts from two :func:`phase_counts` results (even integers, units
-    of π)."""
-    return np.abs(np.asarray(a) - np.asarray(b)) < 1.0
+    """Equal encirclement counts from two :func:`phase_counts` results."""
+    return np.abs(np.asarray(a) - np.asarray(b)) < 0.5
 
 
 def stable_scenarios(g: Compensator, families) -> list:
     """Per family, ``(S,)`` bool: is the closed loop of each scenario stable under ``g``
-    (Nyquist count of :func:`phase_counts` equal to the nominal loop's ``(1 + g)^n``, grid
-    resolved)? Only for families with ``quantile < 1`` (chance constraints) and scenarios with
-    no open-loop RHP poles; else ``None`` / True (all scenarios counted, as the strict guard
-    assumes)."""
-    out = []
-    for f in families:
-        if f.quantile >= 1.0:
-            out.append(None)
-            continue
-        sc, _, _, res, nominal = _family_counts(g, f)
-        out.append(np.where(np.asarray(sc.p_ol) > 0, True, res & nominal))
-    return out
+    (:func:`_family_counts`' verdict: resolved, and the encirclements equal to minus the
+    open-loop RHP poles)? Only for families with ``quantile < 1`` (chance constraints); else
+    ``None`` (all scenarios counted, as the strict guard assumes)."""
+    return [None if f.quantile >= 1.0 else _family_counts(g, f)[4] for f in families]
 
 
 def _start_ok(g: Compensator, families, ms: float | None = None) -> bool:
     """Does ``g`` leave no scenario of a strict family (``quantile`` 1) and at most ``K − 1``
-    of a chance-constrained one with an unstable closed loop (the Nyquist count of
-    :func:`phase_counts` against the nominal loop's ``(1 + g)^n``; scenarios with open-loop
-    RHP poles or a grid that does not resolve the count are not judged)? With ``ms``: and
-    with every counted locus outside the disc of radius ``1/ms`` around −1 (margins). On the
-    family's dense grid when it has one (:attr:`.Family.dense`)."""
+    of a chance-constrained one unstable or unresolved (:func:`_family_counts`' verdict,
+    that of the analysis)? With ``ms``: and with every locus outside the disc of radius
+    ``1/ms`` around −1 (margins). Families that are not Nyquist contours (the measured FRF)
+    are judged on the disc only. On the family's dense grid when it has one."""
     for f in families:
-        sc, gam, _, res, nominal = _family_counts(g, f)
-        # unresolved grids are not judged (as in the guard); RHP open-loop poles neither
-        bad = (np.asarray(sc.p_ol) == 0) & res & ~nominal
+        sc, gam, _, _, stable = _family_counts(g, f)
+        bad = ~stable if f.contour else np.zeros(sc.n_scenarios, bool)
         if ms is not None and f.margins:
             d = np.abs(1.0 + gam[None, :, None] * np.asarray(sc.lam)).min(axis=(1, 2))
             bad |= d < 1.0 / ms
         if np.sum(bad) > (0 if f.quantile >= 1.0 else f.k_worst() - 1):
             return False
     return True
+
+
+def training_verdict(g: Compensator, families) -> dict:
+    """``{family name: (stable, required, total)}`` for the families that are Nyquist
+    contours: how many training scenarios ``g`` leaves stable by the analysis' rule
+    (:func:`_family_counts`), and how many must be (all of a strict family; all but
+    ``K − 1`` of a chance-constrained one, as the chance constraint counts them)."""
+    out = {}
+    for f in families:
+        if f.contour:
+            st = _family_counts(g, f)[4]
+            req = st.size if f.quantile >= 1.0 else st.size - (f.k_worst() - 1)
+            out[f.name] = (int(np.sum(st)), int(req), int(st.size))
+    return out
 
 
 def gain_backoff(g: Compensator, families, ms: float = 1.0, alpha_min: float = 1e-3,
@@ -351,4 +363,6 @@ def tune(
         bandwidth_hz=float(np.exp(z[-1]) / TWO_PI), bandwidth0_hz=wb0 / TWO_PI,
         constraints=c, history=history, names=pm.names, requirements=req,
         wall_s=time.perf_counter() - t0, gain_backoff=alpha,
+        training=training_verdict(pm.compensator(x), families),
+        training0=training_verdict(g0, families),
     )  # fmt: skip

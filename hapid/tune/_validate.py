@@ -40,13 +40,15 @@ def _clean(d):
     return out
 
 
-def true_plant_loop(g: Compensator, model, device, omega=None) -> dict:
-    """Loop numbers of the discretized controller with ``device.sampled_P`` (Nyquist first)."""
+def true_plant_loop(g: Compensator, model, device, omega=None, spec=None) -> dict:
+    """Loop numbers of the discretized controller with ``device.sampled_P`` (Nyquist first).
+    ``spec`` (default :data:`hapid.pipeline.SPEC_VALIDATE`): what the report computes —
+    :data:`hapid.pipeline.SPEC_FIGURES` adds the per-frequency arrays for plots."""
     omega = device_grid(device.fs_hz) if omega is None else np.asarray(omega, dtype=float)
     rep = pipeline.loop(
         pipeline.controller(model, g, ts=device.ts),
         pipeline.device_plant(device, omega),
-        pipeline.SPEC_VALIDATE,
+        pipeline.SPEC_VALIDATE if spec is None else spec,
     )
     s = rep.summary()
     return _clean({k: s[k] for k in _LOOP_KEYS}) | {"report": rep}
