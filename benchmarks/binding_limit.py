@@ -62,7 +62,7 @@ def problem(model, frf, dev, g0, *, n_train=150, n_freq=200, dense_factor=4, see
                   bandwidth=True, bw_quantile=0.5, name="posterior", dense=dense)  # fmt: skip
     ev = evidence_from_frf(frf, model, kappa=KAPPA if kappa is None else kappa, ts=dev.ts)
     fam_frf = Family(make_scenarios(ev.P, model, ev.omega, ts=ev.ts), quantile=1.0,
-                     bandwidth=False, name="frf")  # fmt: skip
+                     bandwidth=False, name="frf", contour=False)  # fmt: skip
     req = Requirements(min_dc_gain=float(np.abs(g0(np.array([0.0]))[0])),
                        sg_omega=tuple(beyond_grid(ev)), sg_g_max=ev.g_max, sg_ts=ev.ts)  # fmt: skip
     return {"families": [post, fam_frf], "requirements": req, "evidence": ev, "loop_gp": lgp,
@@ -190,26 +190,6 @@ def oracle(g0, model, frf, dev, *, max_steps=300) -> dict:
     return out
 
 
-def exclude_frf_from_counts() -> None:
-    """MEASUREMENT ONLY (not a fix): make the tuner's Nyquist-count guard ignore the measured-FRF
-    family. Its grid starts at the lowest measured frequency (1 Hz), where ``det(I + L)`` of a
-    3-rod loop can sit at ±180° (tripod3 with the paper g: −179.99°), so the count closed to the
-    real axis there flips with any step and the guard rejects every step (measured: tripod3's
-    loop-GP design returned the gain-backed-off start). The FRF's grid cannot count
-    encirclements anyway; the fix belongs in ``hapid.tune._tune`` (reported to the lead)."""
-    import hapid.tune._tune as T
-
-    orig = T._family_counts
-
-    def counts(g, f):
-        sc, gam, cnt, res, nom = orig(g, f)
-        if f.name == "frf":
-            return sc, gam, np.zeros_like(cnt), np.zeros_like(res), np.ones_like(nom)
-        return sc, gam, cnt, res, nom
-
-    T._family_counts = counts
-
-
 def _true(g, model, dev):
     from hapid.tune import true_plant_loop
 
@@ -234,12 +214,7 @@ def main(argv=None):
     ap.add_argument("--out", default=str(ROOT / "out" / "binding"))
     ap.add_argument("--oracle", action="store_true",
                     help="instead: tune the template on the true plant (alone / + small gain / + FRF disc)")  # fmt: skip
-    ap.add_argument("--no-frf-count", action="store_true",
-                    help="measurement only: the count guard ignores the measured-FRF family "
-                    "(exclude_frf_from_counts)")  # fmt: skip
     a = ap.parse_args(argv)
-    if a.no_frf_count:
-        exclude_frf_from_counts()
     from robust_table import DENSE_FREQS, design
 
     import hapid  # noqa: F401
@@ -258,7 +233,6 @@ def main(argv=None):
                              cache_dir=str(ROOT / ".hapid_cache" / "stages"),
                              out_dir=str(ROOT / "out" / "robust"))  # fmt: skip
     dev, frf, model = res["device"], res["frf"], res["nls"]["model"]
-    tag += "-nofrfcount" if a.no_frf_count else ""
     rec = {"device": a.device, "structure": tag, "n_train": a.n_train, "n_holdout": a.n_holdout}
     if a.oracle:
         rec["oracle"] = oracle(g0, model, frf, dev)
