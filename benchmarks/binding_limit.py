@@ -22,7 +22,14 @@ optimum:
 
     PYTHONPATH=. python benchmarks/binding_limit.py --device cu5 --structure paper \\
         [--relax frf small_gain dc posterior box] [--n-train 150 --n-holdout 150]
-    PYTHONPATH=. python benchmarks/binding_limit.py --device cu5 --extra-lag 20 --extra-notch 18
+    PYTHONPATH=. python benchmarks/binding_limit.py --device cu5 --extra-lag 19 --extra-notch 45
+    # a richer template continued from an earlier run's tuned g (warm start, same problem):
+    PYTHONPATH=. python benchmarks/binding_limit.py --device tripod3 \
+        --continue-from out/binding/tripod3-paper.json --extra-lag 19 --extra-notch 150
+    # the template tuned on the true plant itself (alone / + small gain / + FRF disc):
+    PYTHONPATH=. python benchmarks/binding_limit.py --device cu5 --oracle
+
+The numbers and their commands: docs/robust-design.md, "What binds the loop-GP design".
 
 Writes ``out/binding/<device>-<structure>.json``.
 """
