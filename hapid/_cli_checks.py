@@ -146,6 +146,10 @@ def _move(v):
             and all(abs(x) <= MOVE_LIMIT_M for x in v))  # fmt: skip
 
 
+def _pos_list(v):
+    return isinstance(v, list | tuple) and len(v) > 0 and all(_num(x) and x > 0 for x in v)
+
+
 def _walkers(v):
     return _int(v) and (v == 0 or v >= 2)
 
@@ -225,6 +229,8 @@ COMMON: dict[str, tuple] = {
     "predictive": FLAG,
     "evidence_bandwidth": FLAG,
     "loop_draws": FLAG,
+    "extra_lag": (_pos_list, "one or more frequencies > 0 Hz"),
+    "extra_notch": (_pos_list, "one or more frequencies > 0 Hz"),
     "no_cache": FLAG,
     "outputs": ANY,  # checked with the scene (run)
     "set": ANY,  # checked with the scene (run)

@@ -590,7 +590,14 @@ def cmd_tune(a):
     import time
 
     t = time.perf_counter()
-    res = tune_from_files(a.model, a.samples, a.out, device=a.device, frf=a.frf,
+    g0 = None
+    if a.extra_lag or a.extra_notch:  # a richer template: the paper g plus identity terms
+        from .control import Compensator
+        from .tune import extend_structure
+
+        g0 = extend_structure(Compensator.paper(), lag_hz=a.extra_lag or (),
+                              notch_hz=a.extra_notch or ())  # fmt: skip
+    res = tune_from_files(a.model, a.samples, a.out, device=a.device, frf=a.frf, g0=g0,
                           evidence_ts=None if a.fs is None else 1.0 / a.fs, n_train=a.n_train,
                           n_holdout=a.n_holdout, quantile=a.quantile, n_subjects=a.subjects,
                           seed=a.seed, max_steps=a.max_steps, keep_dc_gain=not a.free_dc,
@@ -666,6 +673,12 @@ def _register_tune(sub):
     tu.add_argument("--loop-draws", action="store_true",
                     help="tune and re-check on draws of Q = P P̂⁻¹ conditioned on the measured FRF (--frf; "
                     "hapid.tune._loopgp) instead of posterior samples")  # fmt: skip
+    tu.add_argument("--extra-lag", type=float, nargs="+", metavar="HZ",
+                    help="tune the paper g plus a lag/lead pair at each of these frequencies (Hz; zero = "
+                    "pole at the start, so the start is the paper g): more freedom in g's shape")  # fmt: skip
+    tu.add_argument("--extra-notch", type=float, nargs="+", metavar="HZ",
+                    help="tune the paper g plus a notch (ζ_num = ζ_den at the start) at each of these "
+                    "frequencies (Hz): it can become a dip or a bump")  # fmt: skip
     tu.add_argument("--seed", type=int, default=0)
     tu.set_defaults(func=cmd_tune)
 

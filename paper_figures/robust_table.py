@@ -17,6 +17,7 @@ used to choose tuning settings.
                                          [--n-train 150] [--n-holdout N] [--quantile 0.975]
                                          [--predictive] [--free-dc] [--evidence-bandwidth]
                                          [--freqs paper|dense] [--periods 4] [--out out/robust]
+                                         [--extra-lag HZ ...] [--extra-notch HZ ...]
     # the held-out check reported in docs/robust-design.md:
     python paper_figures/robust_table.py --devices cu5_soft --quick --evidence-bandwidth
     python paper_figures/robust_table.py --oracle     # the paper-form g tuned on the true plant
@@ -191,6 +192,10 @@ def main(argv=None):
     ap.add_argument("--freqs", choices=["paper", "dense"], default="paper",
                     help="excited frequencies: the paper's 28, or dense (1 Hz steps to 60 Hz)")  # fmt: skip
     ap.add_argument("--periods", type=int, help="measured periods per experiment (default 4)")
+    ap.add_argument("--extra-lag", type=float, nargs="+", default=[], metavar="HZ",
+                    help="tuned structure: the paper g plus a lag/lead pair at each frequency (Hz)")  # fmt: skip
+    ap.add_argument("--extra-notch", type=float, nargs="+", default=[], metavar="HZ",
+                    help="tuned structure: the paper g plus a notch at each frequency (Hz)")  # fmt: skip
     a = ap.parse_args(argv)
     if a.oracle:
         for d in a.devices:
@@ -209,7 +214,14 @@ def main(argv=None):
     prot = {"freqs": DENSE_FREQS} if a.freqs == "dense" else {}
     if a.periods is not None:
         prot["periods"] = a.periods
-    results = [design(d, quick=a.quick, draws=a.draws, protocol=prot or None, **opts)[0]
+    g0 = None
+    if a.extra_lag or a.extra_notch:  # a richer template that starts at the paper g's response
+        import hapid  # noqa: F401
+        from hapid.control import Compensator
+        from hapid.tune import extend_structure
+
+        g0 = extend_structure(Compensator.paper(), lag_hz=a.extra_lag, notch_hz=a.extra_notch)
+    results = [design(d, quick=a.quick, draws=a.draws, protocol=prot or None, g0=g0, **opts)[0]
                for d in a.devices]  # fmt: skip
     Path(a.out).mkdir(parents=True, exist_ok=True)
     (Path(a.out) / "robust_table.json").write_text(json.dumps(results, indent=1, default=float))

@@ -11,6 +11,7 @@
 """
 
 from .. import _config  # noqa: F401  (float64)
+from ._binding import binding_constraints as binding_constraints
 from ._files import design_info as design_info
 from ._files import load_design as load_design
 from ._files import save_design as save_design
@@ -25,6 +26,7 @@ from ._objective import scenario_constraints as scenario_constraints
 from ._paper import paper_column as paper_column
 from ._paper import tuned_design as tuned_design
 from ._params import ParamMap as ParamMap
+from ._params import extend_structure as extend_structure
 from ._recipe import posterior_grid as posterior_grid
 from ._recipe import posterior_plants as posterior_plants
 from ._recipe import robust_design as robust_design

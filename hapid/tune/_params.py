@@ -89,3 +89,40 @@ class ParamMap:
         v = np.exp(np.asarray(x, dtype=float))
         v = np.where(self.is_frequency, v / TWO_PI, v)
         return {n: float(a) for n, a in zip(self.names, v, strict=True)}
+
+
+IDENTITY_NOTCH_ZETA = 0.5
+"""Damping ratio (numerator = denominator) of a notch added by :func:`extend_structure`."""
+
+
+def extend_structure(g: Compensator, *, lag_hz=(), notch_hz=(),
+                     notch_zeta: float = IDENTITY_NOTCH_ZETA) -> Compensator:  # fmt: skip
+    """``g`` with more tunable terms that leave its response unchanged: a lag/lead pair with
+    zero = pole at each frequency of ``lag_hz`` (Hz), and a notch with ``ζ_num = ζ_den =
+    notch_zeta`` at each frequency of ``notch_hz`` (Hz). The result is a template for
+    :func:`hapid.tune.tune` / :func:`hapid.tune.robust_design` (``g0``): the tuner starts at
+    ``g``'s response (same |g(0)|, same loop) with more freedom — a pair can become a lead or
+    a lag, a notch a dip or a bump — so the tuned design is no worse than ``g``'s structure
+    allows from the same start. Frequencies must be > 0."""
+    lag = np.asarray(lag_hz, dtype=float).reshape(-1)
+    notch = np.asarray(notch_hz, dtype=float).reshape(-1)
+    if (
+        np.any(~np.isfinite(lag))
+        or np.any(lag <= 0)
+        or np.any(~np.isfinite(notch))
+        or np.any(notch <= 0)
+    ):
+        raise ValueError("extend_structure: added lag/notch frequencies must be finite and > 0 Hz")
+    if not notch_zeta > 0:
+        raise ValueError(f"extend_structure: notch_zeta must be > 0, got {notch_zeta}")
+    cat = lambda a, b: np.concatenate([np.asarray(a, dtype=float).reshape(-1), b])  # noqa: E731
+    w = TWO_PI * notch
+    return Compensator(
+        k=float(g.k),
+        lag_zeros=cat(g.lag_zeros, TWO_PI * lag),
+        lag_poles=cat(g.lag_poles, TWO_PI * lag),
+        notch_omega=cat(g.notch_omega, w),
+        notch_zeta_num=cat(g.notch_zeta_num, np.full(w.size, notch_zeta)),
+        notch_zeta_den=cat(g.notch_zeta_den, np.full(w.size, notch_zeta)),
+        lowpass=np.asarray(g.lowpass, dtype=float),
+    )
