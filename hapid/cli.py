@@ -615,7 +615,8 @@ def cmd_tune(a):
 
         print("non-smooth re-check (held-out samples / true plant / time domain):")
         print(recheck_table(tab["start"], tab["tuned"]))
-        warn = uncertified_warning(tab["start"] if res.get("kept_start") else tab["tuned"])
+        ret = tab.get("returned") or tab["start" if res.get("kept_start") else "tuned"]
+        warn = uncertified_warning(ret)
         if warn:
             print(warn)
     if a.report:

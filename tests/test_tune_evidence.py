@@ -227,3 +227,31 @@ def test_uncertified_design_gets_a_warning_line():
     w = uncertified_warning(row)
     assert w.startswith("WARNING") and "NOT certified" in w and "0.476" in w and "100 Hz" in w
     assert uncertified_warning(row | {"certified": True}) == ""
+
+
+def test_certified_gain_is_the_largest_gain_the_evidence_certifies():
+    """The certified fallback's gain: a g with 30× the paper gain is not certified on an FRF
+    of a second-order truth with 2 ms of delay; :func:`certified_gain` returns the α at which
+    it is, and 10 % more gain is not (the bisection's boundary), each checked by the
+    certificate itself."""
+    import equinox as eqx
+    from helpers_fit import random_truth, synthetic_frf
+
+    from hapid.control import Compensator
+    from hapid.tune._evidence import certificate, evidence_from_frf
+    from hapid.tune._recipe import certified_gain
+
+    truth = random_truth(2, seed=3)
+    frf = synthetic_frf(truth, rel_noise=1e-3, seed=4)
+    w = np.asarray(frf.omega)
+    delay = np.exp(-1j * w * 2e-3)[:, None, None]
+    src = {"omega": w, "Z_H": np.asarray(frf.Z_H) * delay, "Z_T": np.asarray(frf.Z_T)}
+    ev = evidence_from_frf(src, truth)
+    g0 = Compensator.paper()
+    g = eqx.tree_at(lambda c: c.k, g0, g0.k * 30.0)
+    scaled = lambda a: eqx.tree_at(lambda c: c.k, g, g.k * a)  # noqa: E731
+    assert not certificate(ev, truth, g)["certified"]
+    a = certified_gain(g, ev, truth)
+    assert a is not None and 0.0 < a < 1.0
+    assert certificate(ev, truth, scaled(a))["certified"]
+    assert not certificate(ev, truth, scaled(min(1.0, 1.1 * a)))["certified"]
