@@ -139,12 +139,14 @@ def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", dra
         fixed = boundary_fixed(nls) if nls.boundary else None
         base, _, mode = kind.partition("@")  # e.g. "gp_corr@map": gp_hyper mode after "@"
         opts = {"warp": False} if base == "gp_logf" else {}
+        if base == "gp_corr_el":
+            opts["error_scale"] = "element"
         if mode:
             opts["gp_hyper"] = mode
+        me = {"gp_logf": "gp", "gp_corr_el": "gp_corr"}.get(base, base)
         t0 = time.perf_counter()
         post = make_log_posterior(
-            frf, nls.scale, f_max_hz=40.0, model_error="gp" if base == "gp_logf" else base,
-            reference=nls, fixed=fixed, **opts,
+            frf, nls.scale, f_max_hz=40.0, model_error=me, reference=nls, fixed=fixed, **opts,
         )  # fmt: skip
         t_build = time.perf_counter() - t0
         ms = _eval_ms(post, initial_point(post, nls))
@@ -175,7 +177,8 @@ def main(argv=None):
     ap.add_argument("--draws", type=int, default=400)
     ap.add_argument("--devices", default="cu5,tripod3_d2,second_order")
     ap.add_argument("--kinds", default="white,gp,gp_corr",
-                    help="model errors to compare: white, gp, gp_corr, gp_logf (gp with κ ≡ 0); "
+                    help="model errors to compare: white, gp, gp_corr, gp_corr_el (gp_corr "
+                         "with error_scale='element'), gp_logf (gp with κ ≡ 0); "
                          "kind@mode sets gp_hyper (e.g. gp@marginal, gp_corr@map)")  # fmt: skip
     a = ap.parse_args(argv)
     print(f"posterior: {a.method}; 90 % predictive band; held-out frequencies in 1–40 Hz\n")

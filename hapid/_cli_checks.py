@@ -196,6 +196,7 @@ COMMON: dict[str, tuple] = {
     ),
     "model_error": one_of(["white", "gp", "gp_corr", "none"]),
     "gp_hyper": one_of(["map", "marginal", "sample"]),
+    "error_scale": one_of(["shared", "element"]),
     "n_freq": int_between(2, 1_000_000),
     "no_model_error": FLAG,
     "delay": int_between(0, 1000),

@@ -377,7 +377,8 @@ def cmd_posterior(a):
                               n_steps=a.steps, seed=a.seed, backend_path=a.hdf5,
                               fit_options={"f_max_hz": a.f_max_hz},
                               posterior_options={"model_error": a.model_error}
-                              | ({"gp_hyper": a.gp_hyper} if a.gp_hyper and a.model_error in ("gp", "gp_corr") else {}),
+                              | ({"gp_hyper": a.gp_hyper} if a.gp_hyper and a.model_error in ("gp", "gp_corr") else {})
+                              | ({"error_scale": a.error_scale} if a.error_scale else {}),
                               sampler_options={"moves": a.moves} | ({"n_walkers": a.walkers} if a.walkers else {}),
                               fix_boundary=not a.free_boundary)  # fmt: skip
     print(ps.summary())
@@ -493,6 +494,10 @@ def _register_stages(sub):
                     help="gp hyperparameters: map (held at the joint posterior mode; gp default), "
                          "marginal (mode of their marginal, M, B, K integrated out; gp_corr default) "
                          "or sample (sampled with M, B, K; ~100× slower per step)")  # fmt: skip
+    po.add_argument("--error-scale", choices=["shared", "element"], default=None,
+                    help="gp_corr model-error size per element: shared (one amplitude, the RMS "
+                         "element size; default) or element (∝ each element's size in the fit; "
+                         "docs/conventions.md)")  # fmt: skip
     po.add_argument("--seed", type=int, default=0)
     po.add_argument("--hdf5", help="emcee HDF5 backend file")
     po.set_defaults(func=cmd_posterior)

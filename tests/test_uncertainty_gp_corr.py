@@ -54,22 +54,45 @@ def _latent_blocks_np(h, aH, aM, u):
     return rho, KHH, KHM, KMM
 
 
-def _reference_covariances(frf, nls, h, rho_n):
+def _element_weights_np(model, om):
+    """error_scale="element" weights ``(w_H, w_M)``, each ``{(i, j): (N,)}``, from the
+    documented rule (numpy, loops): ``e_ij = |K_ij| + ω|B_ij| + ω²|M_ij|`` of the reference
+    model's hand or mechanism, floored at ``0.01 √(e_ii e_jj)``, divided by its RMS over the
+    elements."""
+    out = []
+    for part in (model.hand, model.mechanism):
+        M, B, K = (np.asarray(a) for a in (part.M, part.B, part.K))
+        n = M.shape[0]
+        raw = {(i, j): abs(K[i, j]) + om * abs(B[i, j]) + om**2 * abs(M[i, j])
+               for i in range(n) for j in range(n)}  # fmt: skip
+        e = {
+            (i, j): np.maximum(v, 0.01 * np.sqrt(raw[i, i] * raw[j, j]))
+            for (i, j), v in raw.items()
+        }
+        rms = np.sqrt(sum(v**2 for v in e.values()) / n**2)
+        out.append({k: v / rms for k, v in e.items()})
+    return out
+
+
+def _reference_covariances(frf, nls, h, rho_n, element=False):
     """Per element, the real covariance of [Re r_H; Re r_T; Im r_H; Im r_T] built in numpy
     from the documented shared-latent model (e_H = τ_H b_H f₁, e_M = τ_M b_M (ρ f₁ +
-    √(1−|ρ|²) f₂), f circular with Matérn-5/2 correlations in asinh(ω/ω_c))."""
+    √(1−|ρ|²) f₂), f circular with Matérn-5/2 correlations in asinh(ω/ω_c)); with
+    ``element`` the amplitudes of element (i, j) times :func:`_element_weights_np`."""
     zr = float(nls.scale.z_ref)
     om = np.asarray(frf.omega)
     u = np.log(om / float(nls.scale.omega_ref))
     n = frf.n
     aH = np.linalg.norm(np.asarray(frf.Z_H), axis=(1, 2)) / n / zr
     aM = np.linalg.norm(np.asarray(frf.Z_T) - np.asarray(frf.Z_H), axis=(1, 2)) / n / zr
-    rho, KHH, KHM, KMM = _latent_blocks_np(h, aH, aM, u)
+    wH, wM = _element_weights_np(nls.model, om) if element else (None, None)
     vH = (np.asarray(frf.Z_H_std) / zr) ** 2
     vT = (np.asarray(frf.Z_T_std) / zr) ** 2
     out = {}
     for i in range(n):
         for j in range(n):
+            gH, gM = (aH * wH[i, j], aM * wM[i, j]) if element else (aH, aM)
+            rho, KHH, KHM, KMM = _latent_blocks_np(h, gH, gM, u)
             dH, dT = vH[:, i, j], vT[:, i, j]
             G = np.block([[KHH + np.diag(dH), KHH + KHM + np.diag(rho_n * np.sqrt(dH * dT))],
                           [(KHH + KHM).conj().T + np.diag(rho_n * np.sqrt(dH * dT)),
@@ -218,12 +241,14 @@ def test_gp_corr_predictive_calibrated_on_second_order_truth(case):
     assert c["coverage"] >= 0.85, c
 
 
-def _exact_predictive_np(frf, scale, h, om_new, prior_scale):
+def _exact_predictive_np(frf, scale, h, om_new, prior_scale, weights_model=None):
     """numpy reference: the exact Gaussian predictive of the true ``[Z_H; Z_T](ω_new)`` of
     the gp_corr model with fixed hyperparameters ``h``, the six matrices integrated out
     (prior N(0, prior_scale²) on their scaled entries, no PSD cone) and the GP + noise
     conditioned on the data. Returns ``(mean (E·4N*,), cov)`` in physical units over the real
-    vector, per element ``[Re Z_H*, Re Z_T*, Im Z_H*, Im Z_T*]`` (:func:`_pack`'s order)."""
+    vector, per element ``[Re Z_H*, Re Z_T*, Im Z_H*, Im Z_T*]`` (:func:`_pack`'s order).
+    ``weights_model``: the reference model of error_scale="element" (per-element amplitudes,
+    :func:`_element_weights_np`); None = one amplitude for every element."""
     zr, wr = float(scale.z_ref), float(scale.omega_ref)
     n, E = frf.n, frf.n**2
     rows, cols = np.tril_indices(n)
@@ -248,10 +273,22 @@ def _exact_predictive_np(frf, scale, h, om_new, prior_scale):
     aH = np.linalg.norm(np.asarray(frf.Z_H), axis=(1, 2)) / n / zr
     aM = np.linalg.norm(np.asarray(frf.Z_T) - np.asarray(frf.Z_H), axis=(1, 2)) / n / zr
     interp = lambda a: np.exp(np.interp(np.log(om_new), np.log(om_f), np.log(a)))  # noqa: E731
-    u = np.log(np.concatenate([om_f, om_new]) / wr)
-    _, KHH, KHM, KMM = _latent_blocks_np(h, np.r_[aH, interp(aH)], np.r_[aM, interp(aM)], u)
-    KHT = KHH + KHM  # e_T = e_H + e_M
-    G = np.block([[KHH, KHT], [KHT.conj().T, KHT + KHM.conj().T + KMM]])
+    om_all = np.concatenate([om_f, om_new])
+    u = np.log(om_all / wr)
+    aH_all, aM_all = np.r_[aH, interp(aH)], np.r_[aM, interp(aM)]
+    if weights_model is not None:
+        wH, wM = _element_weights_np(weights_model, om_all)
+
+    def blocks(i, j):  # e_T = e_H + e_M
+        gH, gM = (
+            (aH_all * wH[i, j], aM_all * wM[i, j])
+            if weights_model is not None
+            else (aH_all, aM_all)
+        )
+        _, KHH, KHM, KMM = _latent_blocks_np(h, gH, gM, u)
+        KHT = KHH + KHM
+        return np.block([[KHH, KHT], [KHT.conj().T, KHT + KHM.conj().T + KMM]])
+
     Na = Nf + Ns
     fi = np.r_[np.arange(Nf), Na + np.arange(Nf)]
     si = np.r_[Nf + np.arange(Ns), Na + Nf + np.arange(Ns)]
@@ -262,6 +299,7 @@ def _exact_predictive_np(frf, scale, h, om_new, prior_scale):
     Jy, Jt, y = np.zeros((E * ny, 6 * t)), np.zeros((E * nt, 6 * t)), np.zeros(E * ny)
     for e in range(E):
         i, j = divmod(e, n)
+        G = blocks(i, j)
         sy, st = slice(e * ny, (e + 1) * ny), slice(e * nt, (e + 1) * nt)
         Cy[sy, sy] = real(G[np.ix_(fi, fi)] + np.diag(np.r_[vH[:, i, j], vT[:, i, j]]))
         Cty[st, sy] = real(G[np.ix_(si, fi)])
@@ -289,8 +327,9 @@ def _pack(ZH, ZT):
     return np.concatenate(cols, 1)
 
 
-@pytest.mark.slow  # 2000 Laplace draws + their GP conditionals: ~20 s CPU alone
-def test_gp_corr_predictive_Z_H_Z_T_equal_exact_gaussian_predictive(case):
+@pytest.mark.slow  # 2000 Laplace draws + their GP conditionals: ~20 s CPU alone (each)
+@pytest.mark.parametrize("error_scale", ["shared", "element"])
+def test_gp_corr_predictive_Z_H_Z_T_equal_exact_gaussian_predictive(case, error_scale, tmp_path):
     """The predictive draws of Z_H and Z_T (Laplace θ draws + each draw's conditional GP
     model error, ``Z_T = Z_H + Z_M``) have the mean and covariance of the exact Gaussian
     predictive computed in numpy (matrices integrated out in closed form, the H–M-correlated
@@ -298,13 +337,16 @@ def test_gp_corr_predictive_Z_H_Z_T_equal_exact_gaussian_predictive(case):
     covariance, conditioned on the right residuals."""
     _, frf, nls = case
     post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp_corr", reference=nls,
-                              gp_hyper=H10)  # fmt: skip
+                              gp_hyper=H10, error_scale=error_scale)  # fmt: skip
     om_new = 2 * np.pi * np.array([1.5, 4.0, 12.0, 27.0])
     S = 2000
     ps = posterior_laplace_samples(post, S, nls, key=0)
+    ps = load_samples(save_samples(tmp_path / "s.npz", ps))  # the file carries the scale
+    assert ps.predictive.get("error_scale", "shared") == error_scale
     d = predictive_plants(ps, om_new, max_samples=None, seed=1)
     X = _pack(d["Z_H"], d["Z_T"])
-    mean, cov = _exact_predictive_np(frf, nls.scale, H10, om_new, post.prior_scale)
+    mean, cov = _exact_predictive_np(frf, nls.scale, H10, om_new, post.prior_scale,
+                                     nls.model if error_scale == "element" else None)  # fmt: skip
     sd = np.sqrt(np.diag(cov))
     z = (X.mean(0) - mean) / (sd / np.sqrt(S))
     assert np.max(np.abs(z)) < 4.5, np.max(np.abs(z))  # 64 means, each N(0, 1) if right
@@ -339,3 +381,46 @@ def test_gp_corr_fixed_hyper_quadratic_form_equals_full_likelihood(case):
     a = float(log_marginal_likelihood(ps, H10))
     b = float(LK._log_marginal_compact(ps, H10, y0, Jc, idx, ps.n_free))
     assert abs(a - b) <= 1e-10 * abs(a), (a, b)
+
+
+def test_gp_corr_element_scale_likelihood_matches_numpy_reference(case):
+    """error_scale="element": element (i, j)'s model-error amplitude is the shared one times
+    e_ij / RMS e (e_ij = |K_ij| + ω|B_ij| + ω²|M_ij| of the reference model, floored at
+    0.01 √(e_ii e_jj)). The weights equal the numpy rule (RMS 1 over the elements, not all
+    1); the likelihood equals scipy's density with the per-element covariance built in
+    numpy; the fixed-hyperparameter quadratic form (closed form, what Laplace and emcee use)
+    equals the direct likelihood."""
+    from scipy.stats import multivariate_normal
+
+    _, frf, nls = case
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp_corr", reference=nls,
+                              noise_corr=0.3, gp_hyper="sample", error_scale="element")  # fmt: skip
+    assert post.error_scale == "element"
+    om = np.asarray(frf.omega)
+    for w, ref in zip((post.w_H, post.w_M), _element_weights_np(nls.model, om), strict=True):
+        w = np.asarray(w)
+        assert np.allclose(np.sqrt(np.mean(w**2, axis=0)), 1.0, rtol=1e-12)
+        assert np.ptp(w) > 0.1  # the elements differ
+        for (i, j), r in ref.items():
+            assert np.allclose(w[i * frf.n + j], r, rtol=1e-10), (i, j)
+    x = initial_point(post, nls)
+    x[-10:] = H10
+    ll = float(post.log_likelihood(x))
+    s = 1j * om
+    zr = float(nls.scale.z_ref)
+    rH = (np.asarray(frf.Z_H) - np.asarray(nls.model.Z_H(s))) / zr
+    rT = (np.asarray(frf.Z_T) - np.asarray(nls.model.Z_T(s))) / zr
+    ref = 0.0
+    for (i, j), C in _reference_covariances(frf, nls, H10, 0.3, element=True).items():
+        y = np.concatenate([rH[:, i, j].real, rT[:, i, j].real, rH[:, i, j].imag, rT[:, i, j].imag])
+        ref += multivariate_normal(np.zeros(len(y)), C).logpdf(y)
+    assert abs(ll - ref) < 1e-6 * abs(ref) + 1e-3, (ll, ref)
+
+    pf = fix_gp_hyper(post, H10)
+    x0 = initial_point(pf, nls)
+    x1 = x0 * (1 + 0.3 * np.random.default_rng(4).standard_normal(x0.shape))
+    fast = float(pf.log_likelihood(x1))
+    full = float(pf.log_likelihood_matrices(pf.model_matrices(pf.full_theta(x1)), H10))
+    assert abs(fast - full) <= 1e-10 * abs(full), (fast, full)
+    with pytest.raises(ValueError, match="error_scale"):
+        make_log_posterior(frf, nls.scale, model_error="white", error_scale="element")

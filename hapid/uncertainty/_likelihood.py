@@ -319,13 +319,15 @@ def _plus_noise(base, dH, dT, nug, noise_corr):
     """``base (2N, 2N)`` (the model-error covariance of ``[e_H; e_T]``) plus, per element,
     the measurement-noise variances ``dH, dT (E, N)`` and the nugget ``nug (N,)`` on the
     diagonal and the H–T noise covariance ``noise_corr·√(dH dT)`` on the off-diagonal
-    blocks' diagonals: ``(E, 2N, 2N)``."""
+    blocks' diagonals: ``(E, 2N, 2N)``. ``base`` may also be per element ``(E, 2N, 2N)`` and
+    ``nug`` ``(E, N)``."""
     dHT = noise_corr * jnp.sqrt(dH * dT)
     diag = jnp.concatenate([dH + nug, dT + nug], axis=1)  # (E, 2N)
     off = jax.vmap(jnp.diag)(dHT)  # (E, N, N)
     z = jnp.zeros_like(off)
     offb = jnp.concatenate([jnp.concatenate([z, off], 2), jnp.concatenate([off, z], 2)], 1)
-    return base[None] + jax.vmap(jnp.diag)(diag) + offb
+    base = base if base.ndim == 3 else base[None]
+    return base + jax.vmap(jnp.diag)(diag) + offb
 
 
 GP_CORR_WARP = "asinh"
@@ -356,7 +358,8 @@ def hm_correlation(hyper):
 def gp_corr_blocks(u, b_H, b_M, hyper):
     """Complex model-error covariances of gp_corr on log-frequencies ``u (N,)`` with
     amplitudes ``b_H, b_M (N,)`` (slopes already applied): ``(K_HH, K_HM, K_MM)``, each
-    ``(N, N)``, ``K_XY = E[e_X e_Yᴴ]`` of one element's complex errors.
+    ``(N, N)``, ``K_XY = E[e_X e_Yᴴ]`` of one element's complex errors. Per-element amplitudes
+    ``(E, N)`` (``error_scale="element"``) give ``(E, N, N)`` blocks.
 
     Shared latent (a linear model of coregionalization): ``e_H = τ_H b_H f₁``, ``e_M =
     τ_M b_M (ρ f₁ + √(1 − |ρ|²) f₂)`` with ``f₁, f₂`` independent circular complex GPs of unit
@@ -371,9 +374,10 @@ def gp_corr_blocks(u, b_H, b_M, hyper):
     k1 = kern(w1, w1, ell[0])
     k2 = kern(w2, w2, ell[1])
     r2 = jnp.abs(rho) ** 2
-    KHH = tau[0] ** 2 * jnp.outer(b_H, b_H) * k1
-    KHM = jnp.conj(rho) * tau[0] * tau[1] * jnp.outer(b_H, b_M) * k1
-    KMM = tau[1] ** 2 * jnp.outer(b_M, b_M) * (r2 * k1 + (1.0 - r2) * k2)
+    outer = lambda a, b: a[..., :, None] * b[..., None, :]  # noqa: E731
+    KHH = tau[0] ** 2 * outer(b_H, b_H) * k1
+    KHM = jnp.conj(rho) * tau[0] * tau[1] * outer(b_H, b_M) * k1
+    KMM = tau[1] ** 2 * outer(b_M, b_M) * (r2 * k1 + (1.0 - r2) * k2)
     return KHH, KHM, KMM
 
 
@@ -385,7 +389,9 @@ def gp_corr_covariance(logw, a_H, a_M, var_H, var_T, noise_corr, hyper):
     cross-covariance of :func:`gp_corr_blocks`; ``e_T = e_H + e_M``:
     ``[[K_HH + D_H, K_HH + K_HM + D_HT], [·ᴴ, K_HH + K_HM + K_HMᴴ + K_MM + D_T]]`` with the
     measurement variances ``D`` (the FRF's ``std²``, correlation ``noise_corr``). With
-    ``ρ = 0`` its real part is twice the per-re/im covariance of :func:`gp_covariance`."""
+    ``ρ = 0`` its real part is twice the per-re/im covariance of :func:`gp_covariance`.
+    ``a_H, a_M`` are ``(N,)`` (one amplitude for every element) or ``(E, N)`` (per element:
+    :func:`element_weights` times the RMS size)."""
     _, _, beta, _ = split_hyper(hyper)
     b_H = a_H * jnp.exp(beta[0] * logw)
     b_M = a_M * jnp.exp(beta[1] * logw)
@@ -394,10 +400,12 @@ def gp_corr_covariance(logw, a_H, a_M, var_H, var_T, noise_corr, hyper):
     n2 = var_H.shape[-1] * var_H.shape[-2]
     dH = jnp.moveaxis(var_H.reshape(N, n2), 0, 1)  # (E, N) complex variances std²
     dT = jnp.moveaxis(var_T.reshape(N, n2), 0, 1)
-    nug = GP_NUGGET * (jnp.diag(KHH).real + jnp.diag(KMM).real) + _JITTER * (b_H + b_M) ** 2
-    top = jnp.concatenate([KHH, KHH + KHM], axis=1)
-    bot = jnp.concatenate([KHH + KHM.conj().T, KHH + KHM + KHM.conj().T + KMM], axis=1)
-    return _plus_noise(jnp.concatenate([top, bot], axis=0), dH, dT, nug, noise_corr)
+    dg = lambda K: jnp.real(jnp.diagonal(K, axis1=-2, axis2=-1))  # noqa: E731
+    nug = GP_NUGGET * (dg(KHH) + dg(KMM)) + _JITTER * (b_H + b_M) ** 2
+    KMH = jnp.swapaxes(KHM.conj(), -1, -2)
+    top = jnp.concatenate([KHH, KHH + KHM], axis=-1)
+    bot = jnp.concatenate([KHH + KMH, KHH + KHM + KMH + KMM], axis=-1)
+    return _plus_noise(jnp.concatenate([top, bot], axis=-2), dH, dT, nug, noise_corr)
 
 
 def gp_complex_log_likelihood(rH, rT, C):
@@ -467,6 +475,17 @@ class LogPosterior(eqx.Module):
     quad_mu: Float[Array, " q"] | None = None  # its maximizer (scaled matrix entries)
     quad_ll0: Float[Array, ""] | None = None  # the log-likelihood there
     warp: bool = eqx.field(static=True, default=True)  # gp: learn κ (else κ ≡ 0)
+    # gp_corr with error_scale="element": per-element weights (E, N) of a_H, a_M
+    w_H: Float[Array, "E N"] | None = None
+    w_M: Float[Array, "E N"] | None = None
+    error_scale: str = eqx.field(static=True, default="shared")  # :data:`ERROR_SCALES`
+
+    def error_amplitudes(self):
+        """The gp_corr amplitudes ``(a_H, a_M)``: ``(N,)`` shared, or ``(E, N)`` per element
+        (scaled units)."""
+        if self.w_H is None:
+            return self.a_H, self.a_M
+        return self.a_H[None] * self.w_H, self.a_M[None] * self.w_M
 
     @property
     def n(self) -> int:
@@ -595,8 +614,9 @@ class LogPosterior(eqx.Module):
             if not self.warp and hyper.shape[-1] >= N_GP_HYPER:
                 hyper = jnp.asarray(hyper).at[6:8].set(0.0)  # κ ≡ 0: log-frequency
             if self.kind == "gp_corr":
-                C = gp_corr_covariance(jnp.log(w[:, 0, 0]), self.a_H, self.a_M, self.var_H,
-                                       self.var_T, self.noise_corr, hyper)  # fmt: skip
+                aH, aM = self.error_amplitudes()
+                C = gp_corr_covariance(jnp.log(w[:, 0, 0]), aH, aM, self.var_H, self.var_T,
+                                       self.noise_corr, hyper)  # fmt: skip
                 return gp_complex_log_likelihood(reH + 1j * imH, reT + 1j * imT, C)
             C = gp_covariance(jnp.log(w[:, 0, 0]), self.a_H, self.a_M, self.var_H, self.var_T,
                               self.noise_corr, hyper)  # fmt: skip
@@ -665,6 +685,8 @@ class LogPosterior(eqx.Module):
                "noise_corr": np.float64(self.noise_corr)}  # fmt: skip
         if self.ref_theta is not None:
             out["ref_theta"] = np.asarray(self.ref_theta)
+        if self.kind == "gp_corr":
+            out["error_scale"] = self.error_scale
         return out
 
     def split(self, xs):
@@ -743,6 +765,7 @@ def make_log_posterior(
     log_ell_sd: float = DEFAULT_LOG_ELL_SD,
     gp_hyper=None,
     warp: bool = True,
+    error_scale: str = "shared",
 ) -> LogPosterior:
     """Build the :class:`LogPosterior` of ``frf`` (module docstring for the model).
 
@@ -782,6 +805,11 @@ def make_log_posterior(
       True); False: κ ≡ 0 (stationary in log-frequency). Held-out coverage of P
       (benchmarks/calibrate_predictive.py, Laplace): learned κ 0.89 / 0.90 / 1.00 on cu5 /
       tripod3 + 2 ms / hexapod6 + 2 ms, κ ≡ 0 0.91 / 0.91 / 0.80.
+    - ``error_scale`` (gp_corr only): ``"shared"`` (default) — every element's error has the
+      amplitude ``τ a(ω)`` (the RMS element size); ``"element"`` — element ``(i, j)`` has
+      ``τ a(ω) w_ij(ω)`` with ``w_ij`` proportional to the size ``|K_ij| + ω|B_ij| + ω²|M_ij|``
+      of the reference model's element (:func:`element_weights`; a relative error per
+      element, no new hyperparameter, same closed-form likelihood).
     - ``noise_corr``: correlation ρ ∈ (−1, 1) of the Z_H/Z_T measurement errors per element.
     - ``prior_scale``, ``log_tau_mean``, ``log_tau_sd``: the priors.
     - ``parameterization``: ``"matrix"`` (default; matrix entries on the PSD cone) or
@@ -826,6 +854,10 @@ def make_log_posterior(
             raise ValueError(f"make_log_posterior: FRF {name} contains NaN or inf")
     kind = error_kind(model_error)
     model_error = kind != "none"
+    if error_scale not in ERROR_SCALES:
+        raise ValueError(f"error_scale must be one of {ERROR_SCALES}, got {error_scale!r}")
+    if error_scale != "shared" and kind != "gp_corr":
+        raise ValueError(f"error_scale={error_scale!r} needs model_error='gp_corr'")
     if not (log_ell_sd > 0 and np.isfinite(log_ell_mean)):
         raise ValueError("log_ell_sd must be > 0 and log_ell_mean finite")
     if not model_error:
@@ -863,8 +895,11 @@ def make_log_posterior(
     Z_H, Z_T = band.Z_H / zr, band.Z_T / zr
     rms = lambda Z: jnp.linalg.norm(Z, axis=(-2, -1)) / n  # noqa: E731
     a_H, a_M, ref_theta = rms(Z_H), rms(Z_T - Z_H), None
+    w_H = w_M = None
     if kind in GP_KINDS:
         ref_theta = _reference_theta(reference, scale, n)
+        if error_scale == "element":
+            w_H, w_M = (jnp.asarray(w) for w in element_weights(ref_theta, scale, band.omega))
     post = LogPosterior(
         s=1j * band.omega / scale.omega_ref,
         Z_H=Z_H,
@@ -887,6 +922,9 @@ def make_log_posterior(
         log_ell_mean=float(log_ell_mean),
         log_ell_sd=float(log_ell_sd),
         warp=bool(warp),
+        w_H=w_H,
+        w_M=w_M,
+        error_scale=error_scale,
     )
     if gp_hyper is None:  # the defaults: joint mode for gp, marginal mode for gp_corr
         gp_hyper = "marginal" if kind == "gp_corr" else "map"
@@ -959,6 +997,39 @@ def reference_amplitudes(ref_theta, scale: Scale, omega) -> tuple[np.ndarray, np
     aH = jnp.linalg.norm(m.hand(s), axis=(-2, -1)) / n
     aM = jnp.linalg.norm(m.mechanism(s), axis=(-2, -1)) / n
     return aH, aM
+
+
+ERROR_SCALES = ("shared", "element")
+ELEMENT_FLOOR = 0.01  # element sizes floored at this × √(e_ii e_jj) (a model zero stays > 0)
+
+
+def element_weights(ref_theta, scale: Scale, omega) -> tuple[np.ndarray, np.ndarray]:
+    """Per-element weights ``(w_H, w_M)``, each ``(E, N)`` (``E = n²`` row-major, unitless),
+    of the gp_corr model-error amplitude with ``error_scale="element"``, on ``omega`` (N,)
+    rad/s: ``w_ij(ω) = e_ij(ω) / RMS_kl e_kl(ω)`` with ``e_ij = |K_ij| + ω |B_ij| + ω² |M_ij|``
+    the size of element ``(i, j)`` of the reference model's hand (``w_H``) or mechanism
+    (``w_M``) impedance — the sum of its three terms' magnitudes, so it has no dip where they
+    cancel (a resonance) and is smooth in ω — floored at :data:`ELEMENT_FLOOR` ``× √(e_ii
+    e_jj)`` so that an element the model leaves at zero keeps a (small) error. The model
+    error is then *relative per element*: ``τ`` is the relative size of the misfit in every
+    element, large and small. The RMS weight over the elements is 1, so the total error size
+    ``τ a(ω)`` is that of ``error_scale="shared"``. Fixed by the fit: no hyperparameter."""
+    from ..fit._pd import theta_to_model
+
+    m = theta_to_model(jnp.asarray(ref_theta), scale)
+    om = np.asarray(omega, dtype=np.float64)
+    out = []
+    for part in (m.hand, m.mechanism):
+        e = sum(
+            np.abs(np.asarray(A))[None] * om[:, None, None] ** k
+            for k, A in enumerate((part.K, part.B, part.M))
+        )  # fmt: skip  (N, n, n)
+        d = np.diagonal(e, axis1=-2, axis2=-1)
+        e = np.maximum(e, ELEMENT_FLOOR * np.sqrt(d[:, :, None] * d[:, None, :]))
+        e = np.maximum(e, 1e-300)
+        w = e / np.sqrt(np.mean(e**2, axis=(1, 2)))[:, None, None]
+        out.append(w.reshape(om.shape[0], -1).T)
+    return out[0], out[1]
 
 
 def boundary_fixed(nls_result) -> dict:
@@ -1036,7 +1107,7 @@ def _quadratic_form_corr(post: LogPosterior, h):
 @eqx.filter_jit
 def _quadratic_form_corr_jit(post: LogPosterior, h, y0, Jc, idx, q: int):
     w = jnp.imag(post.s)
-    C = gp_corr_covariance(jnp.log(w), post.a_H, post.a_M, post.var_H, post.var_T,
+    C = gp_corr_covariance(jnp.log(w), *post.error_amplitudes(), post.var_H, post.var_T,
                            post.noise_corr, h)  # fmt: skip
     L = jnp.linalg.cholesky(C)
     z = jax.scipy.linalg.solve_triangular(L, y0[..., None], lower=True)[..., 0]
@@ -1127,7 +1198,7 @@ def _whiten(post: LogPosterior, h, y0, J):
     if not post.warp:
         hf = hf.at[6:8].set(0.0)
     w = jnp.imag(post.s)
-    C = gp_corr_covariance(jnp.log(w), post.a_H, post.a_M, post.var_H, post.var_T,
+    C = gp_corr_covariance(jnp.log(w), *post.error_amplitudes(), post.var_H, post.var_T,
                            post.noise_corr, hf)  # fmt: skip
     L = jnp.linalg.cholesky(C)
     z = jax.scipy.linalg.solve_triangular(L, y0[..., None], lower=True)[..., 0]

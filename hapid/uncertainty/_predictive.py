@@ -290,8 +290,8 @@ def _gp_corr_errors(ps: PosteriorSamples, idx, ms, omega, rng):
         GP_CORR_KERNEL,
         KERNELS,
         corr_warp,
+        element_weights,
         gp_amplitudes,
-        gp_corr_blocks,
         gp_corr_covariance,
         hm_correlation,
         split_hyper,
@@ -315,8 +315,14 @@ def _gp_corr_errors(ps: PosteriorSamples, idx, ms, omega, rng):
     rho_n = float(data["noise_corr"])
     sdH = jnp.asarray(np.sqrt(var_H.reshape(Nf, E).T))  # (E, Nf)
     sdT = jnp.asarray(np.sqrt(var_T.reshape(Nf, E).T))
-    u = jnp.asarray(np.log(np.concatenate([om_fit, omega]) / float(np.asarray(ps.scale.omega_ref))))
-    a_all = (jnp.asarray(np.concatenate([aH_f, aH_n])), jnp.asarray(np.concatenate([aM_f, aM_n])))
+    om_all = np.concatenate([om_fit, omega])
+    u = jnp.asarray(np.log(om_all / float(np.asarray(ps.scale.omega_ref))))
+    a_all = (np.concatenate([aH_f, aH_n]), np.concatenate([aM_f, aM_n]))  # (Nf + N,) each
+    if str(data.get("error_scale", "shared")) == "element":  # per element: (E, Nf + N)
+        w = element_weights(np.asarray(data["ref_theta"]), ps.scale, om_all)
+        a_all = tuple(a[None] * wi for a, wi in zip(a_all, w, strict=True))
+    a_all = tuple(jnp.asarray(a) for a in a_all)
+    M = Nf + N
 
     def circ(key, shape):  # circular complex, unit variance
         z = jax.random.normal(key, (2,) + shape)
@@ -325,19 +331,25 @@ def _gp_corr_errors(ps: PosteriorSamples, idx, ms, omega, rng):
     def one(h, y, key):  # y (E, 2Nf) complex; returns e_H, e_M (E, N)
         tau, ell, beta, kap = split_hyper(h)
         rho = hm_correlation(h)
+        r2 = jnp.abs(rho) ** 2
+        C = gp_corr_covariance(u[:Nf], a_all[0][..., :Nf], a_all[1][..., :Nf], var_H, var_T,
+                               rho_n, h)  # fmt: skip
         # the amplitude slope is learned on the fit band: held constant beyond it
-        b = [a_all[i] * jnp.exp(beta[i] * jnp.clip(u, u[0], u[Nf - 1])) for i in range(2)]
-        KHH, KHM, KMM = gp_corr_blocks(u, b[0], b[1], h)
-        C = gp_corr_covariance(u[:Nf], a_all[0][:Nf], a_all[1][:Nf], var_H, var_T, rho_n, h)
+        g = [
+            jnp.broadcast_to(
+                tau[i] * a_all[i] * jnp.exp(beta[i] * jnp.clip(u, u[0], u[Nf - 1])), (E, M)
+            ).T
+            for i in range(2)
+        ]  # fmt: skip  (M, E) error sizes
         k = jax.random.split(key, 4)
-        f = []
+        R, f = [], []
         for i in range(2):  # unit-variance latent draws (relative jitter: see the gp branch)
             wi = corr_warp(u, kap[i])
-            R = KERNELS[GP_CORR_KERNEL](wi, wi, ell[i])
-            Lr = jnp.linalg.cholesky(R + 1e-9 * jnp.eye(R.shape[0]))
-            f.append(Lr @ circ(k[i], (Nf + N, E)))  # (Nf + N, E)
-        eH = (tau[0] * b[0])[:, None] * f[0]
-        eM = (tau[1] * b[1])[:, None] * (rho * f[0] + jnp.sqrt(1.0 - jnp.abs(rho) ** 2) * f[1])
+            R.append(KERNELS[GP_CORR_KERNEL](wi, wi, ell[i]))
+            Lr = jnp.linalg.cholesky(R[i] + 1e-9 * jnp.eye(M))
+            f.append(Lr @ circ(k[i], (M, E)))  # (M, E)
+        eH = g[0] * f[0]
+        eM = g[1] * (rho * f[0] + jnp.sqrt(1.0 - r2) * f[1])
         z1, z2 = circ(k[2], (E, Nf)), circ(k[3], (E, Nf))
         nH = sdH * z1
         nT = sdT * (rho_n * z1 + np.sqrt(1.0 - rho_n**2) * z2)
@@ -345,10 +357,15 @@ def _gp_corr_errors(ps: PosteriorSamples, idx, ms, omega, rng):
         Lc = jnp.linalg.cholesky(C)
         alpha = jax.scipy.linalg.cho_solve((Lc, True), (y - sim)[..., None])[..., 0]
         aH_, aT_ = alpha[:, :Nf], alpha[:, Nf:]  # (E, Nf)
-        KHH_s, KHM_s = KHH[Nf:, :Nf], KHM[Nf:, :Nf]  # E[e_H(*) e_X(fit)ᴴ]
-        KMH_s, KMM_s = KHM[:Nf, Nf:].conj().T, KMM[Nf:, :Nf]  # E[e_M(*) e_X(fit)ᴴ]
-        outH = eH[Nf:].T + aH_ @ KHH_s.T + aT_ @ (KHH_s + KHM_s).T
-        outM = eM[Nf:].T + aH_ @ KMH_s.T + aT_ @ (KMH_s + KMM_s).T
+        # Cov(e_X(*), [r_H; r_T]) C⁻¹ (r − r̃) through the unit correlations k₁, k₂
+        # (gp_corr_blocks: K_HH = g_H g_Hᵀ k₁, K_HM = ρ̄ g_H g_Mᵀ k₁, K_MH = ρ g_M g_Hᵀ k₁,
+        # K_MM = g_M g_Mᵀ (|ρ|² k₁ + (1 − |ρ|²) k₂); e_T = e_H + e_M)
+        vH = g[0][:Nf].T * (aH_ + aT_)
+        vM = g[1][:Nf].T * aT_
+        k1s, k2s = R[0][Nf:, :Nf], R[1][Nf:, :Nf]  # (N, Nf)
+        p1H, p1M, p2M = vH @ k1s.T, vM @ k1s.T, vM @ k2s.T  # (E, N)
+        outH = eH[Nf:].T + g[0][Nf:].T * (p1H + jnp.conj(rho) * p1M)
+        outM = eM[Nf:].T + g[1][Nf:].T * (rho * p1H + r2 * p1M + (1.0 - r2) * p2M)
         return outH, outM
 
     run = jax.jit(jax.vmap(one))

@@ -702,6 +702,8 @@ def load_samples(path, n: int | None = None) -> PosteriorSamples:
 def _load_predictive(d: dict, path, n: int) -> dict:
     out = {k[5:]: v for k, v in d.items() if k.startswith("pred_")}
     out["kind"] = str(out["kind"])
+    if "error_scale" in out:
+        out["error_scale"] = str(out["error_scale"])
     N = np.shape(out.get("omega", ()))
     for k in ("Z_H", "Z_T", "var_H", "var_T"):
         if k not in out or np.shape(out[k]) != N + (n, n) or not np.all(np.isfinite(out[k])):
