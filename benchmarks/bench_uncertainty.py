@@ -143,9 +143,10 @@ def _body():
     rows = []
     for name, m in models.items():
         t = time.perf_counter()
-        rep = robust_check(ps, (m, g), omega, max_samples=1000)
+        # disk margin and T peak are printed: metrics="all"
+        rep = robust_check(ps, (m, g), omega, max_samples=1000, metrics="all")
         dt = time.perf_counter() - t
-        devrep = robust_check(Pdev, (m, g), omega, labels=labels)
+        devrep = robust_check(Pdev, (m, g), omega, labels=labels, metrics="all")
         for what, r, tt in (("posterior (1000)", rep, dt), ("device (17)", devrep, None)):
             s = r.summary()
             rows.append({"design": name, "plants": what, "P(stable)": fmt(s["p_stable"]),

@@ -220,6 +220,7 @@ COMMON: dict[str, tuple] = {
     "gm_db": between(0, 60, " dB"),
     "pm_deg": between(0, 180, "°", hi_open=True),
     "max_samples": int_ge(1),
+    "all_metrics": FLAG,  # robust: also the disk margin and T peak
     "chunk": int_ge(1),
     "processes": int_between(1, 4096),  # sweep, robust: local jax.distributed processes
     "n_train": int_ge(1),

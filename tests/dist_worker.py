@@ -33,7 +33,7 @@ def plants_and_controller():
 def compute(with_sweep=False) -> dict:
     """The gathered results (the same on every process) and the chunks this process ran."""
     P, G, omega = plants_and_controller()
-    rep = robust_check(P, G, omega, chunk=CHUNK)
+    rep = robust_check(P, G, omega, chunk=CHUNK, metrics="all")
     res = {f"robust_{k}": np.asarray(getattr(rep, k)) for k in ("stable", "n_closed_loop_rhp", "gm_db",
                                                                 "pm_deg", "disk_margin", "iso_bandwidth_hz", "t_peak_db")}  # fmt: skip
     res["robust_chunks"] = np.asarray(_distributed.local_chunks(S, CHUNK), dtype=int)

@@ -108,7 +108,7 @@ def test_analyze_sweep_scene_tune_and_robust_give_one_answer_on_cu5(tmp_path):
     omega = nyquist_grid(dev.fs_hz, 2500)
     ctrl = pipeline.controller(model, g, ts=dev.ts)
     rb = robust_check(np.asarray(dev.sampled_P(omega))[None], np.asarray(ctrl.response(omega)),
-                      omega, controller_rhp=int(ctrl.p_rhp), backend="metrics")  # fmt: skip
+                      omega, controller_rhp=int(ctrl.p_rhp), backend="metrics", metrics="all")  # fmt: skip
     numbers["robust"] = rb.rows()[0]
 
     ref = numbers["scene"]

@@ -19,6 +19,7 @@ from hapid.fit import fit_nls, fit_nls_batch
 from hapid.fit._pd import canonical_theta
 from hapid.uncertainty import (
     PosteriorSamples,
+    RobustReport,
     ShortChainWarning,
     check_initial_state,
     credible_bands,
@@ -232,6 +233,11 @@ def test_robust_aggressive_vs_conservative(case):
     good = robust_check(ps, (nls.model, _lowpass_g(0.5)), omega)
     assert bad.p_stable < 0.05 and not bad.passed
     assert good.p_stable == 1.0 and good.passed
+    # the default spec (no disk margin, no T peak) against the full one: same verdicts and
+    # GM/PM/bandwidth to 1e-12 (one more compiled program: metrics="all")
+    for rep, k in ((bad, 40.0), (good, 0.5)):
+        full = robust_check(ps, (nls.model, _lowpass_g(k)), omega, metrics="all")
+        _assert_default_equals_full(rep, full)
     s = good.summary()
     assert s["gm_db_q05"] > 20.0 and s["pm_deg_q05"] > 60.0
     # a few verdicts against a direct, non-vmapped call
@@ -267,6 +273,84 @@ def test_robust_vectorized_matches_loop(case):
     np.testing.assert_allclose(float(lm.pm_deg), b.pm_deg[5], rtol=1e-9)
     both = a.stable & b.stable
     assert np.all(np.abs(a.pm_deg[both] - b.pm_deg[both]) < 0.5)
+
+
+def _mixed_plants(S=24, n=3, N=300):
+    """Array plants P_s = k_s · lag(ω) (I + E_s) with k_s from 0.5 to 8 and a fixed 3-pole
+    low-pass G: a batch with stable and unstable loops (n = 3)."""
+    rng = np.random.default_rng(7)
+    omega = 2 * np.pi * np.geomspace(0.05, 450.0, N)
+    lag = 1.0 / (1.0 + 1j * omega / (2 * np.pi * 5.0))
+    P = np.empty((S, N, n, n), complex)
+    for s in range(S):
+        P[s] = lag[:, None, None] * (np.eye(n) + 0.3 * rng.standard_normal((n, n)))[None]
+    P = P * np.linspace(0.5, 8.0, S)[:, None, None, None]
+    G = np.eye(n)[None] / (1.0 + 1j * omega / (2 * np.pi * 20.0))[:, None, None] ** 3
+    return P, G, omega
+
+
+def _assert_default_equals_full(fast, full):
+    """``fast`` (default spec: verdict + bandwidth + loci margins) against ``full``
+    (``metrics="all"``) on the same plants: same verdicts, GM/PM/bandwidth to 1e-12, same
+    ``passed``; the fields not computed are NaN, ``None`` in the summary and the rows,
+    refused by ``quantile``; ``worst`` ranks on the computed fields."""
+    np.testing.assert_array_equal(fast.stable, full.stable)
+    np.testing.assert_array_equal(fast.n_closed_loop_rhp, full.n_closed_loop_rhp)
+    for f in ("gm_db", "pm_deg", "iso_bandwidth_hz"):
+        a, b = getattr(fast, f), getattr(full, f)
+        np.testing.assert_array_equal(np.isfinite(a), np.isfinite(b))
+        ok = np.isfinite(b)
+        np.testing.assert_allclose(a[ok], b[ok], rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal(a[~ok], b[~ok])  # same inf / NaN
+        assert fast.quantile(f, 0.05) == full.quantile(f, 0.05)
+    assert fast.passed == full.passed and fast.reasons() == full.reasons()
+    assert full.not_computed == () and np.all(np.isfinite(full.disk_margin))
+    assert np.all(full.disk_margin[~full.stable] == 0.0)
+    assert set(fast.not_computed) == {"disk_margin", "disk_gm_db", "disk_pm_deg", "t_peak_db"}
+    for f in fast.not_computed:
+        assert np.all(np.isnan(getattr(fast, f)))
+        with pytest.raises(ValueError, match="not computed"):
+            fast.quantile(f, 0.05)
+    s = fast.summary()
+    assert s["disk_margin_q05"] is None and s["t_peak_db_q50"] is None
+    assert s["worst"]["disk_margin"] is None and fast.rows()[0]["t_peak_db"] is None
+    assert sorted(s["not_computed"]) == sorted(fast.not_computed)
+    assert s["gm_db_q05"] == full.summary()["gm_db_q05"]
+    key = np.lexsort((fast.penalized("pm_deg"), fast.penalized("gm_db"), fast.stable))
+    assert fast.worst == int(key[0])
+
+
+@pytest.mark.slow  # three compiled specs (~15 s each on the loaded 2-core machine)
+def test_robust_default_spec_equals_full_spec():
+    """Array plants with stable and unstable loops: the default spec equals the full one
+    (:func:`_assert_default_equals_full`); ``metrics=("disk",)`` adds only the disk margin."""
+    P, G, omega = _mixed_plants()
+    full = robust_check(P, G, omega, metrics="all")
+    fast = robust_check(P, G, omega)
+    assert 0 < full.stable.sum() < full.n  # both kinds of loops
+    _assert_default_equals_full(fast, full)
+    assert not fast.stable[fast.worst]
+    disk = robust_check(P, G, omega, metrics=("disk",))
+    assert disk.not_computed == ("t_peak_db",) and disk.worst == full.worst
+    np.testing.assert_allclose(disk.disk_margin, full.disk_margin, rtol=1e-12)
+    with pytest.raises(ValueError, match="metrics must be among"):
+        robust_check(P, G, omega, metrics=("peak",))
+
+
+def test_robust_report_not_computed_fields_are_absent():
+    """A report built with ``computed`` without the disk margin: ``worst`` ranks by |GM|
+    (stable plants), never by the NaN disk margin."""
+    S = 5
+    nan = np.full(S, np.nan)
+    rep = RobustReport(stable=np.array([True, True, True, False, True]), n_closed_loop_rhp=np.zeros(S),
+                       gm_db=np.array([9.0, -4.0, 7.0, 5.0, 12.0]), pm_deg=np.full(S, 45.0),
+                       disk_margin=nan, disk_gm_db=nan, disk_pm_deg=nan,
+                       iso_bandwidth_hz=np.full(S, 5.0), t_peak_db=nan,
+                       computed=("gm_db", "pm_deg", "iso_bandwidth_hz"))  # fmt: skip
+    assert rep.worst == 3  # unstable first
+    rep2 = RobustReport(**(rep.__dict__ | {"stable": np.ones(S, bool)}))
+    assert rep2.worst == 1  # then the smallest |GM| (4 dB)
+    assert rep2.summary()["t_peak_db_q05"] is None
 
 
 # --- predictive ------------------------------------------------------------------------

@@ -131,7 +131,7 @@ def validate(
     if samples is not None:
         omc = posterior_omega() if omega_c is None else np.asarray(omega_c, dtype=float)
         rep = robust_check(samples, (model, g), omc, gm_db=gm_db, pm_deg=pm_deg,
-                           p_stable_required=p_required, max_samples=None)  # fmt: skip
+                           p_stable_required=p_required, max_samples=None, metrics="all")  # fmt: skip
         out["posterior"] = rep.summary() | {"report": rep}
     if device is not None:
         omd = device_grid(device.fs_hz) if omega_d is None else np.asarray(omega_d, dtype=float)
@@ -142,7 +142,7 @@ def validate(
             G = np.asarray(ctrl.response(omd))
             rep = robust_check(np.asarray(P), G, omd, controller_rhp=int(ctrl.p_rhp),
                                gm_db=gm_db, pm_deg=pm_deg, p_stable_required=p_required, labels=labels,
-                               backend="metrics")  # fmt: skip
+                               backend="metrics", metrics="all")  # fmt: skip
             out["variants"] = rep.summary() | {"report": rep}
         if time_domain:
             out["time_domain"] = step_response(g, model, device)

@@ -69,13 +69,16 @@ def robust_from_files(
     device: str | None = None,
     n_subjects: int = 0,
     pose_offsets=(),
+    metrics=(),
 ) -> dict:
     """Samples file + nominal model file → robust-check summary (and optional JSON file).
 
     The controller is ``g Ẑ_T Ẑ_H⁻¹`` of the model file (``g`` default the paper's). With
     ``device`` (a preset name, e.g. ``"cu5"``), the device-based check (nominal device,
     ``pose_offsets`` (dx, dy, dz) m, ``n_subjects`` virtual subjects) is added under
-    ``"device"``. Returns ``{"posterior": summary, "device": summary | None}``.
+    ``"device"``. ``metrics``: as :func:`robust_check` (``"all"``: also the disk margin and
+    the peak of σ̄(T); default: verdict, bandwidth and loci margins only — the others are
+    ``None``). Returns ``{"posterior": summary, "device": summary | None}``.
     """
     from ..control import Compensator
     from ..io import load_model, save_json
@@ -86,7 +89,8 @@ def robust_from_files(
     ps = load_samples(samples_path, n=model.n)
     g = Compensator.paper() if g is None else g
     out = {"posterior": robust_check(ps, (model, g), posterior_omega(), gm_db=gm_db, pm_deg=pm_deg,
-                                     max_samples=max_samples).summary(), "device": None}  # fmt: skip
+                                     max_samples=max_samples, metrics=metrics).summary(),
+           "device": None}  # fmt: skip
     if device is not None:
         from ..device import preset
 
@@ -104,7 +108,7 @@ def robust_from_files(
         ctrl = pipeline.controller(model, g, ts=dev.ts)
         out["device"] = robust_check(P, np.asarray(ctrl.response(omega)), omega,
                                      controller_rhp=int(ctrl.p_rhp), gm_db=gm_db, pm_deg=pm_deg,
-                                     labels=labels, backend="metrics").summary()  # fmt: skip
+                                     labels=labels, backend="metrics", metrics=metrics).summary()  # fmt: skip
     if out_json is not None:
         save_json(out_json, out)
     return out
@@ -112,7 +116,8 @@ def robust_from_files(
 
 def side_by_side(results: dict) -> str:
     """Markdown table of robust-check summaries of several controllers (``{label: output of
-    robust_from_files}``): one row per controller and batch (posterior, device)."""
+    robust_from_files}``): one row per controller and batch (posterior, device); "—": not
+    computed (``metrics``)."""
     cols = [("P(stable)", "p_stable", "{:.3f}"), ("GM q05 dB", "gm_db_q05", "{:.2f}"),
             ("GM q50 dB", "gm_db_q50", "{:.2f}"), ("PM q05°", "pm_deg_q05", "{:.1f}"),
             ("PM q50°", "pm_deg_q50", "{:.1f}"), ("disk q05", "disk_margin_q05", "{:.3f}"),
@@ -126,6 +131,6 @@ def side_by_side(results: dict) -> str:
             sm = res.get(batch)
             if sm is None:
                 continue
-            vals = [fmt.format(sm[key]) for _, key, fmt in cols]
+            vals = ["—" if sm[key] is None else fmt.format(sm[key]) for _, key, fmt in cols]
             lines.append(f"| {label} | {batch} | {sm['n']} | " + " | ".join(vals) + " |")
     return "\n".join(lines)

@@ -114,12 +114,12 @@ def pose_study(
         dev = eqx.tree_at(lambda d: d.pose, device, device.pose.moved(dx, dy, dz))
         P = _sampled_P(dev, omega)[None]
         row = {"dx": dx, "dy": dy, "dz": dz}
-        rep = robust_check(P, (nominal_model, g), omega, p_stable_required=1.0)
+        rep = robust_check(P, (nominal_model, g), omega, p_stable_required=1.0, metrics="all")
         row |= _row("nominal", rep)
         if reidentify:
             res = identify(dev, protocol, noise_seed=noise_seed, **fit_options)
             row["fit_status"] = res.status
-            rep = robust_check(P, (res.model, g), omega, p_stable_required=1.0)
+            rep = robust_check(P, (res.model, g), omega, p_stable_required=1.0, metrics="all")
             row |= _row("reidentified", rep)
         rows.append(row)
     return rows

@@ -4,8 +4,8 @@
 The controller is designed once from the *nominal* model, ``G(jω) = g(jω) Ẑ_T Ẑ_H⁻¹``, and
 held fixed. Every plant of a batch is then analysed with
 :func:`hapid.control.loop_metrics` (``vmap``-ed, in chunks): generalized-Nyquist stability
-verdict first, then gain/phase margins of the characteristic loci, the balanced disk
-margin, the isotropic bandwidth and the peak of σ̄(T).
+verdict first, then gain/phase margins of the characteristic loci and the isotropic
+bandwidth; the balanced disk margin and the peak of σ̄(T) only when asked (``metrics``).
 
 Two kinds of batches, and what each covers:
 
@@ -22,6 +22,16 @@ Open-loop RHP poles (needed by the Nyquist count): the controller's are the CRHP
 det Ẑ_H of the nominal model (:func:`hapid.control.controller_unstable_poles`); a model
 plant's are the roots of det Ẑ_T,s with ``Re > 0`` (none for PD matrices); a device's are 0
 (passive mechanics).
+
+What is computed. By default only what the verdict (:attr:`RobustReport.passed`) and the
+summary need: the Nyquist verdict, the isotropic bandwidth (σ̄(T − I) crossing) and the loci
+gain/phase margins. The balanced disk margin (``disk_margin``, ``disk_gm_db``,
+``disk_pm_deg``) and the peak of σ̄(T) (``t_peak_db``) cost as much again (one cu5 draw,
+1000 frequencies: ≈ 9 ms of ≈ 16 ms) and are computed only when asked:
+``robust_check(..., metrics=("disk", "t_peak"))``. A field not computed is NaN in the
+per-plant arrays, listed in :attr:`RobustReport.not_computed`, ``None`` in
+:meth:`~RobustReport.summary` / :meth:`~RobustReport.rows`, and asking for its quantile
+raises; :attr:`RobustReport.worst` then ranks on the computed fields.
 
 Summary statistics. An unstable sample counts as the worst possible value of every margin
 (``−inf`` dB/deg, disk margin 0) and of the bandwidth (0 Hz), so a 5 % quantile is only
@@ -79,6 +89,8 @@ FIELDS = (
     "iso_bandwidth_hz",
     "t_peak_db",
 )
+# robust_check(metrics=...) name → the report fields it fills
+METRICS = {"disk": ("disk_margin", "disk_gm_db", "disk_pm_deg"), "t_peak": ("t_peak_db",)}
 _WORST = {"gm_db": -np.inf, "pm_deg": -np.inf, "disk_margin": 0.0, "disk_gm_db": 0.0,
           "disk_pm_deg": 0.0, "iso_bandwidth_hz": 0.0, "t_peak_db": np.inf}  # fmt: skip
 
@@ -90,7 +102,9 @@ class RobustReport:
     ``stable``, ``n_closed_loop_rhp``, ``gm_db``, ``pm_deg``, ``disk_margin``, ``disk_gm_db``,
     ``disk_pm_deg``, ``iso_bandwidth_hz``, ``t_peak_db`` (raw values of
     :class:`hapid.control.LoopReport`); ``labels`` (optional names per plant);
-    requirements ``gm_req_db``, ``pm_req_deg``, ``p_stable_required``.
+    requirements ``gm_req_db``, ``pm_req_deg``, ``p_stable_required``; ``computed``: the
+    fields of :data:`FIELDS` that were computed (the others are NaN and not reported — see
+    "What is computed" in the module docstring; default: all).
     """
 
     stable: np.ndarray
@@ -106,6 +120,19 @@ class RobustReport:
     pm_req_deg: float = 30.0
     p_stable_required: float = 0.95
     labels: tuple | None = None
+    computed: tuple = FIELDS
+
+    @property
+    def not_computed(self) -> tuple:
+        """Fields of :data:`FIELDS` that were not computed (NaN arrays, ``None`` in
+        :meth:`summary` and :meth:`rows`)."""
+        return tuple(f for f in FIELDS if f not in self.computed)
+
+    def _require(self, name: str):
+        if name not in self.computed:
+            ask = next(k for k, v in METRICS.items() if name in v)
+            raise ValueError(f"RobustReport: {name} was not computed "
+                             f"(robust_check(..., metrics=({ask!r},)))")  # fmt: skip
 
     @property
     def n(self) -> int:
@@ -117,7 +144,9 @@ class RobustReport:
 
     def penalized(self, name: str) -> np.ndarray:
         """Field ``name`` with unstable plants set to the worst value; GM and PM as
-        magnitudes ``|GM|``, ``|PM|`` (module docstring, "Margin sign convention")."""
+        magnitudes ``|GM|``, ``|PM|`` (module docstring, "Margin sign convention").
+        Raises ``ValueError`` for a field that was not computed."""
+        self._require(name)
         v = np.asarray(getattr(self, name), dtype=float)
         if name in ("gm_db", "pm_deg"):
             v = np.abs(v)
@@ -132,9 +161,13 @@ class RobustReport:
 
     @property
     def worst(self) -> int:
-        """Index of the worst plant: unstable first, then smallest disk margin, then GM."""
-        key = np.lexsort((self.penalized("gm_db"), self.penalized("disk_margin"), self.stable))
-        return int(key[0])
+        """Index of the worst plant: unstable first, then smallest disk margin, then |GM|;
+        without the disk margin (not computed): unstable first, then smallest |GM|, then |PM|."""
+        if "disk_margin" in self.computed:
+            keys = (self.penalized("gm_db"), self.penalized("disk_margin"), self.stable)
+        else:
+            keys = (self.penalized("pm_deg"), self.penalized("gm_db"), self.stable)
+        return int(np.lexsort(keys)[0])
 
     @property
     def passed(self) -> bool:
@@ -172,17 +205,18 @@ class RobustReport:
         return "passed" if self.passed else "failed"
 
     def summary(self) -> dict:
-        """Plain-python summary: P(stable), 5 %/50 % quantiles, worst plant, pass/fail."""
+        """Plain-python summary: P(stable), 5 %/50 % quantiles, worst plant, pass/fail;
+        fields not computed are ``None`` and listed under ``not_computed``."""
         w = self.worst
         out = {"n": self.n, "p_stable": self.p_stable}
         for f in FIELDS:
-            out[f"{f}_q05"] = self.quantile(f, 0.05)
-            out[f"{f}_q50"] = self.quantile(f, 0.50)
+            ok = f in self.computed
+            out[f"{f}_q05"] = self.quantile(f, 0.05) if ok else None
+            out[f"{f}_q50"] = self.quantile(f, 0.50) if ok else None
         out["worst_index"] = w
         out["worst_label"] = None if self.labels is None else self.labels[w]
-        out["worst"] = {f: float(getattr(self, f)[w]) for f in FIELDS} | {
-            "stable": bool(self.stable[w])
-        }
+        out["worst"] = {f: self._value(f, w) for f in FIELDS} | {"stable": bool(self.stable[w])}
+        out["not_computed"] = list(self.not_computed)
         out["requirements"] = {"gm_db": self.gm_req_db, "pm_deg": self.pm_req_deg,
                                "p_stable": self.p_stable_required}  # fmt: skip
         out["passed"] = self.passed
@@ -190,31 +224,42 @@ class RobustReport:
         return out
 
     def rows(self) -> list[dict]:
-        """One dict per plant (label, stable, margins, bandwidth)."""
+        """One dict per plant (label, stable, margins, bandwidth; ``None``: not computed)."""
         rows = []
         for i in range(self.n):
             r = {
                 "label": None if self.labels is None else self.labels[i],
                 "stable": bool(self.stable[i]),
             }
-            r |= {f: float(getattr(self, f)[i]) for f in FIELDS}
+            r |= {f: self._value(f, i) for f in FIELDS}
             rows.append(r)
         return rows
 
+    def _value(self, name: str, i: int):
+        return float(getattr(self, name)[i]) if name in self.computed else None
+
 
 _KEYS = ("stable", "n_closed_loop_rhp") + FIELDS
-_SPEC = MetricsSpec(bandwidth=True, margins=True, t_peak=True, disk=True)
 
 
-def _fields(m: dict) -> dict:
-    d = disk_margin_from_peak(2.0 / m["disk_margin"])
-    out = {
-        k: m[k]
-        for k in ("stable", "n_closed_loop_rhp", "gm_db", "pm_deg", "iso_bandwidth_hz", "t_peak_db")
-    }
-    out["disk_margin"] = m["disk_margin"]
-    out["disk_gm_db"] = jnp.where(m["stable"], d["disk_gm_db"], 0.0)
-    out["disk_pm_deg"] = jnp.where(m["stable"], d["disk_pm_deg"], 0.0)
+def _spec(metrics: tuple) -> MetricsSpec:
+    """The :class:`~hapid.control.MetricsSpec` of a robust check: verdict, bandwidth and
+    margins always; the peak of σ̄(T) and the disk margin when ``metrics`` asks for them."""
+    return MetricsSpec(bandwidth=True, margins=True, t_peak="t_peak" in metrics,
+                       disk="disk" in metrics)  # fmt: skip
+
+
+def _fields(m: dict, spec: MetricsSpec) -> dict:
+    out = {k: m[k] for k in ("stable", "n_closed_loop_rhp", "gm_db", "pm_deg", "iso_bandwidth_hz")}
+    nan = jnp.full_like(m["gm_db"], jnp.nan)
+    out["t_peak_db"] = m["t_peak_db"] if spec.t_peak else nan
+    if spec.disk:
+        d = disk_margin_from_peak(2.0 / m["disk_margin"])
+        out["disk_margin"] = m["disk_margin"]
+        out["disk_gm_db"] = jnp.where(m["stable"], d["disk_gm_db"], 0.0)
+        out["disk_pm_deg"] = jnp.where(m["stable"], d["disk_pm_deg"], 0.0)
+    else:
+        out["disk_margin"] = out["disk_gm_db"] = out["disk_pm_deg"] = nan
     return out
 
 
@@ -231,27 +276,27 @@ def _reference_chunk(P, p_ol, G, omega):
 
 
 @eqx.filter_jit
-def _metrics_chunk(P, p_ol, G, omega):
+def _metrics_chunk(P, p_ol, G, omega, spec):
     def one(P_, p_):
-        return _fields(metrics_screened(P_, G, omega, p_, None, _SPEC))
+        return _fields(metrics_screened(P_, G, omega, p_, None, spec), spec)
 
     return jax.vmap(one)(P, p_ol)
 
 
 @eqx.filter_jit
-def _metrics_one(P, p_ol, G, omega):
-    return _fields(metrics_screened(P, G, omega, p_ol, None, _SPEC))
+def _metrics_one(P, p_ol, G, omega, spec):
+    return _fields(metrics_screened(P, G, omega, p_ol, None, spec), spec)
 
 
-def _analyze_chunk(P, p_ol, G, omega, vectorize):
+def _analyze_chunk(P, p_ol, G, omega, vectorize, spec):
     """Per-plant fields of a (padded) chunk: :func:`~hapid.control.loop_metrics`'s program
     vmapped over the chunk (one compile for every chunk: same shapes, ``p_ol`` an array),
     or once per plant (``vectorize=False``)."""
     if vectorize:
-        return {k: np.asarray(v) for k, v in _metrics_chunk(P, p_ol, G, omega).items()}
+        return {k: np.asarray(v) for k, v in _metrics_chunk(P, p_ol, G, omega, spec).items()}
     # not a vmap of size 1: a vmapped program keeps the batch axis in front of the kernels'
     # entry-major layout, which measured ~2-3x slower per plant than the plain program
-    outs = [_metrics_one(P[i], p_ol[i], G, omega) for i in range(P.shape[0])]
+    outs = [_metrics_one(P[i], p_ol[i], G, omega, spec) for i in range(P.shape[0])]
     return {k: np.stack([np.asarray(o[k]) for o in outs]) for k in _KEYS}
 
 
@@ -320,6 +365,7 @@ def robust_check(
     labels=None,
     vectorize: bool = False,
     backend: str = "metrics",
+    metrics: tuple = (),
 ) -> RobustReport:
     """Analyse the loop of a fixed controller with every plant of a batch.
 
@@ -339,11 +385,29 @@ def robust_check(
       per plant (LAPACK, grid values). See "Compute path".
     - ``vectorize`` (``backend="metrics"``): ``False`` (default) runs the analysis once per
       plant; ``True`` vmaps it over each chunk (slower on CPU for large chunks).
+    - ``metrics``: what to compute beyond the verdict, the isotropic bandwidth and the loci
+      GM/PM (which ``passed`` uses): any of ``"disk"`` (balanced disk margin, its GM/PM) and
+      ``"t_peak"`` (peak of σ̄(T)), or ``"all"``. Fields not asked for are NaN and listed in
+      :attr:`RobustReport.not_computed` (module docstring, "What is computed").
 
     Returns a :class:`RobustReport`.
     """
     if backend not in ("metrics", "reference"):
         raise ValueError(f"robust_check: backend must be 'metrics' or 'reference', got {backend!r}")
+    metrics = (
+        tuple(METRICS)
+        if metrics == "all"
+        else ((metrics,) if isinstance(metrics, str) else tuple(metrics))
+    )
+    bad = [m for m in metrics if m not in METRICS]
+    if bad:
+        raise ValueError(
+            f"robust_check: metrics must be among {tuple(METRICS)} or 'all', got {bad}"
+        )
+    spec = _spec(metrics)
+    computed = tuple(
+        f for f in FIELDS if not any(f in METRICS[k] for k in METRICS if k not in metrics)
+    )
     if omega is None:
         omega = (
             posterior_omega()
@@ -395,9 +459,10 @@ def robust_check(
         Pc, pc = get(i, j)  # (not `pol`: the array path's `get` reads that name)
         pc = jnp.asarray(pc, dtype=jnp.float64) + c_rhp
         if backend == "metrics":
-            r = _analyze_chunk(_pad(Pc, chunk), _pad(pc, chunk), G, om, vectorize)
-        else:
+            r = _analyze_chunk(_pad(Pc, chunk), _pad(pc, chunk), G, om, vectorize, spec)
+        else:  # analyze_loop computes every field: keep the asked ones, as the default backend
             r = _reference_chunk(Pc, pc, G, om)
+            r |= {f: np.full_like(r[f], np.nan, dtype=float) for f in FIELDS if f not in computed}
         parts.append({k: v[: j - i] for k, v in r.items()})
     res = _distributed.gather(parts)  # every process's chunks, in order (one process: concat)
     if labels is not None and len(labels) != S:
@@ -408,6 +473,7 @@ def robust_check(
         pm_req_deg=float(pm_deg),
         p_stable_required=float(p_stable_required),
         labels=None if labels is None else tuple(labels),
+        computed=computed,
     )
 
 
