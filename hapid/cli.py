@@ -362,14 +362,6 @@ def cmd_analyze(a):
         print(f"report → {a.out}")
 
 
-def _robust_worker(a):
-    from .uncertainty import robust_from_files
-
-    for m in a.model:
-        robust_from_files(a.samples, m, None, gm_db=a.gm_db, pm_deg=a.pm_deg, max_samples=a.max_samples,
-                          device=a.device, n_subjects=a.subjects, metrics=_robust_metrics(a))  # fmt: skip
-
-
 def cmd_posterior(a):
     from .uncertainty import posterior_from_files
 
