@@ -418,7 +418,7 @@ def robust_design(
         chosen = out["table"]["start" if out["kept_start"] else "tuned"]
         if ev_chk is not None and not chosen.get("certified", True) and certified_fallback:
             fb = _certified_fallback(out, g0, res, ev_chk, model, hold_models, device, variants,
-                                     omega_c, req, quantile)  # fmt: skip
+                                     omega_c, req, quantile, with_tuned=ok_tr, chosen=chosen)  # fmt: skip
             if fb is not None:
                 out["result"], out["table"]["returned"], out["decision"] = fb
                 out["kept_start"] = False
@@ -449,16 +449,19 @@ def certified_gain(
 
 
 def _certified_fallback(out, g0, res, ev, model, hold_models, device, variants, omega_c, req,
-                        quantile):  # fmt: skip
+                        quantile, *, with_tuned: bool = True, chosen: dict | None = None):  # fmt: skip
     """Neither the start nor the tuned g is certified by the evidence: each with its gain
     scaled down to the largest value the evidence certifies (:func:`certified_gain`),
     re-checked like the others; the better of the two by :func:`no_worse` (both certified, so
-    the held-out draws decide). ``(result, row, decision)`` or ``None`` when no gain is
-    certified."""
+    the held-out draws decide). The tuned g only with ``with_tuned`` (it passed
+    :func:`training_no_worse`); a candidate that makes the nominal true plant unstable where
+    the ``chosen`` design's row has it stable is dropped. ``(result, row, decision)`` or
+    ``None`` when no candidate remains."""
     import equinox as eqx
 
     cands = []
-    for name, g in (("start", g0), ("tuned", out["candidate"].g)):
+    pairs = (("start", g0), ("tuned", out["candidate"].g)) if with_tuned else (("start", g0),)
+    for name, g in pairs:
         a = certified_gain(g, ev, model, floor=FRF_SIGMA_FLOOR)
         if a is None:
             continue
@@ -466,6 +469,8 @@ def _certified_fallback(out, g0, res, ev, model, hold_models, device, variants, 
         v = validate(gs, model, samples=hold_models, device=device, variants=variants,
                      omega_c=omega_c, gm_db=req.gm_db, pm_deg=req.pm_deg, p_required=quantile)  # fmt: skip
         row = table_row(v) | certificate(ev, model, gs, floor=FRF_SIGMA_FLOOR)
+        if (chosen or {}).get("true_stable") and not row.get("true_stable", True):
+            continue
         cands.append((name, a, gs, row))
     if not cands:
         return None
