@@ -20,7 +20,8 @@
 3. Log-probability evaluations/s: ``LogPosterior.log_prob`` (jit + vmap) and the closure of
    ``batched_log_prob`` against the plain-numpy reference ``log_prob_numpy``, cu5 posterior.
 4. Robust check (``hapid.uncertainty.robust_check``) over Laplace posterior samples × 1000
-   frequencies: time per sample.
+   frequencies: time per sample, default metrics (verdict, bandwidth, loci GM/PM; no disk
+   margin or peak of σ̄(T)).
 """
 
 from __future__ import annotations
@@ -388,7 +389,8 @@ def robust_throughput(sec: Section, quick: bool, frf, nls, dev):
     dt = time.perf_counter() - t
     s = rep.summary()
     sec.rows["robust_per_sample_s"] = dt / S
-    sec.add("### 4. Robust check (NLS-designed inverse-model controller, paper g, Laplace samples)\n\n"
+    sec.add("### 4. Robust check (NLS-designed inverse-model controller, paper g, Laplace samples; "
+            "default metrics: verdict, bandwidth, loci GM/PM — no disk margin or σ̄(T) peak)\n\n"
             + table([{"samples": S, "frequencies": len(omega), "time": fs(dt), "per sample": fs(dt / S),
                       "samples/s": fg(S / dt), f"warm-up ({chunk} samples, incl. compile)": fs(warm),
                       "P(stable)": fg(s["p_stable"]), "GM q05 dB": fg(s["gm_db_q05"]),
