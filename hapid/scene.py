@@ -148,10 +148,7 @@ def _nls(o, frf):
     from . import pipeline
 
     o = dict(o)
-    if o.pop("boundary_refit", True):
-        f, refit = pipeline.fit_for_control(frf, **o)
-    else:
-        f, refit = pipeline.fit(frf, "nls", **o), None
+    f, refit = pipeline.fit_for_control(frf, boundary_refit=o.pop("boundary_refit", True), **o)
     res = f.result
     return {"fit": f, "model": f.model, "result": res, "status": f.status, "steps": int(res.n_steps),
             "cost": float(res.cost), "refit_pd_eps": refit}  # fmt: skip

@@ -13,7 +13,9 @@ def random_spd(rng, n, scale, cond=10.0):
     return Q @ np.diag(ev) @ Q.T
 
 
-def second_order_device(n, seed=0, delay_samples=0):
+def random_hand_mechanism(n, seed=0):
+    """``(hand, mechanism)``: random SPD second-order impedances (hand ~0.3 kg, 10 Ns/m,
+    800 N/m; mechanism ~0.6 kg, 40 Ns/m, 200 N/m; condition 10), from ``seed``."""
     rng = np.random.default_rng(seed)
     hand = hapid.SecondOrder(
         random_spd(rng, n, 0.3), random_spd(rng, n, 10.0), random_spd(rng, n, 800.0)
@@ -21,6 +23,18 @@ def second_order_device(n, seed=0, delay_samples=0):
     mech = hapid.SecondOrder(
         random_spd(rng, n, 0.6), random_spd(rng, n, 40.0), random_spd(rng, n, 200.0)
     )
+    return hand, mech
+
+
+def random_model(n, seed=0):
+    """The :class:`hapid.ImpedanceModel` (hand, hand + mechanism) of :func:`random_hand_mechanism`."""
+    hand, mech = random_hand_mechanism(n, seed)
+    total = hapid.SecondOrder(hand.M + mech.M, hand.B + mech.B, hand.K + mech.K)
+    return hapid.ImpedanceModel(hand, total)
+
+
+def second_order_device(n, seed=0, delay_samples=0):
+    hand, mech = random_hand_mechanism(n, seed)
     return SecondOrderDevice(hand=hand, mechanism=mech, delay_samples=delay_samples)
 
 

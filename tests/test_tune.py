@@ -31,21 +31,14 @@ from hapid.tune import (
     validate,
 )
 from hapid.tune._objective import Box
-from tests.helpers import random_spd
+from tests.helpers import random_model
 
 TS = 1e-3
 
 
 def _model(n, seed, jitter=0.0):
-    rng = np.random.default_rng(seed)
-    hand = hapid.SecondOrder(
-        random_spd(rng, n, 0.3), random_spd(rng, n, 10.0), random_spd(rng, n, 800.0)
-    )
-    mech = hapid.SecondOrder(
-        random_spd(rng, n, 0.6), random_spd(rng, n, 40.0), random_spd(rng, n, 200.0)
-    )
-    total = hapid.SecondOrder(hand.M + mech.M, hand.B + mech.B, hand.K + mech.K)
-    m = hapid.ImpedanceModel(hand, total)
+    m = random_model(n, seed)
+    hand, total = m.hand, m.total
     if jitter:
         r = np.random.default_rng(seed + 100)
 

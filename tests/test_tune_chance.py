@@ -4,12 +4,11 @@ that decides which scenarios it counts against the non-smooth Nyquist verdict.""
 import jax.numpy as jnp
 import numpy as np
 
-import hapid
 from hapid.control import Compensator, analyze_loop
 from hapid.tune import Family, make_scenarios
 from hapid.tune._objective import cvar, masked_cvar
 from hapid.tune._tune import stable_scenarios
-from tests.helpers import random_spd
+from tests.helpers import random_model
 
 
 def test_masked_cvar_is_the_mean_of_the_worst_counted_values():
@@ -33,15 +32,8 @@ def test_stable_scenarios_agree_with_the_nyquist_verdict():
     """Scaled, delayed plants ``c·e^{−jωτ}·P̂``: the continuous loop ``c·e^{−jωτ}·g`` is
     stable for small ``c`` and unstable once the gain crosses its gain margin; ``stable_scenarios`` agrees with
     :func:`hapid.control.analyze_loop` on every one."""
-    rng = np.random.default_rng(2)
     n = 3
-    hand = hapid.SecondOrder(
-        random_spd(rng, n, 0.3), random_spd(rng, n, 10.0), random_spd(rng, n, 800.0)
-    )
-    mech = hapid.SecondOrder(
-        random_spd(rng, n, 0.6), random_spd(rng, n, 40.0), random_spd(rng, n, 200.0)
-    )
-    model = hapid.ImpedanceModel(hand, hapid.SecondOrder(hand.M + mech.M, hand.B + mech.B, hand.K + mech.K))  # fmt: skip
+    model = random_model(n, seed=2)
     om = np.geomspace(2 * np.pi * 0.01, 2 * np.pi * 2e3, 800)
     g = Compensator.paper()
     gains = np.array([0.3, 1.0, 3.0, 10.0, 30.0])
@@ -61,15 +53,8 @@ def test_stable_scenarios_count_open_loop_rhp_poles_as_the_analysis():
     pole in ``p_ol``) agrees with :func:`hapid.control.analyze_loop` on every scenario, and
     calls some stable and some not (the earlier rule compared against the nominal ``(1 + g)^n``
     count and could never call such a loop stable)."""
-    rng = np.random.default_rng(5)
     n = 2
-    hand = hapid.SecondOrder(
-        random_spd(rng, n, 0.3), random_spd(rng, n, 10.0), random_spd(rng, n, 800.0)
-    )
-    mech = hapid.SecondOrder(
-        random_spd(rng, n, 0.6), random_spd(rng, n, 40.0), random_spd(rng, n, 200.0)
-    )
-    model = hapid.ImpedanceModel(hand, hapid.SecondOrder(hand.M + mech.M, hand.B + mech.B, hand.K + mech.K))  # fmt: skip
+    model = random_model(n, seed=5)
     om = np.geomspace(2 * np.pi * 1e-3, 2 * np.pi * 5e3, 3000)
     g = Compensator.paper()
     a = 2 * np.pi * 0.05

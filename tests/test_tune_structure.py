@@ -16,7 +16,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import hapid
 from hapid._constants import TWO_PI
 from hapid.control import Compensator, analyze_loop, inverse_model_response
 from hapid.tune import (
@@ -28,21 +27,13 @@ from hapid.tune import (
     make_scenarios,
     tune,
 )
-from tests.helpers import random_spd
+from tests.helpers import random_model
 
 F_BUMP = 12.0  # Hz: the imposed resonance of the synthetic plant
 
 
 def _model(n=2, seed=0):
-    rng = np.random.default_rng(seed)
-    hand = hapid.SecondOrder(
-        random_spd(rng, n, 0.3), random_spd(rng, n, 10.0), random_spd(rng, n, 800.0)
-    )
-    mech = hapid.SecondOrder(
-        random_spd(rng, n, 0.6), random_spd(rng, n, 40.0), random_spd(rng, n, 200.0)
-    )
-    total = hapid.SecondOrder(hand.M + mech.M, hand.B + mech.B, hand.K + mech.K)
-    return hapid.ImpedanceModel(hand, total)
+    return random_model(n, seed)
 
 
 def _bump(om, f=F_BUMP, zn=0.3, zd=0.02):

@@ -162,7 +162,7 @@ def controller_ready(model) -> bool:
     return bool(controller_is_stable(model, tol=TWO_PI * NYQUIST_F_MIN_HZ))
 
 
-def fit_for_control(frf, **options) -> tuple[Fit, float | None]:
+def fit_for_control(frf, *, boundary_refit: bool = True, **options) -> tuple[Fit, float | None]:
     """``(fit, refit_pd_eps)``: the NLS fit (:func:`fit` with ``"nls"`` and ``options``)
     whose inverse-model controller is realizable. With ``pd_eps = 0`` (the default) a fit
     that lands on the PSD boundary with a root of det Ẑ_H at ∞ or on the imaginary axis
@@ -170,10 +170,15 @@ def fit_for_control(frf, **options) -> tuple[Fit, float | None]:
     is refitted with ``pd_eps = PD_EPS`` (every matrix strictly PD; ≤ 0.3 dB of P·P̂⁻¹ band)
     and ``refit_pd_eps`` is that value, else ``None``. The loops the paper's controller
     would close through the boundary fit cannot be certified by any analysis. At the edge
-    (python control flow); sweeps call :func:`fit` and get the bare fit."""
+    (python control flow); sweeps call :func:`fit` and get the bare fit.
+    ``boundary_refit=False`` keeps the boundary fit (``refit_pd_eps`` None)."""
     from ..fit._nls import PD_EPS
 
     f = fit(frf, "nls", **options)
-    if float(options.get("pd_eps", 0.0)) == 0.0 and not controller_ready(f.model):
+    if (
+        boundary_refit
+        and float(options.get("pd_eps", 0.0)) == 0.0
+        and not controller_ready(f.model)
+    ):
         return fit(frf, "nls", **(dict(options) | {"pd_eps": PD_EPS})), float(PD_EPS)
     return f, None

@@ -39,7 +39,7 @@ from ._evidence import KAPPA, beyond_grid, certificate, evidence_from_frf, measu
 from ._objective import Family, Requirements
 from ._params import ParamMap
 from ._scenarios import make_scenarios
-from ._tune import tune
+from ._tune import largest_gain, scale_gain, tune
 from ._validate import device_grid, table_row, validate
 
 TRAIN_OFFSETS = (
@@ -433,19 +433,10 @@ def certified_gain(
     measured ``min σ̲(I + L) ≥ floor``, loop gain beyond the FRF ≤ κ); ``None`` if not even
     ``alpha_min`` is. Lower gain shrinks the loop everywhere, so the certificate's figures
     improve monotonically in practice (not assumed: the bisection keeps the last certified α)."""
-    import equinox as eqx
-
-    ok = lambda a: certificate(ev, model, eqx.tree_at(lambda c: c.k, g, g.k * a),  # noqa: E731
-                               floor=floor)["certified"]  # fmt: skip
-    if ok(1.0):
+    certified = lambda gg: certificate(ev, model, gg, floor=floor)["certified"]  # noqa: E731
+    if certified(g):
         return 1.0
-    if not ok(alpha_min):
-        return None
-    lo, hi = np.log(alpha_min), 0.0
-    for _ in range(iters):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if ok(np.exp(mid)) else (lo, mid)
-    return float(np.exp(lo))
+    return largest_gain(g, certified, alpha_min, iters)
 
 
 def _certified_fallback(out, g0, res, ev, model, hold_models, device, variants, omega_c, req,
@@ -457,15 +448,13 @@ def _certified_fallback(out, g0, res, ev, model, hold_models, device, variants, 
     :func:`training_no_worse`); a candidate that makes the nominal true plant unstable where
     the ``chosen`` design's row has it stable is dropped. ``(result, row, decision)`` or
     ``None`` when no candidate remains."""
-    import equinox as eqx
-
     cands = []
     pairs = (("start", g0), ("tuned", out["candidate"].g)) if with_tuned else (("start", g0),)
     for name, g in pairs:
         a = certified_gain(g, ev, model, floor=FRF_SIGMA_FLOOR)
         if a is None:
             continue
-        gs = eqx.tree_at(lambda c: c.k, g, g.k * a)
+        gs = scale_gain(g, a)
         v = validate(gs, model, samples=hold_models, device=device, variants=variants,
                      omega_c=omega_c, gm_db=req.gm_db, pm_deg=req.pm_deg, p_required=quantile)  # fmt: skip
         row = table_row(v) | certificate(ev, model, gs, floor=FRF_SIGMA_FLOOR)

@@ -195,26 +195,33 @@ def gain_backoff(g: Compensator, families, ms: float = 1.0, alpha_min: float = 1
     ``1/ms`` disc (:func:`_start_ok`); if no gain down to ``alpha_min`` meets the disc, half
     the largest stable gain (6 dB below the stability boundary); if none is stable, ``g``
     unchanged. The tuner then restores bandwidth and static gain (``min_dc_gain``)."""
-    scaled = lambda a: eqx.tree_at(lambda c: c.k, g, g.k * a)  # noqa: E731
-
-    def largest(pred):
-        lo, hi = np.log(alpha_min), 0.0
-        if not pred(scaled(alpha_min)):
-            return None
-        for _ in range(iters):
-            mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if pred(scaled(np.exp(mid))) else (lo, mid)
-        return float(np.exp(lo))
-
     if _start_ok(g, families):
         return g, 1.0
-    alpha = largest(lambda gg: _start_ok(gg, families, ms))
+    alpha = largest_gain(g, lambda gg: _start_ok(gg, families, ms), alpha_min, iters)
     if alpha is None:
-        a_stable = largest(lambda gg: _start_ok(gg, families))
+        a_stable = largest_gain(g, lambda gg: _start_ok(gg, families), alpha_min, iters)
         if a_stable is None:
             return g, 1.0
         alpha = 0.5 * a_stable
-    return scaled(alpha), alpha
+    return scale_gain(g, alpha), alpha
+
+
+def scale_gain(g: Compensator, alpha) -> Compensator:
+    """``g`` with its gain ``k`` multiplied by ``alpha``."""
+    return eqx.tree_at(lambda c: c.k, g, g.k * alpha)
+
+
+def largest_gain(g: Compensator, pred, alpha_min: float = 1e-3, iters: int = 12) -> float | None:
+    """Largest ``α`` in ``[alpha_min, 1)`` found by bisection in log α at which
+    ``pred(scale_gain(g, α))`` holds (the last α it held at), ``None`` if it fails at
+    ``alpha_min``. ``α = 1`` itself is not tried: callers check it first."""
+    lo, hi = np.log(alpha_min), 0.0
+    if not pred(scale_gain(g, alpha_min)):
+        return None
+    for _ in range(iters):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if pred(scale_gain(g, np.exp(mid))) else (lo, mid)
+    return float(np.exp(lo))
 
 
 def smooth_bandwidth(g: Compensator, families, req: Requirements, n_grid: int = 200) -> float:
