@@ -13,6 +13,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from ._cli_device import PRESETS_TEXT, variant_flags
+
 # ---- value tests ----------------------------------------------------------------------------
 
 
@@ -156,7 +158,8 @@ def _walkers(v):
 
 # options that mean the same thing in every subcommand that has them
 COMMON: dict[str, tuple] = {
-    "device": (lambda v: v in _presets(), "a preset device (cu5, cu5_soft, hexapod6, tripod3)"),
+    "device": (lambda v: v in _presets(), f"a preset device ({PRESETS_TEXT})"),
+    "rod_compliance": gt(0),  # the --device options: hapid._cli_device
     "fs": gt(0, " Hz"),
     "freqs": (_freqs, "'paper' or a comma list of frequencies > 0 Hz (e.g. 1,2,5)"),
     "period": int_ge(2),
@@ -194,10 +197,7 @@ COMMON: dict[str, tuple] = {
     "length_unit": ANY,
     "continuous": FLAG,
     "model_floor": ge(0),
-    "true_device": (
-        lambda v: v in _presets(),
-        "a preset device (cu5, cu5_soft, hexapod6, tripod3)",
-    ),
+    "true_device": (lambda v: v in _presets(), f"a preset device ({PRESETS_TEXT})"),
     "model_error": one_of(["white", "gp", "gp_corr", "none"]),
     "gp_hyper": one_of(["map", "marginal", "sample"]),
     "error_scale": one_of(["shared", "element"]),
@@ -264,8 +264,7 @@ PER_COMMAND: dict[str, dict] = {
     "paper": {"out": _Out("an output folder"), "scene": _In("a scene TOML", (".toml",))},
     "predict": {"samples": _In("a posterior-samples file", (".npz",)), "out": _Out("a draws file", (".npz",)),
                 "f_min_hz": gt(0, " Hz"), "n_freq": int_ge(2), "no_model_error": FLAG},
-    "plant": {"out": _Out("an FRF file", (".npz",)), "n_freq": int_ge(2), "delay": int_between(0, 1000),
-              "f_min_hz": gt(0, " Hz"), "rod_compliance": gt(0, "")},
+    "plant": {"out": _Out("an FRF file", (".npz",)), "n_freq": int_ge(2), "f_min_hz": gt(0, " Hz")},
     "run": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder")},
 }  # fmt: skip
 
@@ -353,7 +352,15 @@ def _band_cross(a):
         raise ValueError(f"--f-min-hz ({lo:g}) must be < --f-max-hz ({hi:g})")
 
 
+def _device_cross(a):
+    """``--delay``, ``--rod-compliance``, ``--move`` vary the ``--device`` preset: not without it."""
+    given = variant_flags(a)
+    if given and a.device is None:
+        raise ValueError(f"{', '.join(given)} vary the --device preset and need --device")
+
+
 def _analyze_cross(a):
+    _device_cross(a)
     if getattr(a, "design", None) is not None and a.k is not None:
         raise ValueError("--k and --design are exclusive (the design file holds its own gain)")
     if a.frf is None and a.fs != 1000.0:
@@ -363,6 +370,7 @@ def _analyze_cross(a):
 
 
 def _tune_cross(a):
+    _device_cross(a)
     if getattr(a, "loop_draws", False) and a.frf is None:
         raise ValueError("hapid tune --loop-draws needs the measured FRF (--frf)")
     if a.samples is None and a.device is None and not getattr(a, "loop_draws", False):
@@ -372,6 +380,7 @@ def _tune_cross(a):
 
 
 def _robust_cross(a):
+    _device_cross(a)
     if len(a.model) > 1 and a.out is not None and Path(a.out).suffix.lower() != ".json":
         raise ValueError(f"--out must be a .json file, got {a.out}")
 
@@ -546,6 +555,10 @@ def _scene_rules() -> dict:
         "device.subject_seed": (lambda v: v is None or SEED[0](v), "an integer in [0, 2^32 - 1]"),
         "device.light_damping": FLAG, "device.extra_modes": FLAG,
         "device.encoder": one_of(["motor", "rod"]),
+        "device.delay_samples": (lambda v: v is None or COMMON["delay"][0](v),
+                                 "an integer in [0, 1000] (samples; unset: the preset's)"),
+        "device.rod_compliance": (lambda v: v is None or (_num(v) and v > 0),
+                                  "a number > 0 (unset: the preset's)"),
         "protocol.freqs": (_scene_freqs, "'paper' or a non-empty list of frequencies > 0 Hz"),
         "protocol.periods": int_ge(1), "protocol.transient": int_ge(0),
         "protocol.pattern": COMMON["pattern"], "protocol.phases": COMMON["phases"],

@@ -34,25 +34,18 @@ def cmd_predict(a):
 
 def cmd_plant(a):
     from . import io
-    from .device import Pose, preset
+    from ._cli_device import describe, device_from_args
     from .frf import FRF
 
     f = _grid(a)
-    pose = Pose().moved(*a.move) if a.move else None
-    dev = preset(
-        a.device,
-        pose=pose,
-        fs_hz=a.fs,
-        **({"delay_samples": a.delay} if a.delay is not None else {}),
-        **({"rod_compliance": a.rod_compliance} if a.rod_compliance is not None else {}),
-    )
+    dev = device_from_args(a, fs_hz=a.fs)
     if f[-1] >= 0.5 * dev.fs_hz:
         raise CommandError(
             f"--f-max-hz {f[-1]:g} must be below the Nyquist frequency {0.5 * dev.fs_hz:g} Hz"
         )
     ZH, ZT = (np.asarray(z) for z in dev.sampled_impedances(TWO_PI * f))
     out = io.save_frf(a.out, FRF(omega=TWO_PI * f, Z_H=ZH, Z_T=ZT))
-    print(f"true sampled plant of {a.device} (Z_H, Z_T; no noise) on {len(f)} frequencies "
+    print(f"true sampled plant of {describe(a)} (Z_H, Z_T; no noise) on {len(f)} frequencies "
           f"{f[0]:.4g}–{f[-1]:.4g} Hz → {out}  (check a design: hapid analyze --frf {out} --fs {a.fs:g})")  # fmt: skip
 
 
@@ -107,15 +100,9 @@ def register(sub):
     pl = sub.add_parser("plant", help="write a simulated device's true plant as an FRF file",
                         description="The true sampled Z_H, Z_T (hence P) of a preset device as an FRF "
                         "file without noise, readable by hapid analyze --frf.")  # fmt: skip
-    pl.add_argument(
-        "--device", default="cu5", help="preset: cu5 (default), tripod3, hexapod6, cu5_soft"
-    )
-    pl.add_argument("--delay", type=int, help="actuator delay in samples (default: the preset's)")
-    pl.add_argument("--rod-compliance", type=float,
-                    help="chain compliance factor: traction and sensor springs divided by it (default: the preset's)")  # fmt: skip
-    pl.add_argument(
-        "--move", type=float, nargs=3, metavar=("DX", "DY", "DZ"), help="stylus offset (m)"
-    )
+    from ._cli_device import add_device_args
+
+    add_device_args(pl)
     pl.add_argument("--fs", type=float, default=1000.0, help="sampling rate (Hz), default 1000")
     pl.add_argument(
         "--f-min-hz", type=float, default=0.001, help="lowest frequency (Hz), default 0.001"

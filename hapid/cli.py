@@ -10,6 +10,8 @@ import sys
 import warnings
 from pathlib import Path
 
+from ._cli_device import add_device_args, describe, device_from_args
+
 EXAMPLES = """examples:
   hapid simulate --device cu5 --out run.npz            # the paper's protocol on cu5
   hapid frf run.npz --out frf.npz --plot frf.png       # empirical Z_H, Z_T (+ std)
@@ -26,6 +28,11 @@ EXAMPLES = """examples:
 
 class CLIError(Exception):
     pass
+
+
+def _device_or_none(a):
+    """The device of ``--device`` and its variant options (None without ``--device``)."""
+    return None if a.device is None else device_from_args(a)
 
 
 def _protocol_args(p):
@@ -63,18 +70,11 @@ def _protocol(a):
     )  # fmt: skip
 
 
-def _device(a):
-    from .device import Pose, preset
-
-    pose = Pose().moved(*(a.move or [0.0, 0.0, 0.0])) if getattr(a, "move", None) else None
-    return preset(a.device, pose=pose, fs_hz=a.fs)
-
-
 def cmd_simulate(a):
     from . import io
     from .experiment import periodic_run, time_domain_run
 
-    dev, prot = _device(a), _protocol(a)
+    dev, prot = device_from_args(a, fs_hz=a.fs), _protocol(a)
     if a.time_domain or a.friction:
         run = time_domain_run(dev, prot, friction=a.friction)
         how = "time-domain" + (" with Coulomb friction" if a.friction else "")
@@ -83,7 +83,7 @@ def cmd_simulate(a):
         how = "periodic steady state"
     out = io.save_run(a.out, run)
     E, T, n = run.R_A.shape
-    print(f"simulated {a.device} ({how}): E={E} experiments × {T} samples × n={n} rods, "
+    print(f"simulated {describe(a)} ({how}): E={E} experiments × {T} samples × n={n} rods, "
           f"{len(run.freq_hz)} frequencies {run.freq_hz.min():g}–{run.freq_hz.max():g} Hz → {out}")  # fmt: skip
 
 
@@ -131,22 +131,21 @@ def cmd_demo(a):
     import numpy as np
 
     from . import io, plot
-    from .device import preset
     from .experiment import Protocol, estimate_frf, periodic_run
     from .impedance import span_db
 
     out = Path(a.out)
-    dev = preset(a.device)
+    dev = device_from_args(a)
     run = periodic_run(dev, Protocol())
     frf = estimate_frf(run)
     io.save_run(out / "run.npz", run)
     io.save_frf(out / "frf.npz", frf)
-    fig, _ = plot.frf_overview(frf, title_prefix=f"{a.device}: ")
+    fig, _ = plot.frf_overview(frf, title_prefix=f"{describe(a)}: ")
     plot.save(fig, out / "frf_singular_values.png")
     span = np.asarray(span_db(frf.P))
     f = np.asarray(frf.freq_hz)
     band = f <= 30
-    print(f"{a.device}: plant singular-value span over {f[band].min():g}–{f[band].max():g} Hz: "
+    print(f"{describe(a)}: plant singular-value span over {f[band].min():g}–{f[band].max():g} Hz: "
           f"{span[band].min():.1f}–{span[band].max():.1f} dB (paper: 25–50 dB)")  # fmt: skip
     print(f"wrote {out / 'run.npz'}, {out / 'frf.npz'}, {out / 'frf_singular_values.png'}")
 
@@ -171,9 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Run the paper's multisine experiments on a simulated device "
                        "and write a run file (.npz/.csv/.mat).",
                        epilog="example: hapid simulate --device cu5 --periods 8 --out run.npz")  # fmt: skip
-    s.add_argument("--device", default="cu5", help="preset: cu5 (default), tripod3, hexapod6")
-    s.add_argument("--move", type=float, nargs=3, metavar=("DX", "DY", "DZ"),
-                   help="move the stylus from home by DX DY DZ metres")  # fmt: skip
+    add_device_args(s, what=" to simulate")
     s.add_argument("--time-domain", action="store_true", help="lax.scan simulation instead of "
                    "the exact periodic steady state")  # fmt: skip
     s.add_argument("--friction", action="store_true", help="time domain with Coulomb friction")
@@ -198,7 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser("demo", help="simulate the default device, estimate its FRF, plot σ",
                        epilog="example: hapid demo --out out/demo")  # fmt: skip
-    d.add_argument("--device", default="cu5")
+    add_device_args(d, what=" to simulate")
     d.add_argument("--out", default="out/demo")
     d.set_defaults(func=cmd_demo)
 
@@ -313,7 +310,7 @@ def cmd_analyze(a):
         print("note: a measured FRF has few frequencies: the Nyquist verdict needs a dense grid "
               "and may be unresolved; margins and bandwidth are read on the FRF grid")  # fmt: skip
     else:
-        dev = pipeline.device({**cfg["device"], "preset": a.device})
+        dev = device_from_args(a)
         if dev.n != model.n:
             raise CLIError(f"model has n = {model.n} rods but device {a.device} has {dev.n}")
         if a.continuous:
@@ -399,17 +396,18 @@ def cmd_robust(a):
     from .uncertainty import robust_from_files
     from .uncertainty._files import side_by_side
 
+    dev = _device_or_none(a)
     if len(a.model) == 1:
         res = robust_from_files(a.samples, a.model[0], a.out, gm_db=a.gm_db, pm_deg=a.pm_deg,
-                                max_samples=a.max_samples, device=a.device, n_subjects=a.subjects,
-                                metrics=_robust_metrics(a))  # fmt: skip
+                                max_samples=a.max_samples, device=dev,
+                                n_subjects=a.subjects, metrics=_robust_metrics(a))  # fmt: skip
         print(to_json(res)[:4000])
         for batch in ("posterior", "device"):
             if res.get(batch) is not None and not res[batch]["passed"]:
                 print(f"{batch}: NOT passed — " + "; ".join(res[batch]["reasons"]))
     else:
         res = {Path(m).stem: robust_from_files(a.samples, m, None, gm_db=a.gm_db, pm_deg=a.pm_deg,
-                                               max_samples=a.max_samples, device=a.device,
+                                               max_samples=a.max_samples, device=dev,
                                                n_subjects=a.subjects, metrics=_robust_metrics(a))
                for m in a.model}  # fmt: skip
         print(side_by_side(res))
@@ -430,9 +428,10 @@ def _robust_metrics(a):
 def _robust_worker(a):
     from .uncertainty import robust_from_files
 
+    dev = _device_or_none(a)
     for m in a.model:
         robust_from_files(a.samples, m, None, gm_db=a.gm_db, pm_deg=a.pm_deg, max_samples=a.max_samples,
-                          device=a.device, n_subjects=a.subjects, metrics=_robust_metrics(a))  # fmt: skip
+                          device=dev, n_subjects=a.subjects, metrics=_robust_metrics(a))  # fmt: skip
 
 
 def _register_stages(sub):
@@ -447,8 +446,8 @@ def _register_stages(sub):
                         epilog="example: hapid analyze --model model.npz --device cu5 --out report.json")  # fmt: skip
     an.add_argument("--model", required=True)
     src = an.add_mutually_exclusive_group(required=True)
-    src.add_argument("--device", help="preset device whose true plant closes the loop")
     src.add_argument("--frf", help="measured FRF file whose P closes the loop")
+    add_device_args(an, default=None, device_group=src, what=" whose true plant closes the loop")
     an.add_argument("--controller", choices=["mimo", "siso"], default="mimo")
     an.add_argument("--k", type=float, help="override the gain k of g(s) (paper: 0.85)")
     an.add_argument("--design", help="design file (.npz) from `hapid tune`: its tuned g closes the loop")  # fmt: skip
@@ -501,7 +500,7 @@ def _register_stages(sub):
                     help="nominal model the controller is designed from; repeat to compare "
                     "controllers side by side (e.g. --model wls.npz --model nls.npz)")  # fmt: skip
     ro.add_argument("--controller", default="mimo", choices=["mimo"], help="controller kind")
-    ro.add_argument("--device", help="also check a preset device's true plant (poses, subjects)")
+    add_device_args(ro, default=None, what=" whose true plant is also checked (poses, subjects)")
     ro.add_argument("--subjects", type=int, default=0, help="virtual subjects for --device")
     ro.add_argument("--gm-db", type=float, default=6.0)
     ro.add_argument("--pm-deg", type=float, default=30.0)
@@ -598,7 +597,7 @@ def cmd_tune(a):
 
         g0 = extend_structure(Compensator.paper(), lag_hz=a.extra_lag or (),
                               notch_hz=a.extra_notch or ())  # fmt: skip
-    res = tune_from_files(a.model, a.samples, a.out, device=a.device, frf=a.frf, g0=g0,
+    res = tune_from_files(a.model, a.samples, a.out, device=_device_or_none(a), frf=a.frf, g0=g0,
                           evidence_ts=None if a.fs is None else 1.0 / a.fs, n_train=a.n_train,
                           n_holdout=a.n_holdout, quantile=a.quantile, n_subjects=a.subjects,
                           seed=a.seed, max_steps=a.max_steps, keep_dc_gain=not a.free_dc,
@@ -639,10 +638,8 @@ def _register_tune(sub):
                         epilog="example: hapid tune --model nls.npz --samples samples.npz --device cu5 --out design.npz")  # fmt: skip
     tu.add_argument("--model", required=True, help="nominal model file (the controller inverts it)")
     tu.add_argument("--samples", help="posterior samples file (hapid posterior)")
-    tu.add_argument(
-        "--device",
-        help="preset device: tune on its pose/subject variants, validate on its true plant",
-    )
+    add_device_args(tu, default=None,
+                    what=": tune on its pose/subject variants, validate on its true plant")  # fmt: skip
     tu.add_argument("--frf", help="the measured FRF file (whole range): the evidence the design must hold on "
                     "(default: the samples' fit data); beyond its top frequency the loop is kept small-gain")  # fmt: skip
     tu.add_argument("--fs", type=float, help="sampling rate (Hz) the controller runs at: the measured loop and "

@@ -18,8 +18,10 @@ Every stage function composes :mod:`hapid.pipeline` (experiment → frf → fit 
 loop); the loop verdict (controller's own RHP poles included) is the pipeline's.
 
 Config sections (all optional, defaults = the paper reproduction on ``cu5``):
-``[device]`` preset, move (dx, dy, dz, dyaw, dpitch, droll from home), subject_seed,
-light_damping, extra_modes, encoder; ``[protocol]`` freqs ("paper" or list, Hz), periods,
+``[device]`` preset (cu5, tripod3, quad4, hexapod6, cu5_soft), move (dx, dy, dz, dyaw,
+dpitch, droll from home), subject_seed, light_damping, extra_modes, encoder, delay_samples
+(actuator delay in samples) and rod_compliance (traction and sensor springs divided by it) —
+these two default to the preset's own (unset); ``[protocol]`` freqs ("paper" or list, Hz), periods,
 transient, pattern, phases, amplitude, seed, noise, position_noise, encoder_res, synthesis
 ("periodic" | "time_domain"), friction; ``[fit]`` omega_c_hz, positize, weight, f_max_hz,
 solver, max_steps, rtol, atol, ftol, patience, blend_floor, p_weight, pd_eps, init_floor
@@ -45,7 +47,8 @@ from ._stages import Graph, Stage
 
 DEFAULTS: dict = {
     "device": {"preset": "cu5", "move": [0.0] * 6, "subject_seed": None, "light_damping": False,
-               "extra_modes": True, "encoder": "motor"},
+               "extra_modes": True, "encoder": "motor", "delay_samples": None,
+               "rod_compliance": None},
     "protocol": {"freqs": "paper", "periods": 4, "transient": 1, "pattern": "paper",
                  "phases": "random", "amplitude": 0.3, "seed": 0, "noise": 5e-3,
                  "position_noise": 0.0, "encoder_res": 2e-6, "synthesis": "periodic",

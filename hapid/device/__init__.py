@@ -9,6 +9,7 @@ from ._geometry import Geometry as Geometry
 from ._geometry import Pose as Pose
 from ._geometry import cu5_geometry as cu5_geometry
 from ._geometry import hexapod_geometry as hexapod_geometry
+from ._geometry import quad_geometry as quad_geometry
 from ._geometry import tripod_geometry as tripod_geometry
 from ._parts import ExtraModes as ExtraModes
 from ._parts import Hand as Hand
@@ -23,4 +24,5 @@ from ._presets import cu5 as cu5
 from ._presets import cu5_soft as cu5_soft
 from ._presets import hexapod6 as hexapod6
 from ._presets import preset as preset
+from ._presets import quad4 as quad4
 from ._presets import tripod3 as tripod3

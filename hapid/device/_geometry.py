@@ -130,6 +130,20 @@ def tripod_geometry() -> Geometry:
     return Geometry(jnp.asarray(base), jnp.zeros((3, 3)), jnp.asarray(dof_matrix(3, ())))
 
 
+def quad_geometry() -> Geometry:
+    """A 4-rod layout: cu5 without its 240° rod — rods to the front attachment
+    A = c + 0.04 x̂ from the 60°, 180° and 300° vertices, one rod to the rear B = c − 0.12 x̂
+    from 120°; DOF = 3 translations + pitch (rotation about the stylus' ŷ axis). Yaw and roll
+    are not controlled (not part of the model). cond(J) at home with rotations scaled by
+    0.1 m ≈ 5.0 (cu5 ≈ 5.9, tripod3 ≈ 4.2); controlling yaw (ẑ) instead with these rods gives
+    ≈ 6.2 at home but up to ≈ 9 within ±5 cm, pitch ≤ 5.6 there."""
+    hexa = hexagon()
+    base = hexa[[1, 3, 5, 2]]
+    A, B = np.array([0.04, 0.0, 0.0]), np.array([-0.12, 0.0, 0.0])
+    attach = np.stack([A, A, A, B])
+    return Geometry(jnp.asarray(base), jnp.asarray(attach), jnp.asarray(dof_matrix(3, (1,))))
+
+
 def hexapod_geometry() -> Geometry:
     """A 6-rod, 6-DOF device: three rods to a small front ring (r = 30 mm, x = +0.04 m) and
     three to a rear ring (x = −0.12 m), so roll about the stylus is controlled too."""

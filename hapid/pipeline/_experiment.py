@@ -18,16 +18,23 @@ from .._grids import log_grid_hz, nyquist_grid
 MOVE_KEYS = ("dx", "dy", "dz", "dyaw", "dpitch", "droll")
 
 
-def base_device(o: dict):
-    """The preset device at home pose (structural options: ``preset``, ``light_damping``,
-    ``extra_modes``, ``encoder``), before :func:`vary_device`."""
+def base_device(o: dict, fs_hz: float | None = None):
+    """The preset device at home pose, before :func:`vary_device`: structural options
+    ``preset``, ``light_damping``, ``extra_modes``, ``encoder``, ``delay_samples`` (actuator
+    delay, samples) and ``rod_compliance`` (the chain's compliance factor) — the last two
+    ``None`` or absent: the preset's own. ``fs_hz``: the sampling rate (Hz; default the
+    preset's). Every preset takes every option."""
     from ..device import preset
 
-    kw = {"extra_modes": bool(o.get("extra_modes", True))}
-    if o["preset"] == "cu5":
-        kw.update(
-            light_damping=bool(o.get("light_damping", False)), encoder=o.get("encoder", "motor")
-        )
+    kw = {"extra_modes": bool(o.get("extra_modes", True)),
+          "light_damping": bool(o.get("light_damping", False)),
+          "encoder": o.get("encoder", "motor")}  # fmt: skip
+    if o.get("delay_samples") is not None:
+        kw["delay_samples"] = int(o["delay_samples"])
+    if o.get("rod_compliance") is not None:
+        kw["rod_compliance"] = float(o["rod_compliance"])
+    if fs_hz is not None:
+        kw["fs_hz"] = float(fs_hz)
     return preset(o["preset"], **kw)
 
 
@@ -48,10 +55,13 @@ def vary_device(dev, move=(0.0,) * 6, subject_seed=None):
     return eqx.tree_at(lambda d: d.hand, dev, hand)
 
 
-def device(o: dict):
-    """Stage ``options → device``: :func:`base_device` then :func:`vary_device`."""
+def device(o: dict, fs_hz: float | None = None):
+    """Stage ``options → device``: :func:`base_device` then :func:`vary_device` (the one
+    builder of a simulated device from options: scenes and the CLI's ``--device`` options)."""
     seed = o.get("subject_seed")
-    return vary_device(base_device(o), list(o.get("move", ())), None if seed is None else int(seed))
+    return vary_device(
+        base_device(o, fs_hz), list(o.get("move", ())), None if seed is None else int(seed)
+    )
 
 
 def protocol(o: dict, fs_hz: float | None = None):

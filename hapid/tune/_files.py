@@ -65,7 +65,7 @@ def design_info(out: dict) -> dict:
 def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf=None,
                     **options) -> dict:  # fmt: skip
     """Load a model (and samples, and the measured FRF ``frf`` — the evidence), run
-    :func:`.robust_design`, write the design file."""
+    :func:`.robust_design`, write the design file. ``device``: a preset name or a device."""
     from .. import io
     from ._recipe import robust_design
 
@@ -81,7 +81,7 @@ def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf
     if device is not None:
         from ..device import preset
 
-        dev = preset(device)
+        dev = preset(device) if isinstance(device, str) else device
     res = robust_design(model, samples=samples, device=dev, **options)
     if out is not None:
         save_design(out, res["result"].g, **design_info(res))

@@ -66,7 +66,7 @@ def robust_from_files(
     gm_db: float = 6.0,
     pm_deg: float = 30.0,
     max_samples: int = 1000,
-    device: str | None = None,
+    device=None,
     n_subjects: int = 0,
     pose_offsets=(),
     metrics=(),
@@ -74,7 +74,7 @@ def robust_from_files(
     """Samples file + nominal model file → robust-check summary (and optional JSON file).
 
     The controller is ``g Ẑ_T Ẑ_H⁻¹`` of the model file (``g`` default the paper's). With
-    ``device`` (a preset name, e.g. ``"cu5"``), the device-based check (nominal device,
+    ``device`` (a preset name, e.g. ``"cu5"``, or a device), the device-based check (nominal device,
     ``pose_offsets`` (dx, dy, dz) m, ``n_subjects`` virtual subjects) is added under
     ``"device"``. ``metrics``: as :func:`robust_check` (``"all"``: also the disk margin and
     the peak of σ̄(T); default: verdict, bandwidth and loci margins only — the others are
@@ -94,7 +94,7 @@ def robust_from_files(
     if device is not None:
         from ..device import preset
 
-        dev = preset(device)
+        dev = preset(device) if isinstance(device, str) else device
         poses = [dev.pose.moved(*o) for o in pose_offsets]
         # the sampled controller (as analyze/paper/tune close the loop with the device) on a
         # grid to fs/2, refined crossings: the nominal row is the single analysis's numbers
