@@ -356,7 +356,7 @@ def _device_cross(a):
     """``--delay``, ``--rod-compliance``, ``--move`` vary the ``--device`` preset: not without it."""
     given = variant_flags(a)
     if given and a.device is None:
-        raise ValueError(f"{', '.join(given)} vary the --device preset and need --device")
+        raise ValueError(f"{', '.join(given)}: a variant of the --device preset; give --device too")
 
 
 def _analyze_cross(a):

@@ -10,7 +10,7 @@ import argparse
 # (command, dest) -> help; "*" matches any command
 HELP: dict[tuple[str, str], str] = {
     ("*", "seed"): "random seed",
-    ("*", "device"): "preset device: cu5, tripod3 or hexapod6",
+    ("*", "device"): "preset device: cu5, tripod3, quad4, hexapod6 or cu5_soft",
     ("simulate", "pattern"): "experiment pattern: which rods each experiment excites",
     ("simulate", "phases"): "multisine phases",
     ("demo", "out"): "output folder",

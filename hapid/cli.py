@@ -14,6 +14,7 @@ from ._cli_device import add_device_args, describe, device_from_args
 
 EXAMPLES = """examples:
   hapid simulate --device cu5 --out run.npz            # the paper's protocol on cu5
+  hapid simulate --device quad4 --delay 2 --out r4.npz # a 4-rod variant (--rod-compliance, --move)
   hapid frf run.npz --out frf.npz --plot frf.png       # empirical Z_H, Z_T (+ std)
   hapid fit frf.npz --method wls --positize --out wls.npz   # the paper's baseline
   hapid fit frf.npz --method nls --out nls.npz         # PD-constrained nonlinear fit

@@ -6,7 +6,7 @@ import pytest
 from helpers import rel_err, second_order_device
 
 import hapid
-from hapid.device import Pose, cu5, cu5_geometry, hexapod6, preset, tripod3
+from hapid.device import Pose, cu5, cu5_geometry, hexapod6, preset, quad4, tripod3
 
 
 def test_import_switches_on_float64():
@@ -14,7 +14,7 @@ def test_import_switches_on_float64():
     assert hapid.SecondOrder(np.eye(2), np.eye(2), np.eye(2))(np.array([1j])).dtype == np.complex128
 
 
-@pytest.mark.parametrize("make", [tripod3, cu5, hexapod6])
+@pytest.mark.parametrize("make", [tripod3, quad4, cu5, hexapod6])
 def test_jacobian_matches_finite_difference_of_rod_lengths(make):
     """J = dL/dx: compare with central differences of the rod lengths along each DOF."""
     dev = make(Pose().moved(0.01, -0.02, 0.015, dyaw=0.1, dpitch=-0.05))
