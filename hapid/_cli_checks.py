@@ -472,7 +472,7 @@ def _check_swept_value(cfg: dict, key: str, text: str, x: float) -> None:
 
     sec, k, i = _sweep._parse(key)
     cur = cfg[sec][k] if i is None else None
-    if _int(cur):
+    if _int(cur) or key in _sweep._INTEGER:
         if not (math.isfinite(x) and x == int(x)):
             raise ValueError(f"--vary {key} must be an integer, got {text}")
         x = int(x)

@@ -555,6 +555,7 @@ def _register_sweep(sub):
     sw.add_argument("scene")
     sw.add_argument("--vary", action="append", required=True, metavar="KEY=V1,V2,…",
                     help="any numeric scene option: device.dx…droll, device.subject_seed, "
+                    "device.delay_samples, device.rod_compliance, "
                     "protocol.noise/position_noise/periods/seed/amplitude, fit.* (NLS options "
                     "with --estimator nls), controller.k/lag_zero_hz/lag_pole_hz/zeta_num/"
                     "zeta_den/notch_hz[i]/lowpass_hz[i], analysis.f_min_hz/n_freq/band_hz")  # fmt: skip

@@ -14,7 +14,8 @@ which positizing can leave — included).
 scene's protocol). Option names are the scene's ``section.key`` (list elements as ``section.key[i]``; the stylus
 move also as ``device.dx`` … ``device.droll``). Most options enter the compiled function as
 traced values (:data:`TRACED`): one compile serves all of them. The others
-(:data:`STATIC`: grid sizes, the NLS step budget, the excitation amplitude, …) change shapes
+(:data:`STATIC`: grid sizes, the NLS step budget, the excitation amplitude, the device's
+delay and rod compliance) change shapes
 or Python-level structure; each distinct value gets its own compile. The batch is split in
 equal chunks (the last padded) for a progress bar, each chunk sharded over the JAX devices
 when there are several (``XLA_FLAGS=--xla_force_host_platform_device_count=2`` emulates two),
@@ -47,7 +48,9 @@ TRACED = (
        "controller.zeta_den", "controller.notch_hz[i]", "controller.lowpass_hz[i]",
        "analysis.f_min_hz", "analysis.band_hz")
 )  # fmt: skip
-STATIC = ("fit.max_steps", "analysis.n_freq", "protocol.amplitude")
+STATIC = ("fit.max_steps", "analysis.n_freq", "protocol.amplitude", "device.delay_samples",
+          "device.rod_compliance")  # fmt: skip
+_STATIC_INT = ("fit.max_steps", "analysis.n_freq", "device.delay_samples")
 _NO_EFFECT = {
     "protocol.transient": "the sweep's FRF is the exact periodic steady state (no transient)",
     "protocol.encoder_res": "the sweep's FRF has no encoder quantization",
@@ -180,7 +183,9 @@ _INTEGER = {
     "fit.patience": 1,
     "protocol.seed": 0,
     "device.subject_seed": -1,
+    "device.delay_samples": 0,
 }  # name → smallest allowed value
+_POSITIVE = ("protocol.amplitude", "device.rod_compliance")
 _NONNEGATIVE = ("protocol.noise", "protocol.position_noise", "fit.pd_eps", "fit.blend_floor",
                 "controller.zeta_num")  # fmt: skip
 
@@ -199,7 +204,7 @@ def _check_values(keys, rows):
         elif k in _NONNEGATIVE:
             if np.any(v < 0):
                 raise ValueError(f"{k} must be ≥ 0, got {v.min():g}")
-        elif sec in ("fit", "controller", "analysis") or k == "protocol.amplitude":
+        elif sec in ("fit", "controller", "analysis") or k in _POSITIVE:
             if np.any(v <= 0):
                 raise ValueError(f"{k} must be > 0, got {v.min():g}")
 
@@ -257,7 +262,7 @@ def run_sweep(cfg: dict, vary: dict[str, list], *, chunk: int = 64, progress: bo
                 _set(
                     c,
                     keys[j],
-                    int(v) if keys[j] in ("fit.max_steps", "analysis.n_freq") else float(v),
+                    int(v) if keys[j] in _STATIC_INT else float(v),
                 )
             fns[svals] = jax.jit(jax.vmap(point_fn(c, traced, estimator)))
         sub = rows[np.ix_(idx, tcols)] if tcols else np.zeros((len(idx), 0))
@@ -290,7 +295,7 @@ def run_single(cfg: dict, keys, params, estimator: str = ESTIMATOR_DEFAULT) -> d
 
     c = copy.deepcopy(cfg)
     for k, v in zip(keys, params, strict=True):
-        _set(c, k, int(v) if k in ("fit.max_steps", "analysis.n_freq") else float(v))
+        _set(c, k, int(v) if k in _STATIC_INT else float(v))
     fn = jax.jit(point_fn(c, (), estimator))
     return {k: np.asarray(v) for k, v in fn(jnp.zeros(0)).items()}
 

@@ -163,7 +163,32 @@ def test_scene_file_keys_are_read(tmp_path):
       "device.delay_samples must be an integer in [0, 1000]"),
      (["run", "scene.toml", "--set", "device.delay_samples=1.5"], "device.delay_samples must be"),
      (["run", "scene.toml", "--set", "device.rod_compliance=0"],
+      "device.rod_compliance must be a number > 0"),
+     (["sweep", "scene.toml", "--vary", "device.delay_samples=1.5", "--out", "sw"],
+      "--vary device.delay_samples must be an integer, got 1.5"),
+     (["sweep", "scene.toml", "--vary", "device.rod_compliance=0", "--out", "sw"],
       "device.rod_compliance must be a number > 0")],
 )  # fmt: skip
 def test_bad_device_options_are_one_line_errors(files, argv, message):
     assert_clean_error(argv, files[0], message)
+
+
+def test_sweep_static_device_values_reach_the_device(monkeypatch):
+    """``--vary device.delay_samples`` / ``device.rod_compliance`` are static sweep options
+    (one compile per value): each value, as the integer / number it is, builds the device."""
+    from hapid import sweep
+
+    seen = []
+
+    def stub(o, *a, **k):
+        seen.append((o["delay_samples"], o["rod_compliance"]))
+        raise _Stop
+
+    monkeypatch.setattr(pipeline, "base_device", stub)
+    cfg = scene.merge({"device": {"preset": "tripod3"}})
+    assert sweep.classify("device.delay_samples", cfg, "wls") == "static"
+    for vary, want in (({"device.delay_samples": [2.0]}, (2, None)),
+                       ({"device.rod_compliance": [2.0]}, (None, 2.0))):  # fmt: skip
+        with pytest.raises(_Stop):
+            sweep.run_sweep(cfg, vary, progress=False)
+        assert seen[-1] == want and type(seen[-1][0]) is type(want[0])
