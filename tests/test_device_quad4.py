@@ -72,3 +72,26 @@ def test_quad4_nls_fit_and_loop(route):
         rep, eig_stable = _verdicts(dev, f.model, omega, P, k)
         assert bool(rep.stable) == eig_stable, k
     assert bool(_verdicts(dev, f.model, omega, P, 0.85)[0].stable)
+
+
+@pytest.mark.slow
+def test_quad4_command_line_route(tmp_path):
+    """simulate → frf → fit (NLS) → analyze on quad4's true plant, all from the command line;
+    the reported verdict equals the closed-loop eigenvalues of the model's sampled controller
+    on the device."""
+    import json
+
+    from helpers_cli import run_cli
+
+    from hapid import io as hio
+
+    for argv in (["simulate", "--device", "quad4", "--out", "run.npz"],
+                 ["frf", "run.npz", "--out", "frf.npz"],
+                 ["fit", "frf.npz", "--method", "nls", "--out", "nls.npz"],
+                 ["analyze", "--model", "nls.npz", "--device", "quad4", "--out", "a.json"]):  # fmt: skip
+        rc, out, err, _, _ = run_cli(argv, tmp_path)
+        assert rc == 0, (argv, err)
+    rep = json.loads((tmp_path / "a.json").read_text())
+    dev, model = quad4(), hio.load_model(tmp_path / "nls.npz")
+    ctrl = discretize_controller(model, Compensator.paper(), dev.ts)
+    assert rep["stable"] == bool(closed_loop(dev, ctrl).is_stable())

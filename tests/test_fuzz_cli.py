@@ -297,7 +297,7 @@ def int_below(lo):
 
 OPTION_BAD = {
     "--fs": NOT_POS, "--amplitude": NOT_POS, "--f-max-hz": NOT_POS, "--omega-c-hz": NOT_POS,
-    "--band-hz": NOT_POS, "--k": NOT_POS, "--siso-gain": NOT_POS,
+    "--band-hz": NOT_POS, "--k": NOT_POS, "--siso-gain": NOT_POS, "--rod-compliance": NOT_POS,
     "--noise": NEG, "--position-noise": NEG, "--encoder-res": NEG,
     "--cond-warn": st.sampled_from(["0.5", "0", "-1", "nan", "inf"]),
     "--period": int_below(2), "--periods": int_below(1), "--transient": int_below(0),
