@@ -150,6 +150,7 @@ def test_cli_route_tuned_g_is_stable_on_a_device_not_used_for_tuning(tmp_path):
     from hapid.cli import main
     from hapid.device import cu5_soft
     from hapid.tune import load_design, true_plant_loop
+    from hapid.uncertainty import load_samples
 
     d = tmp_path
     for argv in (["simulate", "--device", "cu5_soft", "--out", str(d / "run.npz")],
@@ -171,14 +172,18 @@ def test_cli_route_tuned_g_is_stable_on_a_device_not_used_for_tuning(tmp_path):
     assert t["stable"], t
     assert json.loads((d / "a.json").read_text())["stable"]
     assert "evidence" in info["families"] and info["families"]["evidence"]["source"] == "frf"
-    # the default evidence without --frf: the samples' fit data (1–40 Hz); small gain from 40 Hz
+    # without --frf: the measured FRF the samples file stores (every frequency, 1–100 Hz) is the
+    # evidence and the draws are loop draws conditioned on it
+    assert np.array_equal(
+        load_samples(d / "s.npz").measured["omega"], io.load_frf(d / "frf.npz").omega
+    )
     assert main(["tune", "--model", str(d / "nls.npz"), "--samples", str(d / "s.npz"), "--n-train", "24",
                  "--n-holdout", "60", "--max-steps", "120", "--out", str(d / "d2.npz"),
                  "--report", str(d / "t2.json")]) == 0  # fmt: skip
     g2, _ = load_design(d / "d2.npz")
     assert true_plant_loop(g2, model, cu5_soft())["stable"]
     assert json.loads((d / "t2.json").read_text())["tuned"]["evidence_hz"] == pytest.approx(
-        40.0, rel=0.01
+        100.0, rel=0.01
     )
     rep = json.loads((d / "tune.json").read_text())
     assert {"certified", "beyond_loop_gain", "frf_min_sigma_I_plus_L"} <= set(rep["tuned"])

@@ -202,7 +202,7 @@ def robust_design(
 
     ``draw_family="loop_gp"``: the training and held-out plants are draws of the loop
     coordinate ``Q = P P̂⁻¹`` itself, conditioned on the whole measured FRF
-    (:mod:`hapid.tune._loopgp`: a GP of ``Q − I`` in ln ω, hyperparameters by leave-one-out;
+    (:mod:`hapid.uncertainty._loopgp`: a GP of ``Q − I`` in ln ω, hyperparameters by leave-one-out;
     ``frf`` required, ``samples`` not used) instead of posterior draws of the second-order
     fit. Calibrated in loop coordinates on cu5 and tripod3 + 2 ms where the gp posterior's
     draws are not (benchmarks/calibrate_loop.py, docs/robust-design.md).
@@ -277,7 +277,7 @@ def robust_design(
     hold_models = None
     omc = posterior_grid(n_freq)
     if draw_family == "loop_gp":
-        from ._loopgp import fit_loop_gp, loop_gp_plants
+        from ..uncertainty._loopgp import fit_loop_gp, loop_gp_plants
 
         get = (lambda k: src[k]) if isinstance(src, dict) else (lambda k: getattr(src, k))  # noqa: E731
         om_e = np.asarray(get("omega"), dtype=float)
