@@ -154,6 +154,7 @@ def summary(rows) -> list[dict]:
             "unstable_called_safe": sum(r["p_stable"] >= 0.95 for r in unst),
             "p_stable_stable": float(np.mean([r["p_stable"] for r in stab])) if stab else np.nan,
             "brier": float(np.mean([(r["p_stable"] - r["true_stable"]) ** 2 for r in rs])),
+            "brier_margins": float(np.mean([(r["p_meets"] - r["true_meets"]) ** 2 for r in rs])),
         })  # fmt: skip
     return out
 
@@ -226,7 +227,7 @@ def main(argv=None):
         print(f"| {s['kind']} | {s['n_fine']} | {_fmt(s['p_stable_fine'], '{:.3f}')} | "
               f"{_fmt(s['min_p_stable_fine'], '{:.3f}')} | {s['fine_called_unsafe']} | "
               f"{s['n_unstable']} | {_fmt(s['p_stable_unstable'], '{:.3f}')} | "
-              f"{s['unstable_called_safe']} | {s['brier']:.3f} |")  # fmt: skip
+              f"{s['unstable_called_safe']} | {s['brier']:.3f} | {s['brier_margins']:.3f} |")  # fmt: skip
     if a.out:
         Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         Path(a.out).write_text(json.dumps({"rows": rows, "summary": summ}, indent=1, default=float))
