@@ -817,7 +817,12 @@ def make_log_posterior(
       amplitude ``τ a(ω)`` (the RMS element size); ``"element"`` — element ``(i, j)`` has
       ``τ a(ω) w_ij(ω)`` with ``w_ij`` proportional to the size ``|K_ij| + ω|B_ij| + ω²|M_ij|``
       of the reference model's element (:func:`element_weights`; a relative error per
-      element, no new hyperparameter, same closed-form likelihood).
+      element, no new hyperparameter, same closed-form likelihood); ``"class"`` — element
+      ``(i, j)`` has ``τ a(ω) w_ij`` with ``w = 1`` on the diagonal and ``e^γ`` off it
+      (RMS 1; :func:`class_weights`), ``γ_H, γ_M`` learned at the marginal mode with the other
+      hyperparameters (``gp_hyper`` must be ``"marginal"`` or 12 numbers, the last two γ); then
+      the weights are held like ``"element"``'s. Not calibrated on every device
+      (docs/conventions.md "Posterior").
     - ``noise_corr``: correlation ρ ∈ (−1, 1) of the Z_H/Z_T measurement errors per element.
     - ``prior_scale``, ``log_tau_mean``, ``log_tau_sd``: the priors.
     - ``parameterization``: ``"matrix"`` (default; matrix entries on the PSD cone) or
