@@ -497,10 +497,12 @@ def _register_stages(sub):
     po.add_argument("--steps", type=int, help="emcee steps (default: run to 50 τ)")
     po.add_argument("--samples", type=int, default=4000, help="Laplace draws")
     po.add_argument("--f-max-hz", type=float, default=40.0)
-    po.add_argument("--model-error", choices=["white", "gp", "gp_corr", "none"], default="white",
-                    help="model-error term: white (independent per frequency, default), gp (smooth "
-                         "random function of log-frequency, marginalized), gp_corr (gp with "
-                         "correlated hand/mechanism errors, docs/posterior.md), none")  # fmt: skip
+    po.add_argument("--model-error", choices=["white", "gp", "gp_corr", "none"], default="gp_corr",
+                    help="model-error term: gp_corr (default: the misfit of Z_H and Z_M as correlated "
+                         "smooth random functions of frequency, marginalized; its 90 %% band of P "
+                         "covers held-out frequencies of misspecified devices, docs/conventions.md "
+                         "'Posterior'), gp (independent hand/mechanism GPs), white (independent per "
+                         "frequency: bands 2-6x too wide), none")  # fmt: skip
     po.add_argument("--gp-hyper", choices=["map", "marginal", "sample"], default=None,
                     help="gp hyperparameters: map (held at the joint posterior mode; gp default), "
                          "marginal (mode of their marginal, M, B, K integrated out; gp_corr default) "
