@@ -611,13 +611,13 @@ def uncertified_warning(row: dict) -> str:
     certify it (``certified`` False, :func:`hapid.tune._evidence.certificate`), else ``""``."""
     if row.get("certified", True):
         return ""
-    return (f"WARNING: the returned g is NOT certified by the evidence (measured min σ̲(I + L) "
-            f"{row.get('frf_min_sigma_I_plus_L', float('nan')):.3g}, floor 0.5; loop gain beyond "
+    return (f"WARNING: the returned g is NOT certified by the evidence (measured loci min |1 + λ| "
+            f"{row.get('frf_min_loci_distance', float('nan')):.3g}, floor 0.5; loop gain beyond "
             f"{row.get('evidence_hz', float('nan')):.3g} Hz {row.get('beyond_loop_gain', float('nan')):.3g}, "
             "bound 0.5; nominal loop stable: "
             f"{row.get('nominal_stable')}): the measured FRF cannot exclude a crossing of −1 "
             "between its frequencies, so the real loop may be unstable. Measure the FRF densely "
-            "around the crossover and tune on it (hapid tune --loop-draws --frf).")  # fmt: skip
+            "around the crossover and tune on it (hapid simulate --freqs 1,2,...).")  # fmt: skip
 
 
 def cmd_tune(a):

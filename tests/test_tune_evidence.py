@@ -55,6 +55,33 @@ def test_mismatch_bound_and_certificate_match_numpy():
         evidence_from_frf(_frf(model, 1.0), model, kappa=1.5)
 
 
+def test_certificate_judges_the_measured_loci_like_the_analysis():
+    """A non-normal measured plant P = A P̂ (L = g A): the certificate's loci distance is
+    numpy's min |1 + g λ_i(A)|, it is never below the return difference σ̲(I + g A), and
+    ``certified`` follows the loci — the rule of the tuner's disc and of the loci margins —
+    where the two figures sit on opposite sides of the floor."""
+    model = _model(2, 0)
+    A = np.array([[1.0, 2.5], [0.0, 1.0]])  # eigenvalues 1, 1; far from normal
+    s = 1j * TWO_PI * F_HZ
+    data = {
+        "omega": TWO_PI * F_HZ,
+        "Z_H": A @ np.asarray(model.Z_H(s)),
+        "Z_T": np.asarray(model.Z_T(s)),
+    }
+    ev = evidence_from_frf(data, model)
+    g = Compensator.paper()
+    gv = np.asarray(g(s))
+    loci = np.min(np.abs(1.0 + gv[:, None] * np.linalg.eigvals(A)[None]))
+    sig = np.min(np.linalg.svd(np.eye(2) + gv[:, None, None] * A, compute_uv=False)[:, -1])
+    cert = certificate(ev, model, g)
+    assert cert["frf_min_loci_distance"] == pytest.approx(loci, rel=1e-9)
+    assert cert["frf_min_sigma_I_plus_L"] == pytest.approx(sig, rel=1e-9)
+    assert sig < 0.5 <= loci  # the case where the two rules disagree
+    assert cert["certified"] == bool(
+        cert["nominal_stable"] and cert["beyond_loop_gain"] <= ev.kappa
+    )
+
+
 def test_small_gain_fixes_the_nyquist_phase_beyond_the_evidence():
     """The invariant behind the method: any two loops with σ̄(L) ≤ κ < 1 on ω ≥ ω_e collect
     the same net phase of det(I + L) there, however their phases differ (a delay, a mode)."""
@@ -227,7 +254,7 @@ def test_uncertified_design_gets_a_warning_line():
     design is not certified, and nothing when it is."""
     from hapid.cli import uncertified_warning
 
-    row = {"certified": False, "frf_min_sigma_I_plus_L": 0.476, "beyond_loop_gain": 0.48,
+    row = {"certified": False, "frf_min_loci_distance": 0.476, "beyond_loop_gain": 0.48,
            "evidence_hz": 100.0, "nominal_stable": True}  # fmt: skip
     w = uncertified_warning(row)
     assert w.startswith("WARNING") and "NOT certified" in w and "0.476" in w and "100 Hz" in w
