@@ -287,3 +287,25 @@ def test_certified_gain_is_the_largest_gain_the_evidence_certifies():
     assert a is not None and 0.0 < a < 1.0
     assert certificate(ev, truth, scaled(a))["certified"]
     assert not certificate(ev, truth, scaled(min(1.0, 1.1 * a)))["certified"]
+
+
+def test_fallback_prefers_certified_candidates_at_the_chance_level():
+    """The certified fallback's choice (hapid.tune._recipe.pick_fallback): a candidate at the
+    chance level wins over one below it; with none at it a certified chosen design is kept
+    (lowering the gain would trade one failed figure for another); an uncertified chosen
+    design is replaced by the better certified candidate; no candidate, no change."""
+    from hapid.tune._recipe import pick_fallback
+
+    def row(frac, bw):
+        return {"certified": True, "posterior_frac_meeting_margins": frac,
+                "posterior_iso_bandwidth_hz_q50": bw}  # fmt: skip
+
+    low, high = ("start", 0.2, None, row(0.10, 0.7)), ("tuned", 0.5, None, row(0.99, 3.0))
+    assert pick_fallback([low, high], {"certified": False}, 0.975)[0] == "tuned"
+    assert pick_fallback([high, low], {"certified": True}, 0.975)[0] == "tuned"
+    assert pick_fallback([low], {"certified": True}, 0.975) is None  # keep the chosen g
+    assert pick_fallback([low], {"certified": False}, 0.975)[0] == "start"
+    assert pick_fallback([], {"certified": False}, 0.975) is None
+    # two below the level, chosen uncertified: the better one by no_worse (more draws meet)
+    a, b = ("start", 0.2, None, row(0.10, 0.7)), ("tuned", 0.3, None, row(0.50, 0.5))
+    assert pick_fallback([a, b], {"certified": False}, 0.975)[0] == "tuned"

@@ -469,15 +469,9 @@ def _certified_fallback(out, g0, res, ev, model, hold_models, device, variants, 
         if (chosen or {}).get("true_stable") and not row.get("true_stable", True):
             continue
         cands.append((name, a, gs, row))
-    good = [c for c in cands if _meets_chance(c[3], quantile)]
-    if not good and (chosen or {}).get("certified", False):
+    best = pick_fallback(cands, chosen, quantile)
+    if best is None:
         return None
-    cands = good or cands
-    if not cands:
-        return None
-    best = cands[0]
-    if len(cands) == 2 and no_worse(cands[0][3], cands[1][3])[0]:
-        best = cands[1]
     name, a, gs, row = best
     pm = ParamMap.from_template(gs)
     head = ("neither the start nor the tuned g is certified by the evidence"
@@ -488,6 +482,22 @@ def _certified_fallback(out, g0, res, ev, model, hold_models, device, variants, 
            f"(measured min |1 + λ| {row['frf_min_loci_distance']:.3g}, loop gain beyond "
            f"{row['evidence_hz']:.3g} Hz {row['beyond_loop_gain']:.3g})")  # fmt: skip
     return dataclasses.replace(res, g=gs, x=np.asarray(pm.vector(gs))), row, why
+
+
+def pick_fallback(cands: list, chosen: dict | None, quantile: float):
+    """The fallback's choice among certified candidates ``(name, α, g, row)`` (rows of
+    :func:`.table_row` plus the certificate): those whose held-out draws meet the margins at
+    the chance level first (of two, the later one when :func:`no_worse` prefers it); none
+    such and a certified ``chosen`` row: ``None`` (keep it); else the better of all."""
+    good = [c for c in cands if _meets_chance(c[3], quantile)]
+    if not good and (chosen or {}).get("certified", False):
+        return None
+    cands = good or cands
+    if not cands:
+        return None
+    if len(cands) == 2 and no_worse(cands[0][3], cands[1][3])[0]:
+        return cands[1]
+    return cands[0]
 
 
 def _meets_chance(row: dict, quantile: float) -> bool:
