@@ -92,3 +92,41 @@ def test_tuned_g_is_a_stage_of_the_summary():
     need = scene.graph().needed(["summary"])
     assert "tuned" in need and "tuned_mimo" in need
     assert scene.graph().stages["tuned"].cache
+
+
+def test_prepare_runs_in_the_background_and_other_ready_stages_go_first(tmp_path):
+    import threading
+
+    started, release, calls = threading.Event(), threading.Event(), []
+
+    def prep(o, a):  # a compile-only step: runs once a is known, while other stages run
+        calls.append(("prepare", threading.current_thread() is threading.main_thread()))
+        started.set()
+        release.wait(10)
+
+    def other(o, a):
+        started.wait(10)
+        calls.append(("other", a))
+        release.set()
+        return a + 1
+
+    def boom(o, a):
+        raise RuntimeError("a failed prepare only costs the time it would have saved")
+
+    stages = [
+        Stage("a", (), lambda c: {}, lambda o: 1),
+        Stage("m", ("a",), lambda c: {}, lambda o, a: a * 10, prepare=prep),
+        Stage("t", ("a",), lambda c: {}, other),
+        Stage("s", ("a",), lambda c: {}, lambda o, a: a * 7, prepare=boom),
+    ]
+    res, log = Graph(stages).run({}, ["m", "t", "s"], cache_dir=tmp_path)
+    assert calls == [("prepare", False), ("other", 1)]
+    assert log["computed"][:2] == ["a", "t"]  # t ran while m's prepare was running
+    assert {k: res[k] for k in "mts"} == {"m": 10, "t": 2, "s": 7}
+    ref, _ = Graph(stages[:1] + [Stage("m", ("a",), lambda c: {}, lambda o, a: a * 10)]).run(
+        {}, ["m"], cache_dir=None, overlap=False
+    )
+    assert ref["m"] == res["m"]
+    calls.clear()  # all cached now: no prepare runs
+    _, log2 = Graph(stages).run({}, ["m", "t", "s"], cache_dir=tmp_path)
+    assert calls == [] and sorted(log2["cached"]) == ["a", "m", "s", "t"]
