@@ -46,9 +46,6 @@ class Stage:
     options: Callable[[dict], dict]  # scene config → this stage's options (JSON-able)
     fn: Callable  # fn(options, *dep_results) → result
     cache: bool = True
-    # prepare(options, *dep_results): compile-only work for ``fn`` (jit programs compiled,
-    # nothing run), started in a background thread once the deps are computed (``Graph.run``)
-    prepare: Callable | None = None
 
 
 def _canon(obj):
@@ -206,78 +203,33 @@ class Graph:
             visit(t)
         return order
 
-    def run(self, config: dict, targets, cache_dir=None, progress: Callable | None = None,
-            overlap: bool = True):  # fmt: skip
+    def run(self, config: dict, targets, cache_dir=None, progress: Callable | None = None):
         """Compute ``targets``; returns ``(results, log)`` with ``log = {"computed": [...],
         "cached": [...], "keys": {...}, "seconds": {stage: wall time}}``. ``progress(name)``
-        is called before a stage is computed; ``cache_dir=None`` bypasses the cache.
-
-        ``overlap``: a stage with a ``prepare`` (compile its programs, run nothing) gets it
-        started in one background thread as soon as its deps are computed, and the stage
-        itself waits for it while other stages whose deps are ready run first (e.g. the loop
-        analyses compile while the tuning runs). The results do not depend on the order:
-        every stage is a pure function of its options and deps."""
+        is called before a stage is computed; ``cache_dir=None`` bypasses the cache."""
         results, keys, secs = {}, {}, {}
         log = {"computed": [], "cached": [], "keys": keys, "seconds": secs}
         cache = Path(cache_dir) if cache_dir else None
-        order = self.needed(targets)
-        opts, paths = {}, {}
-        for name in order:
+        for name in self.needed(targets):
             st = self.stages[name]
-            opts[name] = st.options(config)
-            keys[name] = stage_key(name, opts[name], [keys[d] for d in st.deps])
-            paths[name] = cache / f"{name}-{keys[name]}.npz" if (cache and st.cache) else None
-        cached = {n for n in order if paths[n] is not None and paths[n].exists()}
-        pool, futures = None, {}
-        if overlap and any(self.stages[n].prepare for n in order if n not in cached):
-            from concurrent.futures import ThreadPoolExecutor
-
-            pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hapid-prepare")
-        pending = list(order)
-        try:
-            while pending:
-                ready = [n for n in pending if all(d in results for d in self.stages[n].deps)]
-                if pool is not None:
-                    for n in ready:
-                        st = self.stages[n]
-                        if st.prepare and n not in cached and n not in futures:
-                            deps = [results[d] for d in st.deps]
-                            futures[n] = pool.submit(_prepare, st.prepare, opts[n], deps)
-                # the first ready stage whose compile is not still running (else the first)
-                name = next((n for n in ready if n not in futures or futures[n].done()), ready[0])
-                pending.remove(name)
-                if name in futures:
-                    futures[name].result()
-                self._compute(name, opts[name], paths[name], results, log, progress)
-        finally:
-            if pool is not None:
-                pool.shutdown(wait=True, cancel_futures=True)
+            opts = st.options(config)
+            key = stage_key(name, opts, [keys[d] for d in st.deps])
+            keys[name] = key
+            path = cache / f"{name}-{key}.npz" if (cache and st.cache) else None
+            t0 = time.perf_counter()
+            if path is not None and path.exists():
+                try:
+                    results[name] = _load(path)
+                    log["cached"].append(name)
+                    secs[name] = time.perf_counter() - t0
+                    continue
+                except Exception:  # noqa: BLE001  (corrupt or foreign entry: recompute)
+                    pass
+            if progress:
+                progress(name)
+            results[name] = st.fn(opts, *[results[d] for d in st.deps])
+            log["computed"].append(name)
+            if path is not None:
+                _store(path, results[name])
+            secs[name] = time.perf_counter() - t0
         return results, log
-
-    def _compute(self, name, opts, path, results, log, progress):
-        st = self.stages[name]
-        t0 = time.perf_counter()
-        if path is not None and path.exists():
-            try:
-                results[name] = _load(path)
-                log["cached"].append(name)
-                log["seconds"][name] = time.perf_counter() - t0
-                return
-            except Exception:  # noqa: BLE001  (corrupt or foreign entry: recompute)
-                pass
-        if progress:
-            progress(name)
-        results[name] = st.fn(opts, *[results[d] for d in st.deps])
-        log["computed"].append(name)
-        if path is not None:
-            _store(path, results[name])
-        log["seconds"][name] = time.perf_counter() - t0
-
-
-def _prepare(fn, opts, deps):
-    """Run a stage's ``prepare``; it only saves time, so a failure is ignored (the stage
-    then compiles its programs itself)."""
-    try:
-        fn(opts, *deps)
-    except Exception:  # noqa: BLE001
-        pass

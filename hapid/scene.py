@@ -191,20 +191,6 @@ def _mimo(o, plant, wls_out, nls_out, ctrl):
             "nls": _mimo_one(nls_out["model"], ctrl["g"], plant)}  # fmt: skip
 
 
-def _prepare_mimo(o, plant, wls_out, nls_out, ctrl):  # compile only (Graph.run's overlap)
-    from . import pipeline
-
-    ctrl_nls = pipeline.controller(nls_out["model"], ctrl["g"], ts=plant["ts"])
-    pipeline.compile_loop(ctrl_nls, plant["plant"], pipeline.SPEC_FIGURES)
-
-
-def _prepare_siso(o, plant, ctrl):  # compile only; c is an array: one program for every c
-    from . import pipeline
-
-    C = pipeline.controller(None, ctrl["g"], kind="siso", n=plant["P"].shape[-1], ts=plant["ts"])
-    pipeline.compile_loop(C, plant["plant"], pipeline.SPEC_FIGURES)
-
-
 def _siso(o, plant, ctrl):
     from . import pipeline
     from .control import discretize_compensator, max_siso_gain
@@ -249,8 +235,8 @@ STAGES = [
     Stage("nls", ("frf",), lambda c: {k: c["fit"][k] for k in NLS_KEYS + ("boundary_refit",)}, _nls),
     Stage("controller", (), lambda c: c["controller"], lambda o: _controller(o)),
     Stage("plant", ("device",), lambda c: c["analysis"], _plant),
-    Stage("mimo", ("plant", "wls", "nls", "controller"), lambda c: {}, _mimo, prepare=_prepare_mimo),
-    Stage("siso", ("plant", "controller"), lambda c: {}, _siso, prepare=_prepare_siso),
+    Stage("mimo", ("plant", "wls", "nls", "controller"), lambda c: {}, _mimo),
+    Stage("siso", ("plant", "controller"), lambda c: {}, _siso),
     # the tuned-g column: a short robust tuning of g on the device's pose/subject variants
     Stage("tuned", ("device", "nls"), _fast_flag, _tuned),
     Stage("tuned_mimo", ("plant", "nls", "tuned"), lambda c: {}, _tuned_mimo),

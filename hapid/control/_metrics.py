@@ -603,10 +603,7 @@ def metrics_screened(P, G, omega, p_ol, L_fn, spec):
 _metrics_jit = eqx.filter_jit(metrics_screened)
 
 
-def _loop_metrics(P, G, omega, p_ol, L_fn, spec, compile_only=False):
-    if compile_only:  # the program the same call on arrays of these shapes runs, compiled only
-        _metrics_jit.lower(P, G, omega, p_ol, L_fn, spec).compile()
-        return None
+def _loop_metrics(P, G, omega, p_ol, L_fn, spec):
     if isinstance(P, jax.core.Tracer) or isinstance(p_ol, jax.core.Tracer):
         out = metrics_screened(P, G, omega, p_ol, L_fn, spec)
     else:
@@ -622,7 +619,6 @@ def loop_metrics(
     p_ol=0,
     spec: MetricsSpec = MetricsSpec(),
     L_fn: Callable | None = None,
-    compile_only: bool = False,
 ) -> LoopMetrics:
     """Verdict and the metrics ``spec`` asks for of the loop ``L = P G`` (negative feedback).
 
@@ -639,11 +635,8 @@ def loop_metrics(
 
     Returns :class:`LoopMetrics`. Called on arrays it runs one jit-compiled program per
     (shapes, spec, L_fn); under ``jit``/``vmap`` it is traced inline (one path).
-    ``compile_only``: only compile that program (nothing runs; returns ``None``).
     """
     P, G, omega = _check(P, G, omega)
     if spec.kernels not in ("xla", "lapack"):
         raise ValueError(f"MetricsSpec.kernels must be 'xla' or 'lapack', got {spec.kernels!r}")
-    return _loop_metrics(
-        P, G, omega, jnp.asarray(p_ol, dtype=jnp.float64), L_fn, spec, compile_only
-    )
+    return _loop_metrics(P, G, omega, jnp.asarray(p_ol, dtype=jnp.float64), L_fn, spec)

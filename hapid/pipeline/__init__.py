@@ -37,7 +37,6 @@ from ._loop import SPEC_VALIDATE as SPEC_VALIDATE
 from ._loop import MetricsSpec as MetricsSpec
 from ._loop import Plant as Plant
 from ._loop import check_nyquist as check_nyquist
-from ._loop import compile_loop as compile_loop
 from ._loop import device_plant as device_plant
 from ._loop import frf_plant as frf_plant
 from ._loop import loop as loop

@@ -176,38 +176,10 @@ def loop(controller, plant: Plant, spec: MetricsSpec = SPEC_REPORT):
     if controller.n != plant.n:
         raise ValueError(f"controller has n = {controller.n} rods but the plant has {plant.n}")
     check_nyquist(controller, plant)
-    G, p_ol, c_fn = _loop_inputs(controller, plant)
-    return _backend(plant.P, G, plant.omega, p_ol, spec, _loop_fn(controller, plant, c_fn))
-
-
-def _loop_inputs(controller, plant: Plant):
-    """``G`` on the plant's grid, ``p_ol`` (plant's + controller's RHP poles) and the exact
-    sampled controller response for refinement (``None`` when not sampled or no ``P_fn``)."""
     G = controller.response(plant.omega)
     p_ol = jnp.asarray(plant.p_rhp) + jnp.asarray(controller.p_rhp)
-    c_fn = None
-    if plant.P_fn is not None and controller.ts is not None:
-        c_fn = SystemResponse(controller.discrete())
-    return G, p_ol, c_fn
-
-
-def _loop_fn(controller, plant: Plant, c_fn):
-    if plant.P_fn is None:
-        return None
-    return LoopResponse(plant.P_fn, c_fn or _ControllerResponse(controller))
-
-
-def compile_loop(controller, plant: Plant, spec: MetricsSpec = SPEC_REPORT) -> None:
-    """Compile — and run nothing — the program ``loop(controller, plant, spec)`` runs on
-    concrete arrays (for a background thread while other work runs: compile only, so no
-    LAPACK kernel runs beside the main thread's). The inputs that ``loop`` would compute
-    are stood in for by zeros of their shapes (``jax.eval_shape``); the plant is used as is.
-    """
-    import jax
-
-    if controller.n != plant.n:
-        raise ValueError(f"controller has n = {controller.n} rods but the plant has {plant.n}")
-    shapes = jax.eval_shape(lambda: _loop_inputs(controller, plant))
-    G, p_ol, c_fn = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), shapes)
-    loop_metrics(plant.P, G, plant.omega, p_ol=p_ol, spec=spec,
-                 L_fn=_loop_fn(controller, plant, c_fn), compile_only=True)  # fmt: skip
+    L_fn = None
+    if plant.P_fn is not None:
+        c_fn = SystemResponse(controller.discrete()) if controller.ts is not None else None
+        L_fn = LoopResponse(plant.P_fn, c_fn or _ControllerResponse(controller))
+    return _backend(plant.P, G, plant.omega, p_ol, spec, L_fn)
