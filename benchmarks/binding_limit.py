@@ -58,7 +58,7 @@ def problem(model, frf, dev, g0, *, n_train=150, n_freq=200, dense_factor=4, see
     from hapid._grids import continuous_grid
     from hapid.tune import Family, Requirements, make_scenarios
     from hapid.tune._evidence import KAPPA, beyond_grid, evidence_from_frf, measured_plant
-    from hapid.tune._loopgp import fit_loop_gp, loop_gp_plants
+    from hapid.uncertainty._loopgp import fit_loop_gp, loop_gp_plants
 
     omc = continuous_grid(n_freq)
     lgp = fit_loop_gp(np.asarray(frf.omega), measured_plant(frf.Z_H, frf.Z_T), model)
@@ -83,8 +83,8 @@ def recheck(g, model, prob, n_holdout: int, n_freq: int = 600) -> dict:
     from hapid._grids import continuous_grid
     from hapid.tune import table_row, validate
     from hapid.tune._evidence import certificate
-    from hapid.tune._loopgp import loop_gp_plants
     from hapid.tune._recipe import FRF_SIGMA_FLOOR
+    from hapid.uncertainty._loopgp import loop_gp_plants
 
     om = continuous_grid(n_freq)
     hold = loop_gp_plants(prob["loop_gp"], model, om, n_holdout, prob["seed"] + 1)

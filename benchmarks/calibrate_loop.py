@@ -35,7 +35,7 @@ posterior-predictive plants (:func:`hapid.uncertainty.predictive_plants`, model 
 included, raw: out of the fit band the GP reverts to its prior), ``<error>+tune`` the
 predictive plants ``hapid tune --predictive`` uses (error confined to the fit band: the
 θ-model outside), ``nls`` Laplace of the NLS fit, ``loopgp`` draws of ``Q`` itself conditioned on the whole
-measured FRF (:mod:`hapid.tune._loopgp`). The truth is the *sampled* plant the
+measured FRF (:mod:`hapid.uncertainty._loopgp`). The truth is the *sampled* plant the
 experiment measures (as in calibrate_predictive.py); draws are continuous models, so the
 ZOH half-sample lag (≈ 7° at 40 Hz) is part of the parameter draws' error.
 
@@ -123,7 +123,7 @@ def draw_plants(kind: str, frf, nls, omega, n_draws: int, seed: int = 0, cache=N
     err, _, how = kind.partition("+")
     if err == "loopgp":  # Q = P P̂⁻¹ drawn directly, conditioned on the whole measured FRF
         from hapid.tune._evidence import measured_plant
-        from hapid.tune._loopgp import fit_loop_gp, loop_gp_plants
+        from hapid.uncertainty._loopgp import fit_loop_gp, loop_gp_plants
 
         gp = fit_loop_gp(frf.omega, measured_plant(frf.Z_H, frf.Z_T), nls.model)
         print(f"  [loop GP: ℓ = {gp.ell:.3g} (ln ω), η = {gp.eta:g}, σ² = {gp.sigma2:.3g}]",

@@ -34,7 +34,8 @@ if it were exactly calibrated; a Gaussian gives 1.13–2.44 depending on its sha
 is one log-posterior evaluation of 200 walkers (jitted, vmapped).
 
 Run:  PYTHONPATH=. python benchmarks/calibrate_predictive.py [--method laplace|emcee]
-      [--draws 400] [--devices cu5,tripod3_d2,second_order,second_order_exact] [--kinds white,gp,gp_corr]
+      [--draws 400] [--devices cu5,tripod3_d2,second_order,second_order_exact]
+      [--kinds white,gp,gp_corr,gp_corr_el,gp_corr_cls]
 Prints a markdown table.
 """
 
@@ -139,11 +140,11 @@ def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", dra
         fixed = boundary_fixed(nls) if nls.boundary else None
         base, _, mode = kind.partition("@")  # e.g. "gp_corr@map": gp_hyper mode after "@"
         opts = {"warp": False} if base == "gp_logf" else {}
-        if base == "gp_corr_el":
-            opts["error_scale"] = "element"
+        if base in ("gp_corr_el", "gp_corr_cls"):
+            opts["error_scale"] = {"gp_corr_el": "element", "gp_corr_cls": "class"}[base]
         if mode:
             opts["gp_hyper"] = mode
-        me = {"gp_logf": "gp", "gp_corr_el": "gp_corr"}.get(base, base)
+        me = {"gp_logf": "gp", "gp_corr_el": "gp_corr", "gp_corr_cls": "gp_corr"}.get(base, base)
         t0 = time.perf_counter()
         post = make_log_posterior(
             frf, nls.scale, f_max_hz=40.0, model_error=me, reference=nls, fixed=fixed, **opts,
@@ -178,7 +179,9 @@ def main(argv=None):
     ap.add_argument("--devices", default="cu5,tripod3_d2,second_order")
     ap.add_argument("--kinds", default="white,gp,gp_corr",
                     help="model errors to compare: white, gp, gp_corr, gp_corr_el (gp_corr "
-                         "with error_scale='element'), gp_logf (gp with κ ≡ 0); "
+                         "with error_scale='element'), gp_corr_cls (gp_corr with "
+                         "error_scale='class': learned diagonal/off-diagonal amplitudes), "
+                         "gp_logf (gp with κ ≡ 0); "
                          "kind@mode sets gp_hyper (e.g. gp@marginal, gp_corr@map)")  # fmt: skip
     a = ap.parse_args(argv)
     print(f"posterior: {a.method}; 90 % predictive band; held-out frequencies in 1–40 Hz\n")

@@ -230,6 +230,7 @@ COMMON: dict[str, tuple] = {
     "predictive": FLAG,
     "evidence_bandwidth": FLAG,
     "loop_draws": FLAG,
+    "draws": one_of(["auto", "loop_gp", "params"]),
     "extra_lag": (_pos_list, "one or more frequencies > 0 Hz"),
     "extra_notch": (_pos_list, "one or more frequencies > 0 Hz"),
     "no_cache": FLAG,
@@ -253,7 +254,8 @@ PER_COMMAND: dict[str, dict] = {
                   "model": _In("a model file", ARRAY_EXT), "samples": int_ge(1),
                   "model_error": one_of(["white", "gp", "gp_corr", "none"]),
                   "hdf5": _Out("an emcee HDF5 backend file", (".h5", ".hdf5"))},
-    "robust": {"samples": _In("a posterior-samples file", (".npz",)),
+    "robust": {"samples": _In("a posterior-samples file", (".npz",)), "frf": _In("an FRF file", RUN_EXT),
+               "draws": one_of(["auto", "loop_gp", "params"]),
                "model": _In("a model file", ARRAY_EXT), "out": _Out("a JSON report", (".json",))},
     "sweep": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder"),
               "estimator": ((lambda v: v in _estimators()),
@@ -363,15 +365,21 @@ def _analyze_cross(a):
 
 
 def _tune_cross(a):
-    if getattr(a, "loop_draws", False) and a.frf is None:
-        raise ValueError("hapid tune --loop-draws needs the measured FRF (--frf)")
-    if a.samples is None and a.device is None and not getattr(a, "loop_draws", False):
-        raise ValueError(
-            "hapid tune needs --samples, --device, or both (or --loop-draws with --frf)"
-        )
+    loop = getattr(a, "loop_draws", False) or getattr(a, "draws", "auto") == "loop_gp"
+    if loop and a.frf is None and a.samples is None:
+        raise ValueError("hapid tune --draws loop_gp needs the measured FRF (--frf, or --samples "
+                         "from hapid posterior, which stores it)")  # fmt: skip
+    if getattr(a, "draws", "auto") == "params" and a.samples is None:
+        raise ValueError("hapid tune --draws params needs --samples")
+    if a.samples is None and a.device is None and a.frf is None:
+        raise ValueError("hapid tune needs --samples, --frf, --device, or a combination")
 
 
 def _robust_cross(a):
+    if a.samples is None and a.frf is None:
+        raise ValueError("give --samples (hapid posterior) or --frf (the measured FRF), or both")
+    if a.draws == "params" and a.samples is None:
+        raise ValueError("--draws params checks the samples' own plants: give --samples")
     if len(a.model) > 1 and a.out is not None and Path(a.out).suffix.lower() != ".json":
         raise ValueError(f"--out must be a .json file, got {a.out}")
 

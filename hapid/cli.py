@@ -400,19 +400,19 @@ def cmd_robust(a):
     from .uncertainty._files import side_by_side
 
     if len(a.model) == 1:
-        res = robust_from_files(a.samples, a.model[0], a.out, gm_db=a.gm_db, pm_deg=a.pm_deg,
-                                max_samples=a.max_samples, device=a.device, n_subjects=a.subjects,
-                                metrics=_robust_metrics(a))  # fmt: skip
+        res = robust_from_files(a.samples, a.model[0], a.out, **_robust_kw(a))
         print(to_json(res)[:4000])
+        print(_draws_line(res["posterior"]["draws"]))
         for batch in ("posterior", "device"):
             if res.get(batch) is not None and not res[batch]["passed"]:
                 print(f"{batch}: NOT passed — " + "; ".join(res[batch]["reasons"]))
     else:
-        res = {Path(m).stem: robust_from_files(a.samples, m, None, gm_db=a.gm_db, pm_deg=a.pm_deg,
-                                               max_samples=a.max_samples, device=a.device,
-                                               n_subjects=a.subjects, metrics=_robust_metrics(a))
-               for m in a.model}  # fmt: skip
+        res = {
+            Path(m).stem: robust_from_files(a.samples, m, None, **_robust_kw(a)) for m in a.model
+        }
         print(side_by_side(res))
+        for name, r in res.items():
+            print(f"{name}: {_draws_line(r['posterior']['draws'])}")
         if a.out:
             from .io import save_json
 
@@ -427,12 +427,31 @@ def _robust_metrics(a):
     return "all" if a.all_metrics else ()
 
 
+def _robust_kw(a) -> dict:
+    """The options of ``hapid robust`` for :func:`hapid.uncertainty.robust_from_files`."""
+    return {"frf_path": a.frf, "draws": a.draws, "gm_db": a.gm_db, "pm_deg": a.pm_deg,
+            "max_samples": a.max_samples, "device": a.device, "n_subjects": a.subjects,
+            "metrics": _robust_metrics(a)}  # fmt: skip
+
+
+def _draws_line(d: dict) -> str:
+    """One line saying which draws the posterior check used and what they cover."""
+    if d["draws"] != "loop_gp":
+        return "draws: " + d["note"]
+    lo, hi = d["measured_hz"]
+    line = (f"draws: loop GP conditioned on the measured FRF {lo:g}–{hi:g} Hz "
+            f"(ℓ = {d['ell']:.2g} in ln ω); loop gain above {hi:g} Hz ≤ {d['beyond_loop_gain']:.3g}")  # fmt: skip
+    if not d["beyond_covered"]:
+        line += (f" — WARNING: above 0.5 there; the draws are the model's own plant above {hi:g} Hz, "
+                 "so they do not cover the loop there (measure the FRF higher, or lower g there)")  # fmt: skip
+    return line
+
+
 def _robust_worker(a):
     from .uncertainty import robust_from_files
 
     for m in a.model:
-        robust_from_files(a.samples, m, None, gm_db=a.gm_db, pm_deg=a.pm_deg, max_samples=a.max_samples,
-                          device=a.device, n_subjects=a.subjects, metrics=_robust_metrics(a))  # fmt: skip
+        robust_from_files(a.samples, m, None, **_robust_kw(a))
 
 
 def _register_stages(sub):
@@ -478,10 +497,12 @@ def _register_stages(sub):
     po.add_argument("--steps", type=int, help="emcee steps (default: run to 50 τ)")
     po.add_argument("--samples", type=int, default=4000, help="Laplace draws")
     po.add_argument("--f-max-hz", type=float, default=40.0)
-    po.add_argument("--model-error", choices=["white", "gp", "gp_corr", "none"], default="white",
-                    help="model-error term: white (independent per frequency, default), gp (smooth "
-                         "random function of log-frequency, marginalized), gp_corr (gp with "
-                         "correlated hand/mechanism errors, docs/posterior.md), none")  # fmt: skip
+    po.add_argument("--model-error", choices=["white", "gp", "gp_corr", "none"], default="gp_corr",
+                    help="model-error term: gp_corr (default: the misfit of Z_H and Z_M as correlated "
+                         "smooth random functions of frequency, marginalized; its 90 %% band of P "
+                         "covers held-out frequencies of misspecified devices, docs/conventions.md "
+                         "'Posterior'), gp (independent hand/mechanism GPs), white (independent per "
+                         "frequency: bands 2-6x too wide), none")  # fmt: skip
     po.add_argument("--gp-hyper", choices=["map", "marginal", "sample"], default=None,
                     help="gp hyperparameters: map (held at the joint posterior mode; gp default), "
                          "marginal (mode of their marginal, M, B, K integrated out; gp_corr default) "
@@ -496,7 +517,21 @@ def _register_stages(sub):
 
     ro = sub.add_parser("robust", help="robust-margin check of a nominal controller over samples",
                         epilog="example: hapid robust --samples samples.npz --model model.npz --device cu5 --out robust.json")  # fmt: skip
-    ro.add_argument("--samples", required=True)
+    ro.add_argument(
+        "--samples",
+        help="posterior samples file (hapid posterior; it also stores "
+        "the measured FRF the loop draws need)",
+    )
+    ro.add_argument(
+        "--frf",
+        help="the measured FRF file (whole range): draws of the loop are "
+        "conditioned on it (default: the FRF the samples file stores)",
+    )
+    ro.add_argument("--draws", default="auto", choices=["auto", "loop_gp", "params"],
+                    help="loop_gp: draws of Q = P P̂⁻¹ conditioned on the measured FRF "
+                    "(calibrated where the model class is wrong); params: the samples' "
+                    "second-order plants (parameter uncertainty only); auto (default): loop_gp "
+                    "when a measured FRF is known")  # fmt: skip
     ro.add_argument("--model", required=True, action="append",
                     help="nominal model the controller is designed from; repeat to compare "
                     "controllers side by side (e.g. --model wls.npz --model nls.npz)")  # fmt: skip
@@ -505,7 +540,12 @@ def _register_stages(sub):
     ro.add_argument("--subjects", type=int, default=0, help="virtual subjects for --device")
     ro.add_argument("--gm-db", type=float, default=6.0)
     ro.add_argument("--pm-deg", type=float, default=30.0)
-    ro.add_argument("--max-samples", type=int, default=1000)
+    ro.add_argument(
+        "--max-samples",
+        type=int,
+        default=1000,
+        help="draws checked (posterior samples used, or loop draws made)",
+    )
     ro.add_argument("--all-metrics", action="store_true",
                     help="also the disk margin and the peak of σ̄(T) (≈ 2× the time per plant)")  # fmt: skip
     ro.add_argument("--processes", type=int, default=None, help=_PROCESSES_HELP)
@@ -571,23 +611,20 @@ def uncertified_warning(row: dict) -> str:
     certify it (``certified`` False, :func:`hapid.tune._evidence.certificate`), else ``""``."""
     if row.get("certified", True):
         return ""
-    return (f"WARNING: the returned g is NOT certified by the evidence (measured min σ̲(I + L) "
-            f"{row.get('frf_min_sigma_I_plus_L', float('nan')):.3g}, floor 0.5; loop gain beyond "
+    return (f"WARNING: the returned g is NOT certified by the evidence (measured loci min |1 + λ| "
+            f"{row.get('frf_min_loci_distance', float('nan')):.3g}, floor 0.5; loop gain beyond "
             f"{row.get('evidence_hz', float('nan')):.3g} Hz {row.get('beyond_loop_gain', float('nan')):.3g}, "
             "bound 0.5; nominal loop stable: "
             f"{row.get('nominal_stable')}): the measured FRF cannot exclude a crossing of −1 "
             "between its frequencies, so the real loop may be unstable. Measure the FRF densely "
-            "around the crossover and tune on it (hapid tune --loop-draws --frf).")  # fmt: skip
+            "around the crossover and tune on it (hapid simulate --freqs 1,2,...).")  # fmt: skip
 
 
 def cmd_tune(a):
 
     from .tune import tune_from_files
 
-    if a.loop_draws and a.frf is None:
-        raise CLIError("hapid tune --loop-draws needs the measured FRF (--frf)")
-    if a.samples is None and a.device is None and not a.loop_draws:
-        raise CLIError("hapid tune needs --samples, --device, or both (or --loop-draws with --frf)")
+    draws = "loop_gp" if a.loop_draws else a.draws
     import time
 
     t = time.perf_counter()
@@ -603,7 +640,7 @@ def cmd_tune(a):
                           n_holdout=a.n_holdout, quantile=a.quantile, n_subjects=a.subjects,
                           seed=a.seed, max_steps=a.max_steps, keep_dc_gain=not a.free_dc,
                           model_error_draws=a.predictive, evidence_bandwidth=a.evidence_bandwidth,
-                          draw_family="loop_gp" if a.loop_draws else "samples")  # fmt: skip
+                          draw_family=draws)  # fmt: skip
     r = res["result"]
     print(res.get("decision", ""))
     print(f"tuned in {r.wall_s:.1f} s: claimed robust bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, "
@@ -672,9 +709,13 @@ def _register_tune(sub):
     tu.add_argument("--evidence-bandwidth", action="store_true",
                     help="the measured FRF (--frf) claims the bandwidth, the draws keep the margins (chance "
                     "constraint); default: the median draw claims it")  # fmt: skip
-    tu.add_argument("--loop-draws", action="store_true",
-                    help="tune and re-check on draws of Q = P P̂⁻¹ conditioned on the measured FRF (--frf; "
-                    "hapid.tune._loopgp) instead of posterior samples")  # fmt: skip
+    tu.add_argument("--draws", default="auto", choices=["auto", "loop_gp", "params"],
+                    help="what the design is tuned and re-checked on: loop_gp: draws of Q = P P̂⁻¹ "
+                    "conditioned on the measured FRF (--frf, or the FRF the samples file stores; "
+                    "calibrated where the model class is wrong: benchmarks/calibrate_robust.py); params: "
+                    "the posterior samples' second-order plants; auto (default): loop_gp when a measured "
+                    "FRF is known")  # fmt: skip
+    tu.add_argument("--loop-draws", action="store_true", help="the same as --draws loop_gp")
     tu.add_argument("--extra-lag", type=float, nargs="+", metavar="HZ",
                     help="tune the paper g plus a lag/lead pair at each of these frequencies (Hz; zero = "
                     "pole at the start, so the start is the paper g): more freedom in g's shape")  # fmt: skip

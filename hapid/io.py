@@ -917,7 +917,8 @@ def save_samples(path, ps) -> Path:
     """Write posterior samples (:class:`hapid.uncertainty.PosteriorSamples`) to ``.npz``:
     ``samples (S, d)``, ``log_prob (S,)``, ``n``, ``names``, ``omega_ref`` (rad/s), ``z_ref``,
     ``method``, the scalar diagnostics as ``diag_*`` and the model-error predictive data
-    (``pred_*``: what the GP model error needs to predict at new frequencies). A path without the ``.npz`` suffix
+    (``pred_*``: what the GP model error needs to predict at new frequencies) and the whole
+    measured FRF (``meas_omega``, ``meas_Z_H``, ``meas_Z_T``: the loop draws' data). A path without the ``.npz`` suffix
     gets it appended (as ``numpy.savez`` does); the path written is returned."""
     path = Path(path)
     if path.suffix != ".npz":
@@ -939,6 +940,7 @@ def save_samples(path, ps) -> Path:
     arrays |= {
         f"pred_{k}": np.asarray(v) for k, v in (getattr(ps, "predictive", None) or {}).items()
     }
+    arrays |= {f"meas_{k}": np.asarray(v) for k, v in (getattr(ps, "measured", None) or {}).items()}
     return _atomic_write(path, lambda fh: np.savez(fh, **arrays))
 
 

@@ -55,6 +55,33 @@ def test_mismatch_bound_and_certificate_match_numpy():
         evidence_from_frf(_frf(model, 1.0), model, kappa=1.5)
 
 
+def test_certificate_judges_the_measured_loci_like_the_analysis():
+    """A non-normal measured plant P = A P̂ (L = g A): the certificate's loci distance is
+    numpy's min |1 + g λ_i(A)|, it is never below the return difference σ̲(I + g A), and
+    ``certified`` follows the loci — the rule of the tuner's disc and of the loci margins —
+    where the two figures sit on opposite sides of the floor."""
+    model = _model(2, 0)
+    A = np.array([[1.0, 2.5], [0.0, 1.0]])  # eigenvalues 1, 1; far from normal
+    s = 1j * TWO_PI * F_HZ
+    data = {
+        "omega": TWO_PI * F_HZ,
+        "Z_H": A @ np.asarray(model.Z_H(s)),
+        "Z_T": np.asarray(model.Z_T(s)),
+    }
+    ev = evidence_from_frf(data, model)
+    g = Compensator.paper()
+    gv = np.asarray(g(s))
+    loci = np.min(np.abs(1.0 + gv[:, None] * np.linalg.eigvals(A)[None]))
+    sig = np.min(np.linalg.svd(np.eye(2) + gv[:, None, None] * A, compute_uv=False)[:, -1])
+    cert = certificate(ev, model, g)
+    assert cert["frf_min_loci_distance"] == pytest.approx(loci, rel=1e-9)
+    assert cert["frf_min_sigma_I_plus_L"] == pytest.approx(sig, rel=1e-9)
+    assert sig < 0.5 <= loci  # the case where the two rules disagree
+    assert cert["certified"] == bool(
+        cert["nominal_stable"] and cert["beyond_loop_gain"] <= ev.kappa
+    )
+
+
 def test_small_gain_fixes_the_nyquist_phase_beyond_the_evidence():
     """The invariant behind the method: any two loops with σ̄(L) ≤ κ < 1 on ω ≥ ω_e collect
     the same net phase of det(I + L) there, however their phases differ (a delay, a mode)."""
@@ -150,6 +177,7 @@ def test_cli_route_tuned_g_is_stable_on_a_device_not_used_for_tuning(tmp_path):
     from hapid.cli import main
     from hapid.device import cu5_soft
     from hapid.tune import load_design, true_plant_loop
+    from hapid.uncertainty import load_samples
 
     d = tmp_path
     for argv in (["simulate", "--device", "cu5_soft", "--out", str(d / "run.npz")],
@@ -171,14 +199,18 @@ def test_cli_route_tuned_g_is_stable_on_a_device_not_used_for_tuning(tmp_path):
     assert t["stable"], t
     assert json.loads((d / "a.json").read_text())["stable"]
     assert "evidence" in info["families"] and info["families"]["evidence"]["source"] == "frf"
-    # the default evidence without --frf: the samples' fit data (1–40 Hz); small gain from 40 Hz
+    # without --frf: the measured FRF the samples file stores (every frequency, 1–100 Hz) is the
+    # evidence and the draws are loop draws conditioned on it
+    assert np.array_equal(
+        load_samples(d / "s.npz").measured["omega"], io.load_frf(d / "frf.npz").omega
+    )
     assert main(["tune", "--model", str(d / "nls.npz"), "--samples", str(d / "s.npz"), "--n-train", "24",
                  "--n-holdout", "60", "--max-steps", "120", "--out", str(d / "d2.npz"),
                  "--report", str(d / "t2.json")]) == 0  # fmt: skip
     g2, _ = load_design(d / "d2.npz")
     assert true_plant_loop(g2, model, cu5_soft())["stable"]
     assert json.loads((d / "t2.json").read_text())["tuned"]["evidence_hz"] == pytest.approx(
-        40.0, rel=0.01
+        100.0, rel=0.01
     )
     rep = json.loads((d / "tune.json").read_text())
     assert {"certified", "beyond_loop_gain", "frf_min_sigma_I_plus_L"} <= set(rep["tuned"])
@@ -222,7 +254,7 @@ def test_uncertified_design_gets_a_warning_line():
     design is not certified, and nothing when it is."""
     from hapid.cli import uncertified_warning
 
-    row = {"certified": False, "frf_min_sigma_I_plus_L": 0.476, "beyond_loop_gain": 0.48,
+    row = {"certified": False, "frf_min_loci_distance": 0.476, "beyond_loop_gain": 0.48,
            "evidence_hz": 100.0, "nominal_stable": True}  # fmt: skip
     w = uncertified_warning(row)
     assert w.startswith("WARNING") and "NOT certified" in w and "0.476" in w and "100 Hz" in w
@@ -255,3 +287,25 @@ def test_certified_gain_is_the_largest_gain_the_evidence_certifies():
     assert a is not None and 0.0 < a < 1.0
     assert certificate(ev, truth, scaled(a))["certified"]
     assert not certificate(ev, truth, scaled(min(1.0, 1.1 * a)))["certified"]
+
+
+def test_fallback_prefers_certified_candidates_at_the_chance_level():
+    """The certified fallback's choice (hapid.tune._recipe.pick_fallback): a candidate at the
+    chance level wins over one below it; with none at it a certified chosen design is kept
+    (lowering the gain would trade one failed figure for another); an uncertified chosen
+    design is replaced by the better certified candidate; no candidate, no change."""
+    from hapid.tune._recipe import pick_fallback
+
+    def row(frac, bw):
+        return {"certified": True, "posterior_frac_meeting_margins": frac,
+                "posterior_iso_bandwidth_hz_q50": bw}  # fmt: skip
+
+    low, high = ("start", 0.2, None, row(0.10, 0.7)), ("tuned", 0.5, None, row(0.99, 3.0))
+    assert pick_fallback([low, high], {"certified": False}, 0.975)[0] == "tuned"
+    assert pick_fallback([high, low], {"certified": True}, 0.975)[0] == "tuned"
+    assert pick_fallback([low], {"certified": True}, 0.975) is None  # keep the chosen g
+    assert pick_fallback([low], {"certified": False}, 0.975)[0] == "start"
+    assert pick_fallback([], {"certified": False}, 0.975) is None
+    # two below the level, chosen uncertified: the better one by no_worse (more draws meet)
+    a, b = ("start", 0.2, None, row(0.10, 0.7)), ("tuned", 0.3, None, row(0.50, 0.5))
+    assert pick_fallback([a, b], {"certified": False}, 0.975)[0] == "tuned"

@@ -1,4 +1,4 @@
-"""Loop-coordinate draws (hapid.tune._loopgp): the GP conditional against a dense numpy
+"""Loop-coordinate draws (hapid.uncertainty._loopgp): the GP conditional against a dense numpy
 solve, the closed-form leave-one-out against refitting without each point, the draws'
 moments against the conditional, the continuations beyond the data, calibration on a truth
 drawn from the GP itself, and the plants handing back Q to the tuner's scenarios."""
@@ -8,7 +8,7 @@ import pytest
 
 from hapid._constants import TWO_PI
 from hapid.tune import make_scenarios
-from hapid.tune._loopgp import (
+from hapid.uncertainty._loopgp import (
     TOP_TAPER,
     LoopGP,
     _loo,
@@ -142,7 +142,7 @@ def test_cli_loop_draws_without_frf_is_a_clean_error(tmp_path):
 
     write_valid_files(tmp_path)
     assert_clean_error(["tune", "--model", "model.npz", "--loop-draws", "--out", "d.npz"], tmp_path,
-                       "--loop-draws needs the measured FRF")  # fmt: skip
+                       "--draws loop_gp needs the measured FRF")  # fmt: skip
 
 
 def test_robust_design_loop_gp_needs_an_frf():

@@ -62,13 +62,24 @@ def design_info(out: dict) -> dict:
             "table": out.get("table", {})}  # fmt: skip
 
 
+DRAWS = ("auto", "loop_gp", "params")
+
+
 def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf=None,
-                    **options) -> dict:  # fmt: skip
+                    draw_family: str = "auto", **options) -> dict:  # fmt: skip
     """Load a model (and samples, and the measured FRF ``frf`` — the evidence), run
-    :func:`.robust_design`, write the design file."""
+    :func:`.robust_design`, write the design file.
+
+    Without ``frf`` the measured FRF a samples file from ``hapid posterior`` stores
+    (``PosteriorSamples.measured``, every measured frequency) is the evidence. ``draw_family``:
+    ``"loop_gp"`` (draws of ``Q = P P̂⁻¹`` conditioned on that FRF), ``"params"`` (the samples'
+    own plants; also ``"samples"``) or ``"auto"`` (default: ``loop_gp`` when a measured FRF is
+    known, else the samples)."""
     from .. import io
     from ._recipe import robust_design
 
+    if draw_family not in DRAWS + ("samples",):
+        raise ValueError(f"draw_family must be one of {DRAWS}, got {draw_family!r}")
     model = io.load_model(model_path)
     if frf is not None:
         options["frf"] = io.load_frf(frf)
@@ -76,7 +87,17 @@ def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf
     if samples_path is not None:
         from ..uncertainty import load_samples
 
-        samples = load_samples(samples_path)
+        samples = load_samples(samples_path, n=model.n)
+        if frf is None and samples.measured is not None:
+            options["frf"] = samples.measured
+    if draw_family == "auto":
+        draw_family = "loop_gp" if "frf" in options else "samples"
+    elif draw_family == "params":
+        draw_family = "samples"
+    if draw_family == "loop_gp" and "frf" not in options:
+        raise ValueError("loop draws need the measured FRF: give an FRF file, or a samples file "
+                         "written by hapid posterior (it stores the FRF)")  # fmt: skip
+    options["draw_family"] = draw_family
     dev = None
     if device is not None:
         from ..device import preset

@@ -202,7 +202,7 @@ def robust_design(
 
     ``draw_family="loop_gp"``: the training and held-out plants are draws of the loop
     coordinate ``Q = P P̂⁻¹`` itself, conditioned on the whole measured FRF
-    (:mod:`hapid.tune._loopgp`: a GP of ``Q − I`` in ln ω, hyperparameters by leave-one-out;
+    (:mod:`hapid.uncertainty._loopgp`: a GP of ``Q − I`` in ln ω, hyperparameters by leave-one-out;
     ``frf`` required, ``samples`` not used) instead of posterior draws of the second-order
     fit. Calibrated in loop coordinates on cu5 and tripod3 + 2 ms where the gp posterior's
     draws are not (benchmarks/calibrate_loop.py, docs/robust-design.md).
@@ -277,7 +277,7 @@ def robust_design(
     hold_models = None
     omc = posterior_grid(n_freq)
     if draw_family == "loop_gp":
-        from ._loopgp import fit_loop_gp, loop_gp_plants
+        from ..uncertainty._loopgp import fit_loop_gp, loop_gp_plants
 
         get = (lambda k: src[k]) if isinstance(src, dict) else (lambda k: getattr(src, k))  # noqa: E731
         om_e = np.asarray(get("omega"), dtype=float)
@@ -416,7 +416,11 @@ def robust_design(
             out["kept_start"] = True
             out["result"] = dataclasses.replace(res, g=g0, x=res.x0)
         chosen = out["table"]["start" if out["kept_start"] else "tuned"]
-        if ev_chk is not None and not chosen.get("certified", True) and certified_fallback:
+        if (
+            ev_chk is not None
+            and certified_fallback
+            and not (chosen.get("certified", True) and _meets_chance(chosen, quantile))
+        ):
             fb = _certified_fallback(out, g0, res, ev_chk, model, hold_models, device, variants,
                                      omega_c, req, quantile, with_tuned=ok_tr, chosen=chosen)  # fmt: skip
             if fb is not None:
@@ -430,7 +434,7 @@ def certified_gain(
 ) -> float | None:
     """Largest ``α ≤ 1`` (bisection in log α) at which ``g`` with its gain ``k`` scaled by
     ``α`` is certified by the evidence (:func:`._evidence.certificate`: nominal loop stable,
-    measured ``min σ̲(I + L) ≥ floor``, loop gain beyond the FRF ≤ κ); ``None`` if not even
+    measured loci ``min |1 + λ| ≥ floor``, loop gain beyond the FRF ≤ κ); ``None`` if not even
     ``alpha_min`` is. Lower gain shrinks the loop everywhere, so the certificate's figures
     improve monotonically in practice (not assumed: the bisection keeps the last certified α)."""
     certified = lambda gg: certificate(ev, model, gg, floor=floor)["certified"]  # noqa: E731
@@ -441,13 +445,17 @@ def certified_gain(
 
 def _certified_fallback(out, g0, res, ev, model, hold_models, device, variants, omega_c, req,
                         quantile, *, with_tuned: bool = True, chosen: dict | None = None):  # fmt: skip
-    """Neither the start nor the tuned g is certified by the evidence: each with its gain
-    scaled down to the largest value the evidence certifies (:func:`certified_gain`),
-    re-checked like the others; the better of the two by :func:`no_worse` (both certified, so
-    the held-out draws decide). The tuned g only with ``with_tuned`` (it passed
-    :func:`training_no_worse`); a candidate that makes the nominal true plant unstable where
-    the ``chosen`` design's row has it stable is dropped. ``(result, row, decision)`` or
-    ``None`` when no candidate remains."""
+    """The chosen design is not certified by the evidence, or fails the held-out draws'
+    chance level (``quantile`` of them meeting the margins): the start and the tuned g, each
+    with its gain scaled down to the largest value the evidence certifies
+    (:func:`certified_gain`), re-checked like the others. A candidate certified *and* at the
+    chance level is preferred (the better of two by :func:`no_worse`); when none is, a
+    certified ``chosen`` design is kept (``None``: lowering the gain trades one failed
+    figure for another — it can move the crossover below the lowest measured frequency,
+    where the certificate sees nothing), else the better certified candidate is returned.
+    The tuned g only with ``with_tuned`` (it passed :func:`training_no_worse`); a candidate
+    that makes the nominal true plant unstable where the ``chosen`` design's row has it
+    stable is dropped. ``(result, row, decision)`` or ``None``."""
     cands = []
     pairs = (("start", g0), ("tuned", out["candidate"].g)) if with_tuned else (("start", g0),)
     for name, g in pairs:
@@ -461,21 +469,52 @@ def _certified_fallback(out, g0, res, ev, model, hold_models, device, variants, 
         if (chosen or {}).get("true_stable") and not row.get("true_stable", True):
             continue
         cands.append((name, a, gs, row))
-    if not cands:
+    best = pick_fallback(cands, chosen, quantile)
+    if best is None:
         return None
-    best = cands[0]
-    if len(cands) == 2 and no_worse(cands[0][3], cands[1][3])[0]:
-        best = cands[1]
     name, a, gs, row = best
     pm = ParamMap.from_template(gs)
-    why = (f"neither the start nor the tuned g is certified by the evidence: returned the "
+    head = ("neither the start nor the tuned g is certified by the evidence"
+            if not (chosen or {}).get("certified", False)
+            else "the chosen g fails the held-out draws' chance level")  # fmt: skip
+    why = (f"{head}: returned the "
            f"{name} g with its gain scaled by {a:.3g}, the largest the evidence certifies "
-           f"(measured min σ̲(I + L) {row['frf_min_sigma_I_plus_L']:.3g}, loop gain beyond "
+           f"(measured min |1 + λ| {row['frf_min_loci_distance']:.3g}, loop gain beyond "
            f"{row['evidence_hz']:.3g} Hz {row['beyond_loop_gain']:.3g})")  # fmt: skip
     return dataclasses.replace(res, g=gs, x=np.asarray(pm.vector(gs))), row, why
 
 
-FRF_SIGMA_FLOOR = 0.5  # σ̲(I + L) ≥ 0.5 ⇒ |GM| ≥ 6 dB and |PM| ≥ 29° at every loop (disk)
+def pick_fallback(cands: list, chosen: dict | None, quantile: float):
+    """The fallback's choice among certified candidates ``(name, α, g, row)`` (rows of
+    :func:`.table_row` plus the certificate): those whose held-out draws meet the margins at
+    the chance level first (of two, the later one when :func:`no_worse` prefers it); none
+    such and a certified ``chosen`` row: ``None`` (keep it); else the better of all."""
+    good = [c for c in cands if _meets_chance(c[3], quantile)]
+    if not good and (chosen or {}).get("certified", False):
+        return None
+    cands = good or cands
+    if not cands:
+        return None
+    if len(cands) == 2 and no_worse(cands[0][3], cands[1][3])[0]:
+        return cands[1]
+    return cands[0]
+
+
+def _meets_chance(row: dict, quantile: float) -> bool:
+    """Do the held-out posterior draws of a :func:`.table_row` meet the margins at the
+    chance level (True when the row has no posterior draws)?"""
+    return row.get("posterior_frac_meeting_margins", 1.0) >= quantile - 1e-9
+
+
+FRF_SIGMA_FLOOR = 0.5  # min |1 + λ_i| ≥ 0.5 on the measured loop ⇒ loci GM ≥ 6 dB, PM ≥ 29° there
+_FRF_LABEL = {"frf_min_loci_distance": "|1 + λ|", "frf_min_sigma_I_plus_L": "σ̲(I+L)"}
+
+
+def _frf_key(*rows) -> str:
+    """The measured-FRF figure rows are compared on: the loci distance (the certificate's
+    rule) when every row has it, else the return difference σ̲(I + L)."""
+    k = "frf_min_loci_distance"
+    return k if all(k in r for r in rows) else "frf_min_sigma_I_plus_L"
 
 
 def frf_return_difference(data: dict, model, g: Compensator) -> float:
@@ -531,10 +570,10 @@ def no_worse(start: dict, tuned: dict) -> tuple[bool, str]:
             return False, ("kept the start: it holds on the evidence (measured FRF, small gain "
                            "beyond it) and the tuned g does not")  # fmt: skip
         if tuned[c] and not start[c]:
-            return True, ("tuned g kept: it holds on the evidence (measured FRF min σ̲(I+L) "
-                          f"{tuned['frf_min_sigma_I_plus_L']:.3g}, loop gain beyond "
+            return True, ("tuned g kept: it holds on the evidence (measured FRF min |1 + λ| "
+                          f"{tuned[_frf_key(tuned)]:.3g}, loop gain beyond "
                           f"{tuned['evidence_hz']:.3g} Hz ≤ {tuned['beyond_loop_gain']:.3g}) and the "
-                          f"start does not (min σ̲(I+L) {start['frf_min_sigma_I_plus_L']:.3g}, gain "
+                          f"start does not (min |1 + λ| {start[_frf_key(start)]:.3g}, gain "
                           f"beyond {start['beyond_loop_gain']:.3g})")  # fmt: skip
         if not tuned[c]:  # neither certified: the tuned g must be no worse on each figure
             if start.get("nominal_stable", True) and not tuned.get("nominal_stable", True):
@@ -545,15 +584,15 @@ def no_worse(start: dict, tuned: dict) -> tuple[bool, str]:
                                f"({tuned['evidence_hz']:.3g} Hz) the tuned loop gain bound "
                                f"{tuned['beyond_loop_gain']:.3g} exceeds the start's "
                                f"{start['beyond_loop_gain']:.3g}")  # fmt: skip
-            k = "frf_min_sigma_I_plus_L"
+            k = _frf_key(start, tuned)
             if tuned[k] < start[k] - 1e-9:
                 return False, (f"kept the start: neither is certified, and on the measured FRF the "
-                               f"tuned loop comes closer to −1 (min σ̲(I+L) {tuned[k]:.3g} against "
+                               f"tuned loop comes closer to −1 (min {_FRF_LABEL[k]} {tuned[k]:.3g} against "
                                f"{start[k]:.3g})")  # fmt: skip
-    k = "frf_min_sigma_I_plus_L"
+    k = _frf_key(start, tuned)
     if k in start and k in tuned and tuned[k] < min(start[k], FRF_SIGMA_FLOOR) - 1e-9:
         return False, (f"kept the start: on the data's own FRF the tuned g brings the loop closer to "
-                       f"−1 (min σ̲(I+L) {tuned[k]:.3g} against {start[k]:.3g} for the start)")  # fmt: skip
+                       f"−1 (min {_FRF_LABEL[k]} {tuned[k]:.3g} against {start[k]:.3g} for the start)")  # fmt: skip
     gains = []
     for fam in ("posterior", "variants"):
         key = f"{fam}_frac_meeting_margins"

@@ -11,6 +11,9 @@
   model-error term (GP conditional on the fit residuals); :func:`band_calibration`.
 - :func:`robust_check`, :func:`device_plants` → :class:`RobustReport` — P(stable), margin
   and bandwidth quantiles of a fixed controller over posterior samples or device variants.
+- :func:`loop_gp_check` — the robust check on draws of the loop ``Q = P P̂⁻¹`` conditioned
+  on the whole measured FRF (:func:`fit_loop_gp`, :func:`loop_gp_plants`): calibrated where
+  the model class is wrong (``hapid robust``'s default when the FRF is known).
 - :func:`pose_study` — nominal vs re-identified controller over a grid of stylus poses.
 """
 
@@ -25,6 +28,11 @@ from ._likelihood import make_log_posterior as make_log_posterior
 from ._likelihood import matrix_to_theta as matrix_to_theta
 from ._likelihood import param_names as param_names
 from ._likelihood import theta_to_matrix as theta_to_matrix
+from ._loopgp import LoopGP as LoopGP
+from ._loopgp import fit_loop_gp as fit_loop_gp
+from ._loopgp import loop_gp_check as loop_gp_check
+from ._loopgp import loop_gp_plants as loop_gp_plants
+from ._loopgp import measured_data as measured_data
 from ._poses import identify as identify
 from ._poses import pose_grid as pose_grid
 from ._poses import pose_study as pose_study

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
+
+import numpy as np
+
 from .. import _config  # noqa: F401  (float64)
 
 
@@ -35,6 +39,7 @@ def posterior_from_files(
     from ..fit import fit_nls
     from ..io import load_frf
     from ._likelihood import boundary_fixed, make_log_posterior
+    from ._loopgp import measured_data
     from ._sampler import posterior_laplace_samples, sample_posterior, save_samples
 
     if method not in ("emcee", "laplace"):
@@ -53,8 +58,12 @@ def posterior_from_files(
     else:
         ps = sample_posterior(post, nls, n_steps=n_steps, seed=seed, progress=progress,
                               backend_path=backend_path, **dict(sampler_options or {}))  # fmt: skip
+    ps = dataclasses.replace(ps, measured=measured_data(frf))
     save_samples(out_path, ps)
     return ps
+
+
+DRAWS = ("auto", "loop_gp", "params")
 
 
 def robust_from_files(
@@ -62,6 +71,8 @@ def robust_from_files(
     model_path,
     out_json=None,
     *,
+    frf_path=None,
+    draws: str = "auto",
     g=None,
     gm_db: float = 6.0,
     pm_deg: float = 30.0,
@@ -70,27 +81,61 @@ def robust_from_files(
     n_subjects: int = 0,
     pose_offsets=(),
     metrics=(),
+    seed: int = 0,
 ) -> dict:
-    """Samples file + nominal model file → robust-check summary (and optional JSON file).
+    """Samples file and/or measured FRF + nominal model file → robust-check summary (and
+    optional JSON file).
 
-    The controller is ``g Ẑ_T Ẑ_H⁻¹`` of the model file (``g`` default the paper's). With
-    ``device`` (a preset name, e.g. ``"cu5"``), the device-based check (nominal device,
+    The controller is ``g Ẑ_T Ẑ_H⁻¹`` of the model file (``g`` default the paper's). ``draws``:
+
+    - ``"loop_gp"``: ``max_samples`` draws of the loop ``Q = P P̂⁻¹`` conditioned on the whole
+      measured FRF (:func:`hapid.uncertainty.loop_gp_check`) — the FRF of ``frf_path``, else
+      the one a samples file from ``hapid posterior`` stores (``PosteriorSamples.measured``);
+    - ``"params"``: the posterior samples' own second-order plants (at most ``max_samples``):
+      parameter uncertainty only, not calibrated where the model class is wrong (delay,
+      unmodeled modes: benchmarks/calibrate_robust.py);
+    - ``"auto"`` (default): ``"loop_gp"`` when a measured FRF is known, else ``"params"``.
+
+    With ``device`` (a preset name, e.g. ``"cu5"``), the device-based check (nominal device,
     ``pose_offsets`` (dx, dy, dz) m, ``n_subjects`` virtual subjects) is added under
     ``"device"``. ``metrics``: as :func:`robust_check` (``"all"``: also the disk margin and
     the peak of σ̄(T); default: verdict, bandwidth and loci margins only — the others are
-    ``None``). Returns ``{"posterior": summary, "device": summary | None}``.
+    ``None``). Returns ``{"posterior": summary | {"draws": …}, "device": summary | None}``;
+    ``"draws"`` says which family was checked (and for ``loop_gp`` the GP, the measured band
+    and whether the loop gain above it is small enough for the draws to cover it).
     """
     from ..control import Compensator
-    from ..io import load_model, save_json
+    from ..io import load_frf, load_model, save_json
+    from ._loopgp import loop_gp_check
     from ._robust import device_plants, posterior_omega, robust_check
     from ._sampler import load_samples
 
+    if draws not in DRAWS:
+        raise ValueError(f"draws must be one of {DRAWS}, got {draws!r}")
     model = load_model(model_path)
-    ps = load_samples(samples_path, n=model.n)
+    ps = None if samples_path is None else load_samples(samples_path, n=model.n)
+    measured = load_frf(frf_path) if frf_path is not None else getattr(ps, "measured", None)
+    kind = draws if draws != "auto" else ("loop_gp" if measured is not None else "params")
     g = Compensator.paper() if g is None else g
-    out = {"posterior": robust_check(ps, (model, g), posterior_omega(), gm_db=gm_db, pm_deg=pm_deg,
-                                     max_samples=max_samples, metrics=metrics).summary(),
-           "device": None}  # fmt: skip
+    if kind == "loop_gp":
+        if measured is None:
+            raise ValueError("the robust check on loop draws needs the measured FRF: give an FRF "
+                             "file, or a samples file written by hapid posterior (it stores it)")  # fmt: skip
+        n_meas = np.shape(measured["Z_H"] if isinstance(measured, dict) else measured.Z_H)[-1]
+        if n_meas != model.n:
+            raise ValueError(
+                f"the measured FRF is for n = {n_meas} rods, the model for n = {model.n}"
+            )
+        rep, info = loop_gp_check(measured, model, g, n_draws=max_samples, seed=seed, gm_db=gm_db,
+                                  pm_deg=pm_deg, metrics=metrics)  # fmt: skip
+        post = rep.summary() | {"draws": info}
+    else:
+        if ps is None:
+            raise ValueError("the robust check on parameter draws needs a samples file")
+        post = robust_check(ps, (model, g), posterior_omega(), gm_db=gm_db, pm_deg=pm_deg,
+                            max_samples=max_samples, metrics=metrics, seed=seed).summary()  # fmt: skip
+        post["draws"] = {"draws": "params", "note": PARAMS_NOTE}
+    out = {"posterior": post, "device": None}
     if device is not None:
         from ..device import preset
 
@@ -98,8 +143,6 @@ def robust_from_files(
         poses = [dev.pose.moved(*o) for o in pose_offsets]
         # the sampled controller (as analyze/paper/tune close the loop with the device) on a
         # grid to fs/2, refined crossings: the nominal row is the single analysis's numbers
-        import numpy as np
-
         from .. import pipeline
         from .._grids import nyquist_grid
 
@@ -112,6 +155,13 @@ def robust_from_files(
     if out_json is not None:
         save_json(out_json, out)
     return out
+
+
+PARAMS_NOTE = (
+    "second-order parameter draws: parameter uncertainty only; where the model class is wrong "
+    "(delay, unmodeled modes) P(stable) does not track the true plant's verdict "
+    "(benchmarks/calibrate_robust.py) — give the measured FRF for loop draws"
+)
 
 
 def side_by_side(results: dict) -> str:

@@ -478,11 +478,17 @@ class LogPosterior(eqx.Module):
     # gp_corr with error_scale="element": per-element weights (E, N) of a_H, a_M
     w_H: Float[Array, "E N"] | None = None
     w_M: Float[Array, "E N"] | None = None
+    class_gamma: Float[Array, " 2"] | None = None  # error_scale="class": the γ held (fix_gp_hyper)
     error_scale: str = eqx.field(static=True, default="shared")  # :data:`ERROR_SCALES`
 
-    def error_amplitudes(self):
+    def error_amplitudes(self, hyper=None):
         """The gp_corr amplitudes ``(a_H, a_M)``: ``(N,)`` shared, or ``(E, N)`` per element
-        (scaled units)."""
+        (scaled units). With ``error_scale="class"`` and ``hyper`` of :data:`N_CLASS_HYPER`
+        numbers, the class weights of its last two (γ, :func:`class_weights`); otherwise the
+        weights held (``w_H, w_M``)."""
+        if self.error_scale == "class" and hyper is not None and hyper.shape[-1] >= N_CLASS_HYPER:
+            wH, wM = class_weights(hyper[N_GP_CORR_HYPER:N_CLASS_HYPER], self.n)
+            return self.a_H[None] * wH[:, None], self.a_M[None] * wM[:, None]
         if self.w_H is None:
             return self.a_H, self.a_M
         return self.a_H[None] * self.w_H, self.a_M[None] * self.w_M
@@ -687,6 +693,8 @@ class LogPosterior(eqx.Module):
             out["ref_theta"] = np.asarray(self.ref_theta)
         if self.kind == "gp_corr":
             out["error_scale"] = self.error_scale
+        if self.class_gamma is not None:
+            out["class_gamma"] = np.asarray(self.class_gamma)
         return out
 
     def split(self, xs):
@@ -809,7 +817,12 @@ def make_log_posterior(
       amplitude ``τ a(ω)`` (the RMS element size); ``"element"`` — element ``(i, j)`` has
       ``τ a(ω) w_ij(ω)`` with ``w_ij`` proportional to the size ``|K_ij| + ω|B_ij| + ω²|M_ij|``
       of the reference model's element (:func:`element_weights`; a relative error per
-      element, no new hyperparameter, same closed-form likelihood).
+      element, no new hyperparameter, same closed-form likelihood); ``"class"`` — element
+      ``(i, j)`` has ``τ a(ω) w_ij`` with ``w = 1`` on the diagonal and ``e^γ`` off it
+      (RMS 1; :func:`class_weights`), ``γ_H, γ_M`` learned at the marginal mode with the other
+      hyperparameters (``gp_hyper`` must be ``"marginal"`` or 12 numbers, the last two γ); then
+      the weights are held like ``"element"``'s. Not calibrated on every device
+      (docs/conventions.md "Posterior").
     - ``noise_corr``: correlation ρ ∈ (−1, 1) of the Z_H/Z_T measurement errors per element.
     - ``prior_scale``, ``log_tau_mean``, ``log_tau_sd``: the priors.
     - ``parameterization``: ``"matrix"`` (default; matrix entries on the PSD cone) or
@@ -928,10 +941,15 @@ def make_log_posterior(
     )
     if gp_hyper is None:  # the defaults: joint mode for gp, marginal mode for gp_corr
         gp_hyper = "marginal" if kind == "gp_corr" else "map"
+    if error_scale == "class" and isinstance(gp_hyper, str) and gp_hyper != "marginal":
+        raise ValueError("error_scale='class' learns γ at the marginal mode: gp_hyper must be "
+                         f"'marginal' or {N_CLASS_HYPER} numbers, got {gp_hyper!r}")  # fmt: skip
     if kind not in GP_KINDS or (isinstance(gp_hyper, str) and gp_hyper == "sample"):
         return post
     if isinstance(gp_hyper, str) and gp_hyper == "marginal":
         h0 = jnp.asarray(post.hyper_mean())
+        if error_scale == "class":
+            h0 = jnp.concatenate([h0, jnp.zeros(N_CLASS_HYPER - N_GP_CORR_HYPER)])
         gp_hyper, _ = marginal_hyper(post, h0)
         return fix_gp_hyper(post, gp_hyper)
     if isinstance(gp_hyper, str):
@@ -999,7 +1017,10 @@ def reference_amplitudes(ref_theta, scale: Scale, omega) -> tuple[np.ndarray, np
     return aH, aM
 
 
-ERROR_SCALES = ("shared", "element")
+ERROR_SCALES = ("shared", "element", "class")
+CLASS_NAMES = ("gamma_H", "gamma_M")  # error_scale="class": log off-diagonal / diagonal amplitude
+DEFAULT_GAMMA_SD = 2.0  # prior sd of each γ (mean 0: the shared scale)
+N_CLASS_HYPER = N_GP_CORR_HYPER + 2
 ELEMENT_FLOOR = 0.01  # element sizes floored at this × √(e_ii e_jj) (a model zero stays > 0)
 
 
@@ -1032,6 +1053,22 @@ def element_weights(ref_theta, scale: Scale, omega) -> tuple[np.ndarray, np.ndar
     return out[0], out[1]
 
 
+def class_weights(gamma, n: int):
+    """Per-element weights ``(w_H, w_M)``, each ``(E,)`` (``E = n²`` row-major, unitless), of
+    the gp_corr model-error amplitude with ``error_scale="class"``: ``1`` on the diagonal and
+    ``e^γ`` off it (``γ = (γ_H, γ_M)``, learned with the other hyperparameters at the mode of
+    their marginal posterior, prior ``γ ~ N(0, DEFAULT_GAMMA_SD²)``), divided by their RMS over
+    the elements — so ``τ a(ω)`` stays the RMS error size and ``γ = 0`` is the shared scale.
+    Four amplitudes (diagonal and off-diagonal of the hand and of the mechanism) instead of
+    two."""
+    off = jnp.asarray(1.0 - np.eye(n).reshape(-1))
+    out = []
+    for g in (gamma[0], gamma[1]):
+        w = jnp.exp(g * off)
+        out.append(w / jnp.sqrt(jnp.mean(w**2)))
+    return out[0], out[1]
+
+
 def boundary_fixed(nls_result) -> dict:
     """``{name: matrix}`` of the NLS fit's matrices at the PSD boundary (physical units,
     projected to PSD), to pass as ``fixed`` to :func:`make_log_posterior`."""
@@ -1060,6 +1097,15 @@ def fix_gp_hyper(post: LogPosterior, hyper) -> LogPosterior:
     if not (post.model_error and post.kind in GP_KINDS):
         raise ValueError("fix_gp_hyper: the posterior has no gp model error")
     h = jnp.asarray(hyper, dtype=jnp.float64)
+    if post.error_scale == "class":  # γ → per-element weights held fixed, the rest as gp_corr
+        if h.shape != (N_CLASS_HYPER,) or not bool(jnp.all(jnp.isfinite(h))):
+            raise ValueError(f"fix_gp_hyper: error_scale='class' needs {N_CLASS_HYPER} finite "
+                             f"hyperparameters (the last two γ_H, γ_M), got shape {h.shape}")  # fmt: skip
+        g = h[N_GP_CORR_HYPER:]
+        N = post.a_H.shape[0]
+        wH, wM = (jnp.broadcast_to(w[:, None], (w.shape[0], N)) for w in class_weights(g, post.n))
+        post = dataclasses.replace(post, w_H=wH, w_M=wM, class_gamma=g)
+        h = h[:N_GP_CORR_HYPER]
     full = N_GP_CORR_HYPER if post.kind == "gp_corr" else N_GP_HYPER
     if h.shape not in ((6,), (N_GP_HYPER,), (full,)) or not bool(jnp.all(jnp.isfinite(h))):
         raise ValueError(f"fix_gp_hyper: hyper must be 6, {N_GP_HYPER} or {full} finite "
@@ -1194,11 +1240,11 @@ _residual_design_jit = eqx.filter_jit(_residual_design)
 def _whiten(post: LogPosterior, h, y0, J):
     """``(L, z, W)``: the Cholesky factor of the gp_corr covariance at hyperparameters ``h``
     and the residual ``y0`` and design ``J`` whitened by it (``L⁻¹ y0``, ``L⁻¹ J``)."""
-    hf = jnp.concatenate([h, jnp.zeros(N_GP_CORR_HYPER - h.shape[0])])
+    hf = jnp.concatenate([h[:N_GP_CORR_HYPER], jnp.zeros(max(N_GP_CORR_HYPER - h.shape[0], 0))])
     if not post.warp:
         hf = hf.at[6:8].set(0.0)
     w = jnp.imag(post.s)
-    C = gp_corr_covariance(jnp.log(w), *post.error_amplitudes(), post.var_H, post.var_T,
+    C = gp_corr_covariance(jnp.log(w), *post.error_amplitudes(h), post.var_H, post.var_T,
                            post.noise_corr, hf)  # fmt: skip
     L = jnp.linalg.cholesky(C)
     z = jax.scipy.linalg.solve_triangular(L, y0[..., None], lower=True)[..., 0]
@@ -1250,8 +1296,10 @@ def _marginal_mode(post: LogPosterior, h0, y0, Jc, idx, q: int, max_steps):
 
     def neg(h, _):
         v = _log_marginal_compact(post, h, y0, Jc, idx, q) + prior.log_prior(
-            jnp.concatenate([x_th, h])
+            jnp.concatenate([x_th, h[:N_GP_CORR_HYPER]])
         )
+        if h.shape[0] > N_GP_CORR_HYPER:  # error_scale="class": γ ~ N(0, DEFAULT_GAMMA_SD²)
+            v = v - 0.5 * jnp.sum((h[N_GP_CORR_HYPER:] / DEFAULT_GAMMA_SD) ** 2)
         return -jnp.where(jnp.isfinite(v), v, -1e300)
 
     sol = optx.minimise(neg, optx.BFGS(rtol=1e-9, atol=1e-9), h0, max_steps=max_steps, throw=False)

@@ -289,6 +289,7 @@ def _gp_corr_errors(ps: PosteriorSamples, idx, ms, omega, rng):
     from ._likelihood import (
         GP_CORR_KERNEL,
         KERNELS,
+        class_weights,
         corr_warp,
         element_weights,
         gp_amplitudes,
@@ -318,9 +319,13 @@ def _gp_corr_errors(ps: PosteriorSamples, idx, ms, omega, rng):
     om_all = np.concatenate([om_fit, omega])
     u = jnp.asarray(np.log(om_all / float(np.asarray(ps.scale.omega_ref))))
     a_all = (np.concatenate([aH_f, aH_n]), np.concatenate([aM_f, aM_n]))  # (Nf + N,) each
-    if str(data.get("error_scale", "shared")) == "element":  # per element: (E, Nf + N)
+    scale_kind = str(data.get("error_scale", "shared"))
+    if scale_kind == "element":  # per element: (E, Nf + N)
         w = element_weights(np.asarray(data["ref_theta"]), ps.scale, om_all)
         a_all = tuple(a[None] * wi for a, wi in zip(a_all, w, strict=True))
+    elif scale_kind == "class":  # per element, constant in ω: the learned γ (class_weights)
+        w = class_weights(jnp.asarray(data["class_gamma"]), n)
+        a_all = tuple(a[None] * np.asarray(wi)[:, None] for a, wi in zip(a_all, w, strict=True))
     a_all = tuple(jnp.asarray(a) for a in a_all)
     M = Nf + N
 

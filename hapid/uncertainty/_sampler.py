@@ -116,6 +116,10 @@ class PosteriorSamples:
       the GP model error ``log_ell_H``, ``log_ell_M``, ``beta_H``, ``beta_M``).
     - ``predictive``: the fit data the model-error term is conditioned on
       (:meth:`LogPosterior.predictive_data`), or None (Laplace-NLS draws, old files).
+    - ``measured``: the whole measured FRF the posterior was built from (``omega (K,)``
+      rad/s, ``Z_H``, ``Z_T (K, n, n)``: every measured frequency, also above the fit band),
+      or None. The robust check and the tuner draw the loop from it
+      (:func:`hapid.uncertainty.loop_gp_check`).
     - ``log_prob``: ``(S,)`` log-posterior of each draw (NaN for Laplace draws).
     - ``scale``: the :class:`~hapid.fit.Scale` θ is expressed in.
     - ``n``: rods. ``names``: the ``d`` coordinate names.
@@ -129,6 +133,7 @@ class PosteriorSamples:
     names: tuple[str, ...]
     diagnostics: dict = dataclasses.field(default_factory=dict)
     predictive: dict | None = None  # LogPosterior.predictive_data(): fit data for predictions
+    measured: dict | None = None  # the whole measured FRF: omega, Z_H, Z_T
 
     def __post_init__(self):
         s = np.asarray(self.samples)
@@ -696,7 +701,21 @@ def load_samples(path, n: int | None = None) -> PosteriorSamples:
         names=tuple(str(x) for x in d["names"]),
         diagnostics=diag,
         predictive=_load_predictive(d, path, file_n) if "pred_kind" in d else None,
+        measured=_load_measured(d, path, file_n) if "meas_omega" in d else None,
     )
+
+
+def _load_measured(d: dict, path, n: int) -> dict:
+    out = {k: np.asarray(d[f"meas_{k}"]) for k in ("omega", "Z_H", "Z_T") if f"meas_{k}" in d}
+    K = np.shape(out.get("omega", ()))
+    for k in ("Z_H", "Z_T"):
+        if k not in out or np.shape(out[k]) != K + (n, n) or not np.all(np.isfinite(out[k])):
+            raise ValueError(
+                f"{path}: measured FRF {k!r} missing, not finite or not ({K[0] if K else 0}, {n}, {n})"
+            )
+    if len(K) != 1 or K[0] < 3 or np.any(np.diff(out["omega"]) <= 0) or out["omega"][0] <= 0:
+        raise ValueError(f"{path}: measured FRF omega must be ≥ 3 increasing positive frequencies")
+    return out
 
 
 def _load_predictive(d: dict, path, n: int) -> dict:

@@ -49,6 +49,7 @@ ENVELOPE_WIDTH = 0.35  # ln-ω half-width of the amplitude envelope's Gaussian s
 TOP_TAPER = 0.25  # ln-ω width of the taper of Δ to 0 above the highest measured frequency
 ELLS = tuple(np.geomspace(0.03, 3.0, 25))  # candidate length scales (ln ω)
 ETAS = (1e-6, 1e-4, 1e-3, 1e-2, 3e-2, 0.1, 0.3)  # candidate nuggets (relative to σ² a²)
+TWO_PI = 2.0 * np.pi
 
 
 def matern52(r):
@@ -198,3 +199,61 @@ def loop_gp_plants(gp: LoopGP, model, omega, n_draws: int, seed: int = 0) -> np.
     Q = loop_gp_draws(gp, omega, n_draws, seed)
     Ph = np.asarray(model.P(1j * jnp.asarray(omega, dtype=float)))
     return Q @ Ph[None]
+
+
+def measured_data(frf) -> dict:
+    """``{"omega" (K,) rad/s, "Z_H", "Z_T" (K, n, n)}`` (numpy) of an FRF: anything with
+    those attributes (:class:`hapid.experiment.FRF`) or keys (a samples file's ``measured``)."""
+    get = (lambda k: frf[k]) if isinstance(frf, dict) else (lambda k: getattr(frf, k))  # noqa: E731
+    return {k: np.asarray(get(k)) for k in ("omega", "Z_H", "Z_T")}
+
+
+def loop_gp_check(
+    measured,
+    model,
+    g,
+    *,
+    n_draws: int = 1000,
+    n_freq: int = 1000,
+    seed: int = 0,
+    gm_db: float = 6.0,
+    pm_deg: float = 30.0,
+    p_stable_required: float = 0.95,
+    metrics=(),
+):
+    """The robust check on draws of the loop conditioned on the measured FRF.
+
+    ``measured``: the FRF (:func:`measured_data` input: ``omega``, ``Z_H``, ``Z_T``, every
+    measured frequency); ``model``: the nominal model the controller ``G = g Ẑ_T Ẑ_H⁻¹``
+    inverts; ``g``: a :class:`hapid.control.Compensator`. ``n_draws`` plants ``Q_d P̂``
+    (:func:`loop_gp_plants`) on :func:`hapid._grids.continuous_grid` (``n_freq``), each
+    analysed by :func:`hapid.uncertainty.robust_check` (continuous controller, the same rule
+    as every loop analysis). Returns ``(report, info)``: the
+    :class:`~hapid.uncertainty.RobustReport` and a dict with the GP's ``ell``, ``eta``,
+    ``sigma2``, the measured band ``measured_hz`` ``[f₁, f_e]`` and the evidence figures of
+    :func:`hapid.tune.certificate` (``frf_min_sigma_I_plus_L``, ``beyond_loop_gain``,
+    ``certified``). Above ``f_e`` the draws are the model's own plant: stability there rests on
+    the small loop gain ``beyond_loop_gain`` (≤ κ = 0.5 covers it), which ``info`` reports
+    (``beyond_covered``).
+
+    Measured (benchmarks/calibrate_robust.py, three devices no one tuned on): the truth's
+    verdict is given with P(stable) ≥ 0.99 for every truth-stable controller and ≤ 0.86 for
+    every truth-unstable one (0 for all but a controller at the edge, GM −0.1 dB); second-order
+    parameter draws give 0.6–0.97 for both.
+    """
+    from .._grids import continuous_grid
+    from ..tune._evidence import certificate, evidence_from_frf, measured_plant
+    from ._robust import robust_check
+
+    data = measured_data(measured)
+    gp = fit_loop_gp(data["omega"], measured_plant(data["Z_H"], data["Z_T"]), model)
+    omega = continuous_grid(n_freq)
+    P = loop_gp_plants(gp, model, omega, int(n_draws), seed)
+    rep = robust_check(P, (model, g), omega, gm_db=gm_db, pm_deg=pm_deg,
+                       p_stable_required=p_stable_required, max_samples=None, metrics=metrics)  # fmt: skip
+    ev = evidence_from_frf(data, model)
+    cert = certificate(ev, model, g)
+    info = {"draws": "loop_gp", "ell": gp.ell, "eta": gp.eta, "sigma2": gp.sigma2,
+            "measured_hz": [float(data["omega"][0] / TWO_PI), float(data["omega"][-1] / TWO_PI)],
+            **cert, "beyond_covered": bool(cert["beyond_loop_gain"] <= ev.kappa + 1e-9)}  # fmt: skip
+    return rep, info
