@@ -131,8 +131,8 @@ def run(quick: bool = False, out: str = "out/bench", before: str = BEFORE, after
             "compile cache only: stage cache emptied. Runs interleaved before/after; "
             "'before / after' > 1 means the current tree is faster.")  # fmt: skip
     sec.add(
-        "per-stage seconds of the cold runs (as `hapid paper` prints them; a stage with a "
-        "background compile counts only its own wait):\n\n"
+        "per-stage seconds of the cold runs (as `hapid paper` prints them: each stage's "
+        "tracing, compilation and run):\n\n"
         + "\n".join(f"- {name}: {res[name]['cold']['stages']}" for name in ("before", "after"))
     )
     sec.goal("make paper cold < 120 s (after)", fs(a["cold"]["s"]), a["cold"]["s"] < 120)
