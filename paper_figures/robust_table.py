@@ -142,9 +142,21 @@ def oracle(device: str, *, cache=None) -> list[dict]:
 def verdict(r: dict) -> str:
     """The goals, judged on the design returned (the start when the tuned g was rejected, the
     certified fallback when neither was certified)."""
+    import numpy as np
+
     ret = "returned g" if "returned g" in r["rows"] else "paper g" if r["kept_start"] else "tuned g"
     p, t = r["rows"]["paper g"], r["rows"][ret]
-    bw, bw0 = t["iso_bandwidth_hz"] or 0.0, p["iso_bandwidth_hz"] or 0.0
+    # a loop that is not stable has no bandwidth (NaN): count it as 0
+    bw = (
+        t["iso_bandwidth_hz"]
+        if t["stable"] and np.isfinite(t["iso_bandwidth_hz"] or np.nan)
+        else 0.0
+    )
+    bw0 = (
+        p["iso_bandwidth_hz"]
+        if p["stable"] and np.isfinite(p["iso_bandwidth_hz"] or np.nan)
+        else 0.0
+    )
     goals = {f"bw ≥ {GOAL_HZ:g} Hz": bw >= GOAL_HZ, "bw ≥ 1.2× paper": bw >= 1.2 * bw0,
              f"GM ≥ {GM_DB:g} dB": t["stable"] and t["gm_db"] >= GM_DB,
              f"PM ≥ {PM_DEG:g}°": t["stable"] and abs(t["pm_deg"]) >= PM_DEG,
