@@ -109,9 +109,11 @@ def evidence_from_frf(frf, model, *, f_max_hz: float | None = None, mismatch: fl
                       kappa: float = KAPPA, source: str = "frf", ts: float | None = None) -> Evidence:  # fmt: skip
     """:class:`Evidence` of an FRF (anything with ``omega``, ``Z_H``, ``Z_T``; a dict such as
     :attr:`PosteriorSamples.predictive` too), optionally cut at ``f_max_hz``."""
-    get = (lambda k: frf[k]) if isinstance(frf, dict) else (lambda k: getattr(frf, k))  # noqa: E731
-    om = np.asarray(get("omega"), dtype=float)
-    P = measured_plant(get("Z_H"), get("Z_T"))
+    from ..uncertainty._loopgp import measured_data
+
+    d = measured_data(frf)
+    om = np.asarray(d["omega"], dtype=float)
+    P = measured_plant(d["Z_H"], d["Z_T"])
     if f_max_hz is not None:
         keep = om <= 2 * np.pi * f_max_hz * (1 + 1e-9)
         om, P = om[keep], P[keep]

@@ -277,11 +277,12 @@ def robust_design(
     hold_models = None
     omc = posterior_grid(n_freq)
     if draw_family == "loop_gp":
-        from ..uncertainty._loopgp import fit_loop_gp, loop_gp_plants
+        from ..uncertainty._loopgp import fit_loop_gp, loop_gp_plants, measured_data
 
-        get = (lambda k: src[k]) if isinstance(src, dict) else (lambda k: getattr(src, k))  # noqa: E731
-        om_e = np.asarray(get("omega"), dtype=float)
-        lgp = fit_loop_gp(om_e, measured_plant(get("Z_H"), get("Z_T")), model)
+        d = measured_data(src)
+        lgp = fit_loop_gp(
+            np.asarray(d["omega"], dtype=float), measured_plant(d["Z_H"], d["Z_T"]), model
+        )
         dense = None
         if dense_factor > 1:  # the same draws on the dense grid (one joint GP draw)
             omc_d = posterior_grid(dense_factor * n_freq)
