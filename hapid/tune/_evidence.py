@@ -152,15 +152,27 @@ def beyond_gain(g: Compensator, ev: Evidence) -> float:
     )
 
 
+def measured_loop(ev: Evidence, model, g: Compensator) -> np.ndarray:
+    """``L = P_meas G`` ``(N, n, n)`` at the evidence frequencies: the measured plant in loop
+    with the inverse-model controller of ``(model, g)`` (discretized with ``ev.ts``)."""
+    from ..pipeline import controller as make_controller
+
+    return ev.P @ np.asarray(make_controller(model, g, ts=ev.ts).response(ev.omega))
+
+
+def _return_difference(L) -> float:
+    return float(np.min(np.linalg.svd(np.eye(L.shape[-1]) + L, compute_uv=False)[:, -1]))
+
+
+def _loci_distance(L) -> float:
+    return float(np.min(np.abs(1.0 + np.linalg.eigvals(L))))
+
+
 def frf_return_difference(ev: Evidence, model, g: Compensator) -> float:
     """``min_ω σ̲(I + P_meas G)`` over the evidence: the measured loop's distance to −1 (a
     return difference, not a Nyquist count: the FRF is too sparse to count encirclements);
     ≥ 1/2 means disk margins of 6 dB / 29° at the measured frequencies."""
-    from ..pipeline import controller as make_controller
-
-    G = np.asarray(make_controller(model, g, ts=ev.ts).response(ev.omega))
-    IL = np.eye(ev.P.shape[-1]) + ev.P @ G
-    return float(np.min(np.linalg.svd(IL, compute_uv=False)[:, -1]))
+    return _return_difference(measured_loop(ev, model, g))
 
 
 def frf_loci_distance(ev: Evidence, model, g: Compensator) -> float:
@@ -168,12 +180,8 @@ def frf_loci_distance(ev: Evidence, model, g: Compensator) -> float:
     characteristic loci's distance to −1 — the rule the tuner's disc constraint and the
     analysis' loci margins use (≥ 1/2 at every measured frequency: a locus crossing the
     negative real axis there has GM ≥ 6 dB, one crossing the unit circle PM ≥ 29°). Never
-    larger than :func:`frf_return_difference` (``σ̲(I + L) ≤ min_i |1 + λ_i|``)."""
-    from ..pipeline import controller as make_controller
-
-    G = np.asarray(make_controller(model, g, ts=ev.ts).response(ev.omega))
-    lam = np.linalg.eigvals(ev.P @ G)
-    return float(np.min(np.abs(1.0 + lam)))
+    smaller than :func:`frf_return_difference` (``σ̲(I + L) ≤ min_i |1 + λ_i|``)."""
+    return _loci_distance(measured_loop(ev, model, g))
 
 
 def nominal_stable(model, g: Compensator) -> bool:
@@ -199,11 +207,8 @@ def certificate(ev: Evidence, model, g: Compensator, floor: float = 0.5) -> dict
     model (and the held-out draws), the FRF keeps the measured loci away from −1 (the rule
     the tuner's disc constraint and the GM/PM of the analysis use), and the small gain fixes
     the count beyond the data."""
-    ld, rd, bg = (
-        frf_loci_distance(ev, model, g),
-        frf_return_difference(ev, model, g),
-        beyond_gain(g, ev),
-    )
+    L = measured_loop(ev, model, g)  # once for both in-band figures
+    ld, rd, bg = _loci_distance(L), _return_difference(L), beyond_gain(g, ev)
     ns = nominal_stable(model, g)
     return {"frf_min_loci_distance": ld, "frf_min_sigma_I_plus_L": rd, "beyond_loop_gain": bg,
             "evidence_hz": ev.omega_e / (2 * np.pi), "mismatch_bound": ev.mismatch,
