@@ -83,13 +83,13 @@ def recheck(g, model, prob, n_holdout: int, n_freq: int = 600) -> dict:
     from hapid._grids import continuous_grid
     from hapid.tune import table_row, validate
     from hapid.tune._evidence import certificate
-    from hapid.tune._recipe import FRF_SIGMA_FLOOR
+    from hapid.tune._recipe import FRF_FLOOR
     from hapid.uncertainty._loopgp import loop_gp_plants
 
     om = continuous_grid(n_freq)
     hold = loop_gp_plants(prob["loop_gp"], model, om, n_holdout, prob["seed"] + 1)
     v = validate(g, model, samples=hold, omega_c=om, p_required=0.975)
-    row = table_row(v) | certificate(prob["evidence"], model, g, floor=FRF_SIGMA_FLOOR)
+    row = table_row(v) | certificate(prob["evidence"], model, g, floor=FRF_FLOOR)
     keep = ("posterior_frac_meeting_margins", "certified", "frf_min_sigma_I_plus_L",
             "beyond_loop_gain")  # fmt: skip
     return {k: row.get(k) for k in keep}

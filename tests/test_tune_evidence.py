@@ -109,8 +109,8 @@ def test_small_gain_fixes_the_nyquist_phase_beyond_the_evidence():
 def test_never_worse_decides_on_the_evidence_first():
     base = {"true_stable": True, "posterior_frac_meeting_margins": 0.8,
             "posterior_iso_bandwidth_hz_q50": 4.0, "evidence_hz": 100.0}  # fmt: skip
-    good = {"certified": True, "frf_min_sigma_I_plus_L": 0.6, "beyond_loop_gain": 0.4}
-    bad = {"certified": False, "frf_min_sigma_I_plus_L": 0.3, "beyond_loop_gain": 0.7}
+    good = {"certified": True, "frf_min_loci_distance": 0.6, "beyond_loop_gain": 0.4}
+    bad = {"certified": False, "frf_min_loci_distance": 0.3, "beyond_loop_gain": 0.7}
     better_draws = {"posterior_frac_meeting_margins": 0.95, "posterior_iso_bandwidth_hz_q50": 6.0}
     ok, why = no_worse(base | good, base | bad | better_draws)
     assert not ok and "holds on the evidence" in why
@@ -120,18 +120,18 @@ def test_never_worse_decides_on_the_evidence_first():
     ok, why = no_worse(base | bad, base | bad | better_draws | {"beyond_loop_gain": 0.9})
     assert not ok and "beyond the evidence" in why
     # neither certified: a tuned loop closer to −1 on the measured FRF is not kept, even
-    # with better draws and the start's σ̲ above the floor
-    mid = {"certified": False, "frf_min_sigma_I_plus_L": 0.55, "beyond_loop_gain": 0.7}
-    ok, why = no_worse(base | mid, base | mid | better_draws | {"frf_min_sigma_I_plus_L": 0.52})
+    # with better draws and the start's loci distance above the floor
+    mid = {"certified": False, "frf_min_loci_distance": 0.55, "beyond_loop_gain": 0.7}
+    ok, why = no_worse(base | mid, base | mid | better_draws | {"frf_min_loci_distance": 0.52})
     assert not ok and "neither is certified" in why and "closer to −1" in why
     ok, why = no_worse(base | mid | {"nominal_stable": True},
                        base | mid | better_draws | {"nominal_stable": False})  # fmt: skip
     assert not ok and "model's own plant" in why
     # … and better on the same evidence and on the draws: kept
-    ok, why = no_worse(base | mid, base | mid | better_draws | {"frf_min_sigma_I_plus_L": 0.56})
+    ok, why = no_worse(base | mid, base | mid | better_draws | {"frf_min_loci_distance": 0.56})
     assert ok and "margins met 80.0 → 95.0 %" in why
     # no better on the draws: the start stays, however the evidence figures moved
-    assert not no_worse(base | mid, base | mid | {"frf_min_sigma_I_plus_L": 0.6})[0]
+    assert not no_worse(base | mid, base | mid | {"frf_min_loci_distance": 0.6})[0]
     assert no_worse(base | good, base | good | better_draws)[0]
 
 

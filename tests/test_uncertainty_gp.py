@@ -212,11 +212,11 @@ def test_tuner_never_worse_rule():
     assert ok and "80.0 → 90.0 %" in why
     # the data's own FRF: a tuned g that brings the measured loop closer to −1 (below the
     # 0.5 floor) is not returned, whatever the draws say; above the floor it may trade margin
-    frf = {"frf_min_sigma_I_plus_L": 0.6}
+    frf = {"frf_min_loci_distance": 0.6}
     good = start | {"posterior_frac_meeting_margins": 0.9}
-    ok, why = no_worse(start | frf, good | {"frf_min_sigma_I_plus_L": 0.3})
+    ok, why = no_worse(start | frf, good | {"frf_min_loci_distance": 0.3})
     assert not ok and "data's own FRF" in why and "0.3 against 0.6" in why
-    assert no_worse(start | frf, good | {"frf_min_sigma_I_plus_L": 0.55})[0]
+    assert no_worse(start | frf, good | {"frf_min_loci_distance": 0.55})[0]
 
 
 def test_frf_return_difference_matches_numpy(case):

@@ -410,7 +410,7 @@ def robust_design(
                                        ts=evidence_ts)  # fmt: skip
         if ev_chk is not None:
             for name, g in (("start", g0), ("tuned", res.g)):
-                out["table"][name] |= certificate(ev_chk, model, g, floor=FRF_SIGMA_FLOOR)
+                out["table"][name] |= certificate(ev_chk, model, g, floor=FRF_FLOOR)
         better, why = no_worse(out["table"]["start"], out["table"]["tuned"])
         out["decision"] = why if ok_tr else why_tr
         if not (better and ok_tr):
@@ -460,13 +460,13 @@ def _certified_fallback(out, g0, res, ev, model, hold_models, device, variants, 
     cands = []
     pairs = (("start", g0), ("tuned", out["candidate"].g)) if with_tuned else (("start", g0),)
     for name, g in pairs:
-        a = certified_gain(g, ev, model, floor=FRF_SIGMA_FLOOR)
+        a = certified_gain(g, ev, model, floor=FRF_FLOOR)
         if a is None:
             continue
         gs = scale_gain(g, a)
         v = validate(gs, model, samples=hold_models, device=device, variants=variants,
                      omega_c=omega_c, gm_db=req.gm_db, pm_deg=req.pm_deg, p_required=quantile)  # fmt: skip
-        row = table_row(v) | certificate(ev, model, gs, floor=FRF_SIGMA_FLOOR)
+        row = table_row(v) | certificate(ev, model, gs, floor=FRF_FLOOR)
         if (chosen or {}).get("true_stable") and not row.get("true_stable", True):
             continue
         cands.append((name, a, gs, row))
@@ -507,15 +507,8 @@ def _meets_chance(row: dict, quantile: float) -> bool:
     return row.get("posterior_frac_meeting_margins", 1.0) >= quantile - 1e-9
 
 
-FRF_SIGMA_FLOOR = 0.5  # min |1 + λ_i| ≥ 0.5 on the measured loop ⇒ loci GM ≥ 6 dB, PM ≥ 29° there
-_FRF_LABEL = {"frf_min_loci_distance": "|1 + λ|", "frf_min_sigma_I_plus_L": "σ̲(I+L)"}
-
-
-def _frf_key(*rows) -> str:
-    """The measured-FRF figure rows are compared on: the loci distance (the certificate's
-    rule) when every row has it, else the return difference σ̲(I + L)."""
-    k = "frf_min_loci_distance"
-    return k if all(k in r for r in rows) else "frf_min_sigma_I_plus_L"
+FRF_FLOOR = 0.5  # min |1 + λ_i| ≥ 0.5 on the measured loop ⇒ loci GM ≥ 6 dB, PM ≥ 29° there
+FRF_KEY = "frf_min_loci_distance"  # the measured-FRF figure rows are compared on (certificate)
 
 
 def frf_return_difference(data: dict, model, g: Compensator) -> float:
@@ -523,7 +516,7 @@ def frf_return_difference(data: dict, model, g: Compensator) -> float:
     (from the FRF stored with the samples, ``data`` = :attr:`PosteriorSamples.predictive`)
     in closed loop with the continuous inverse-model controller of ``(model, g)``. The
     distance of the loop to −1 (a return difference, not a Nyquist count: the FRF has too
-    few frequencies to count encirclements); ≥ ``FRF_SIGMA_FLOOR`` means disk margins of
+    few frequencies to count encirclements); ≥ ``FRF_FLOOR`` means disk margins of
     6 dB / 29° at those frequencies."""
     from ._evidence import frf_return_difference as _rd
 
@@ -554,9 +547,9 @@ def no_worse(start: dict, tuned: dict) -> tuple[bool, str]:
     true plant stays stable (when present); for each family (posterior, variants) the
     fraction of plants meeting the margins does not drop, and it either rises or, equal, the
     median isotropic bandwidth rises — a tuned g that improves nothing is not returned. With
-    ``frf_min_sigma_I_plus_L`` in both rows (:func:`frf_return_difference`, the measured FRF)
+    ``frf_min_loci_distance`` in both rows (:func:`._evidence.certificate`, the measured FRF)
     the tuned g may not bring the loop on the data closer to −1 than the start when it falls
-    below ``FRF_SIGMA_FLOOR``. With ``certified`` in both rows (:func:`._evidence.certificate`:
+    below ``FRF_FLOOR``. With ``certified`` in both rows (:func:`._evidence.certificate`:
     evidence) the evidence decides first: a certified start is never traded for an
     uncertified g, and a certified tuned g replaces an uncertified start. When *neither* is
     certified, both are judged on the same evidence figures: the tuned g must be no worse on
@@ -572,9 +565,9 @@ def no_worse(start: dict, tuned: dict) -> tuple[bool, str]:
                            "beyond it) and the tuned g does not")  # fmt: skip
         if tuned[c] and not start[c]:
             return True, ("tuned g kept: it holds on the evidence (measured FRF min |1 + λ| "
-                          f"{tuned[_frf_key(tuned)]:.3g}, loop gain beyond "
+                          f"{tuned[FRF_KEY]:.3g}, loop gain beyond "
                           f"{tuned['evidence_hz']:.3g} Hz ≤ {tuned['beyond_loop_gain']:.3g}) and the "
-                          f"start does not (min |1 + λ| {start[_frf_key(start)]:.3g}, gain "
+                          f"start does not (min |1 + λ| {start[FRF_KEY]:.3g}, gain "
                           f"beyond {start['beyond_loop_gain']:.3g})")  # fmt: skip
         if not tuned[c]:  # neither certified: the tuned g must be no worse on each figure
             if start.get("nominal_stable", True) and not tuned.get("nominal_stable", True):
@@ -585,15 +578,15 @@ def no_worse(start: dict, tuned: dict) -> tuple[bool, str]:
                                f"({tuned['evidence_hz']:.3g} Hz) the tuned loop gain bound "
                                f"{tuned['beyond_loop_gain']:.3g} exceeds the start's "
                                f"{start['beyond_loop_gain']:.3g}")  # fmt: skip
-            k = _frf_key(start, tuned)
+            k = FRF_KEY
             if tuned[k] < start[k] - 1e-9:
                 return False, (f"kept the start: neither is certified, and on the measured FRF the "
-                               f"tuned loop comes closer to −1 (min {_FRF_LABEL[k]} {tuned[k]:.3g} against "
+                               f"tuned loop comes closer to −1 (min |1 + λ| {tuned[k]:.3g} against "
                                f"{start[k]:.3g})")  # fmt: skip
-    k = _frf_key(start, tuned)
-    if k in start and k in tuned and tuned[k] < min(start[k], FRF_SIGMA_FLOOR) - 1e-9:
+    k = FRF_KEY
+    if k in start and k in tuned and tuned[k] < min(start[k], FRF_FLOOR) - 1e-9:
         return False, (f"kept the start: on the data's own FRF the tuned g brings the loop closer to "
-                       f"−1 (min {_FRF_LABEL[k]} {tuned[k]:.3g} against {start[k]:.3g} for the start)")  # fmt: skip
+                       f"−1 (min |1 + λ| {tuned[k]:.3g} against {start[k]:.3g} for the start)")  # fmt: skip
     gains = []
     for fam in ("posterior", "variants"):
         key = f"{fam}_frac_meeting_margins"
