@@ -255,7 +255,6 @@ PER_COMMAND: dict[str, dict] = {
                   "model_error": one_of(["white", "gp", "gp_corr", "none"]),
                   "hdf5": _Out("an emcee HDF5 backend file", (".h5", ".hdf5"))},
     "robust": {"samples": _In("a posterior-samples file", (".npz",)), "frf": _In("an FRF file", RUN_EXT),
-               "draws": one_of(["auto", "loop_gp", "params"]),
                "model": _In("a model file", ARRAY_EXT), "out": _Out("a JSON report", (".json",))},
     "sweep": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder"),
               "estimator": ((lambda v: v in _estimators()),

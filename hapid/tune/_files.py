@@ -62,9 +62,6 @@ def design_info(out: dict) -> dict:
             "table": out.get("table", {})}  # fmt: skip
 
 
-DRAWS = ("auto", "loop_gp", "params")
-
-
 def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf=None,
                     draw_family: str = "auto", **options) -> dict:  # fmt: skip
     """Load a model (and samples, and the measured FRF ``frf`` — the evidence), run
@@ -76,9 +73,11 @@ def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf
     own plants; also ``"samples"``) or ``"auto"`` (default: ``loop_gp`` when a measured FRF is
     known, else the samples)."""
     from .. import io
+    from ..uncertainty._files import DRAWS, resolve_draws
     from ._recipe import robust_design
 
-    if draw_family not in DRAWS + ("samples",):
+    draw_family = "params" if draw_family == "samples" else draw_family
+    if draw_family not in DRAWS:  # before any file is read
         raise ValueError(f"draw_family must be one of {DRAWS}, got {draw_family!r}")
     model = io.load_model(model_path)
     if frf is not None:
@@ -90,14 +89,8 @@ def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf
         samples = load_samples(samples_path, n=model.n)
         if frf is None and samples.measured is not None:
             options["frf"] = samples.measured
-    if draw_family == "auto":
-        draw_family = "loop_gp" if "frf" in options else "samples"
-    elif draw_family == "params":
-        draw_family = "samples"
-    if draw_family == "loop_gp" and "frf" not in options:
-        raise ValueError("loop draws need the measured FRF: give an FRF file, or a samples file "
-                         "written by hapid posterior (it stores the FRF)")  # fmt: skip
-    options["draw_family"] = draw_family
+    kind = resolve_draws(draw_family, options.get("frf"))
+    options["draw_family"] = "samples" if kind == "params" else kind  # robust_design's name
     dev = None
     if device is not None:
         from ..device import preset

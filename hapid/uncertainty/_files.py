@@ -66,6 +66,20 @@ def posterior_from_files(
 DRAWS = ("auto", "loop_gp", "params")
 
 
+def resolve_draws(draws: str, measured) -> str:
+    """The draw family ``"loop_gp"`` or ``"params"`` that ``draws`` (one of :data:`DRAWS`)
+    names, given the measured FRF (``None``: not known): ``"auto"`` is ``"loop_gp"`` when an
+    FRF is known, else ``"params"``; ``"loop_gp"`` without an FRF is a ``ValueError``. The one
+    rule of ``hapid robust`` and ``hapid tune``."""
+    if draws not in DRAWS:
+        raise ValueError(f"draws must be one of {DRAWS}, got {draws!r}")
+    kind = draws if draws != "auto" else ("loop_gp" if measured is not None else "params")
+    if kind == "loop_gp" and measured is None:
+        raise ValueError("loop draws need the measured FRF: give an FRF file, or a samples file "
+                         "written by hapid posterior (it stores the FRF)")  # fmt: skip
+    return kind
+
+
 def robust_from_files(
     samples_path,
     model_path,
@@ -110,17 +124,14 @@ def robust_from_files(
     from ._robust import device_plants, posterior_omega, robust_check
     from ._sampler import load_samples
 
-    if draws not in DRAWS:
+    if draws not in DRAWS:  # before any file is read
         raise ValueError(f"draws must be one of {DRAWS}, got {draws!r}")
     model = load_model(model_path)
     ps = None if samples_path is None else load_samples(samples_path, n=model.n)
     measured = load_frf(frf_path) if frf_path is not None else getattr(ps, "measured", None)
-    kind = draws if draws != "auto" else ("loop_gp" if measured is not None else "params")
+    kind = resolve_draws(draws, measured)
     g = Compensator.paper() if g is None else g
     if kind == "loop_gp":
-        if measured is None:
-            raise ValueError("the robust check on loop draws needs the measured FRF: give an FRF "
-                             "file, or a samples file written by hapid posterior (it stores it)")  # fmt: skip
         n_meas = np.shape(measured["Z_H"] if isinstance(measured, dict) else measured.Z_H)[-1]
         if n_meas != model.n:
             raise ValueError(
