@@ -16,8 +16,10 @@ the (Cholesky) inversion and the scaling is undone after: the same minimizer, co
 normal matrix of condition ~10 instead of ~10¹⁰.
 
 A batch of FRFs on one grid, batch first (``(B, N, ...)``), has a faster path than the complex
-GEMM: :func:`wls_batch_coefficients` computes only the real part ``Re(K z) = K_r z_r − K_i z_i``
-in one fused elementwise pass over Z (see its docstring for what XLA:CPU makes of it).
+GEMM: :func:`wls_batch_coefficients` computes only the real part ``Re(K z) = K_r z_r − K_i z_i``,
+outside ``jit`` on the float-pair view of Z (``(re, im)`` interleaved, no copy) as pure
+multiply-adds with the weights ``[K_r, −K_i, …]`` and one pair sum per output, inside a ``jit``
+as one fused pass over complex Z (see its docstring for what XLA:CPU makes of each).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
+import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from .._constants import TWO_PI
@@ -92,9 +95,9 @@ _UNROLL_MAX_N = 64
 above it, the complex GEMM (``einsum``)."""
 
 _KERNEL_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
-"""XLA:CPU option of the top-level :func:`wls_batch_coefficients` program only (no global
-flag): 512-bit vectors halve the shuffles that split complex128 into real and imaginary parts,
-the kernel's bottleneck (measured 1.05–1.45×, typically 1.1–1.15×, on the benchmark machine)."""
+"""XLA:CPU option of the complex kernel's own program (:func:`_batch_program`, no global flag):
+512-bit vectors halve the shuffles that split complex128 into real and imaginary parts, that
+kernel's bottleneck (measured 1.05–1.45×, typically 1.1–1.15×, on the benchmark machine)."""
 
 
 def _pairwise_sum(terms: list):
@@ -138,11 +141,176 @@ def _batch(omega, Z, omega_c, mask):
 _batch_program = partial(jax.jit, compiler_options=_KERNEL_OPTIONS)(_batch)
 
 
+_PAIR_LANES = (8, 4, 2)
+"""Lanes ``L`` of the float-pair kernel, widest first: the first that divides the pair axis
+(``2E``) — 8 float64 fill one 512-bit vector (``E = 2n²`` with ``n`` even), 4 one 256-bit
+vector (every ``E = 2n²``), 2 otherwise (``E`` odd)."""
+
+
+def _lanes(X) -> int:
+    """:data:`_PAIR_LANES` entry for float pairs ``X`` ``(B, N, ...)``."""
+    M = int(np.prod(X.shape[2:]))
+    return next(L for L in _PAIR_LANES if M % L == 0)
+
+
+_PATTERN_CACHE: dict = {}
+_PATTERN_CACHE_SIZE = 16
+
+
+def _pattern(K: Complex[Array, "3 N"], lanes: int) -> Float[Array, "3 N L"]:
+    """``W[j, k] = [Re K, −Im K, Re K, −Im K, …]`` (``lanes`` long): the weights of an
+    interleaved ``(re, im, re, im, …)`` slice of ``z_k``, so that ``Re(K z)`` of element ``e`` is
+    the sum of lanes ``2e`` and ``2e + 1`` of ``Σ_k W[j, k] · x_k``."""
+    return jnp.tile(jnp.stack([jnp.real(K), -jnp.imag(K)], axis=-1), (1, 1, lanes // 2))
+
+
+def _pairs_acc(W: Float[Array, "3 N L"], X: Float[Array, "B N M"]) -> Float[Array, "B 3 P L"]:
+    """``Σ_k W[j, k] · X[b, k]`` on the interleaved pairs, ``(B, 3, M / L, L)``: one fused XLA
+    loop, ``b`` outermost (one FRF's ``N × M`` block stays in L1 for its 3 rows), one vector of
+    ``L`` lanes innermost, the ``N`` weight vectors of a row held in registers, every term a
+    multiply-add on contiguous data (no shuffles); summed pairwise over ``k``."""
+    B, N, M = X.shape
+    L = W.shape[-1]
+    Xv = X.reshape(B, N, M // L, L)
+    return _pairwise_sum([W[None, :, k, None, :] * Xv[:, k, None] for k in range(N)])
+
+
+def _apply_pairs(W: Float[Array, "3 N L"], X: Float[Array, "B N ..."]) -> Float[Array, "B 3 E"]:
+    """``Re(K @ z)`` from float pairs: with ``X`` flattened to ``(B, N, M)``, ``X[b, k, 2e]``,
+    ``X[b, k, 2e + 1]`` = Re, Im of ``Z[b, k, e]``; ``(B, 3, M / 2)``.
+
+    Two fused loops: :func:`_pairs_acc` (the whole pass over Z, pure multiply-adds) and the sum
+    of adjacent lanes (one shuffle per *output* element, over an intermediate of 3/N the size of
+    Z). In one fusion XLA would iterate in the output's shape and shuffle every input again, and
+    XLA:CPU drops ``optimization_barrier``; a ``cond`` is a boundary it does not fuse across.
+    Its predicate (``W`` is not NaN) is unknown at compile time; the other branch is NaN, which
+    is what a NaN weight gives anyway.
+    """
+    B, N = X.shape[:2]
+    X = X.reshape(B, N, -1)
+    M, L = X.shape[2], W.shape[-1]
+    if N > _UNROLL_MAX_N:
+        acc = jnp.einsum("jkl,bkpl->bjpl", W, X.reshape(B, N, M // L, L))
+    else:
+        acc = jax.lax.cond(
+            W[0, 0, 0] == W[0, 0, 0],
+            _pairs_acc,
+            lambda W, X: jnp.full((B, 3, M // L, L), jnp.nan, X.dtype),
+            W,
+            X,
+        )
+    return (acc[..., 0::2] + acc[..., 1::2]).reshape(B, 3, M // 2)
+
+
+def _pairs_inline(omega, X, omega_c, mask):
+    """The float-pair path traced inside a caller's ``jit`` (``W`` built in the program)."""
+    real = X.dtype
+    L = _lanes(X)
+    K = wls_operator(omega.astype(real), omega_c, None if mask is None else mask.astype(real))
+    return _apply_pairs(_pattern(K, L), X)
+
+
+_pattern_program = jax.jit(lambda om, oc, mask, L: _pattern(wls_operator(om, oc, mask), L),
+                           static_argnums=3)  # fmt: skip
+_pairs_programs = {
+    L: partial(jax.jit, compiler_options={"xla_cpu_prefer_vector_width": 64 * L})(_apply_pairs)
+    for L in _PAIR_LANES
+}
+"""One program per lane count, each with the vector width of its lanes (512 bits for 8)."""
+
+
+def _grid_pattern(omega, omega_c, mask, lanes: int, real) -> Float[Array, "3 N L"]:
+    """:func:`_pattern` of the grid's operator, built once per (grid, ω_c, mask, lanes, dtype)
+    and kept (the last 16): ``K`` depends only on these, and building it is ~20 small XLA
+    kernels (≈ 60 µs measured, a tenth of a 512-FRF batch)."""
+    om = np.asarray(omega, dtype=real)
+    mk = None if mask is None else np.asarray(mask, dtype=real)
+    key = (om.tobytes(), float(omega_c), None if mk is None else mk.tobytes(), lanes, real.str)
+    W = _PATTERN_CACHE.get(key)
+    if W is None:
+        W = _pattern_program(om, float(omega_c), mk, lanes)
+        if len(_PATTERN_CACHE) >= _PATTERN_CACHE_SIZE:
+            _PATTERN_CACHE.pop(next(iter(_PATTERN_CACHE)))
+        _PATTERN_CACHE[key] = W
+    return W
+
+
+def _float_pairs(Z, B: int, N: int):
+    """Complex ``Z`` outside ``jit`` as float pairs ``(B, N, 2E)`` without a copy, or ``None``.
+
+    A complex numpy array is viewed as its float dtype (``Z.view``); a JAX array on the
+    default CPU device is the same bytes seen through numpy (``np.asarray`` of a CPU array is
+    its buffer). Either is handed to the program as a numpy argument, which JAX takes without
+    copying when it is 64-byte aligned (a JAX buffer is; a numpy array may not be, and is then
+    copied, as for any numpy input). ``None`` for anything else (other devices, sharded
+    arrays, real or empty data): the complex kernel then runs."""
+    if isinstance(Z, jax.Array):
+        devices = Z.sharding.device_set if Z.is_fully_addressable else ()
+        if len(devices) != 1 or next(iter(devices)) != jax.devices()[0]:
+            return None
+        if not jnp.iscomplexobj(Z):
+            return None
+        host = np.asarray(Z)  # the device buffer itself on CPU
+    elif isinstance(Z, np.ndarray):
+        host = np.ascontiguousarray(Z)
+    else:
+        return None
+    if host.dtype not in (np.complex64, np.complex128) or host.size == 0:
+        return None
+    return host.reshape(B, N, -1).view(np.finfo(host.dtype).dtype)
+
+
+def _check_batch_input(omega, Z, omega_c, mask, float_pairs: bool) -> None:
+    """Shapes always; values (finite grid, corner and mask) on concrete input."""
+    name = "wls_batch_coefficients"
+    w_shape, z_shape = np.shape(omega), np.shape(Z)
+    if len(w_shape) != 1:
+        raise ValueError(f"{name}: omega must be (N,), got shape {w_shape}")
+    N = w_shape[0]
+    if len(z_shape) < 2 or z_shape[1] != N:
+        raise ValueError(
+            f"{name}: Z must be (B, N, ...) with N = len(omega) = {N}, got shape {z_shape}"
+        )
+    if mask is not None and np.shape(mask) != (N,):
+        raise ValueError(f"{name}: mask must be (N,) = ({N},), got shape {np.shape(mask)}")
+    if float_pairs:
+        dtype = jnp.result_type(Z)
+        if not jnp.issubdtype(dtype, jnp.floating):
+            raise ValueError(f"{name}: float_pairs=True needs real floating Z, got {dtype}")
+        if len(z_shape) < 3 or z_shape[-1] % 2:
+            raise ValueError(
+                f"{name}: float_pairs=True needs Z (B, N, ..., 2m) with (re, im) pairs on an "
+                f"even last axis, got shape {z_shape}"
+            )
+    for label, a in (("omega", omega), ("omega_c", omega_c), ("mask", mask)):
+        if a is not None and not isinstance(a, jax.core.Tracer):
+            if not np.isfinite(np.asarray(a)).all():
+                raise ValueError(f"{name}: {label} contains NaN or inf")
+    if not isinstance(omega_c, jax.core.Tracer) and not np.asarray(omega_c) > 0:
+        raise ValueError(f"{name}: omega_c must be > 0 rad/s, got {omega_c}")
+
+
+def _check_finite_result(theta, Z) -> None:
+    """A NaN or inf in Z reaches θ (every weight multiplies it; a masked frequency's zero
+    weight times NaN or inf is NaN): the output (3/N of Z's size) is checked, and Z only when
+    the output is not finite, to name the first bad entry. A finite Z whose θ overflows passes."""
+    if np.isfinite(np.asarray(theta)).all():
+        return
+    bad = np.argwhere(~np.isfinite(np.asarray(Z)))
+    if len(bad):
+        raise ValueError(
+            "wls_batch_coefficients: Z contains NaN or inf (first at index "
+            f"{tuple(int(i) for i in bad[0])})"
+        )
+
+
 def wls_batch_coefficients(
     omega: Float[Array, " N"],
     Z: Complex[Array, "B N ..."],
     omega_c: float = OMEGA_C_PAPER,
     mask: Float[Array, " N"] | None = None,
+    *,
+    float_pairs: bool = False,
 ) -> Float[Array, "B 3 E"]:
     """Per-element paper WLS of a batch of FRFs on one grid, batch first: ``(B, 3, E)`` real.
 
@@ -151,24 +319,48 @@ def wls_batch_coefficients(
     ``mask`` (``(N,)``, 0/1) drops frequencies. Returns ``θ[b, j, e]`` = ``[m, b, k][j]`` of
     element ``e`` of ``Z[b, k].ravel()`` (kg, N·s/m, N/m); ``θ.reshape(B, 3, *Z.shape[2:])``
     gives the matrices. Same values as :func:`wls_coefficients` (to rounding: the sum over
-    frequencies is taken in another order), computed as the real part only in one pass over
-    Z (:func:`_apply_real`); for more than 64 frequencies, the complex GEMM.
+    frequencies is taken in another order).
 
-    Called on its own, it runs as its own XLA program with 512-bit vectors
-    (``_KERNEL_OPTIONS``); traced inside another ``jit`` it is inlined into that program and
-    runs with that program's options (same values).
+    ``float_pairs=True``: ``Z`` is real ``(B, N, ..., 2m)`` holding the same data as float
+    pairs, ``Z[..., 2i]`` and ``Z[..., 2i + 1]`` the real and imaginary parts (what
+    ``Zc.view(np.float64)`` gives for a complex ``Zc``); then ``E = Z[0, 0].size / 2``.
+
+    How it runs. Outside ``jit``, complex numpy input and a JAX array on one CPU device are
+    viewed as float pairs without a copy (:func:`_float_pairs`), and the fit is a real dot
+    product of each interleaved ``(re, im, …)`` slice with the weights ``[Re K, −Im K, …]``
+    (:func:`_pattern`, built once per grid), accumulated over the frequencies as multiply-adds
+    on contiguous vectors, the adjacent lanes added once at the end (:func:`_apply_pairs`).
+    Traced inside a ``jit`` (no float view of complex data exists in XLA) or on other devices,
+    the complex kernel (:func:`_apply_real`: the real part only, one fused pass, shuffling
+    real and imaginary parts apart for each of the 3 rows); float pairs use the pair kernel
+    inside a ``jit`` too. For more than 64 frequencies, a GEMM (``einsum``).
+
+    Raises ``ValueError`` on wrong shapes (``Z`` not ``(B, N, ...)``, ``mask`` not ``(N,)``, an
+    odd or missing pair axis with ``float_pairs``) and, outside ``jit``, on NaN or inf in
+    ``omega``, ``omega_c``, ``mask`` or ``Z`` (Z through the result: see
+    :func:`_check_finite_result`).
     """
-    N = jnp.shape(omega)[-1]
-    if jnp.ndim(Z) < 2 or jnp.shape(Z)[1] != N:
-        raise ValueError(
-            f"wls_batch_coefficients: Z must be (B, N, ...) with N = len(omega) = {N}, "
-            f"got shape {jnp.shape(Z)}"
-        )
+    _check_batch_input(omega, Z, omega_c, mask, float_pairs)
     args = (omega, Z, omega_c, mask)
+    B, N = jnp.shape(Z)[:2]
     if any(isinstance(a, jax.core.Tracer) for a in args):
         # inside a jit/vmap: inlined (compiler options apply to top-level programs only)
+        if float_pairs:
+            return _pairs_inline(omega, Z, omega_c, mask)
         return _batch(*args)
-    return _batch_program(*args)
+    if float_pairs and isinstance(Z, jax.Array):
+        X = Z  # reshaped inside the program (a reshape outside jit is a copy)
+    elif float_pairs:
+        X = np.ascontiguousarray(Z)
+    else:
+        X = _float_pairs(Z, B, N)
+    if X is None:
+        theta = _batch_program(*args)
+    else:
+        L = _lanes(X)
+        theta = _pairs_programs[L](_grid_pattern(omega, omega_c, mask, L, X.dtype), X)
+    _check_finite_result(theta, Z)
+    return theta
 
 
 def wls(frf: FRF, omega_c: float = OMEGA_C_PAPER, f_max_hz: float | None = None) -> ImpedanceModel:
