@@ -87,7 +87,7 @@ def _all_forms(w, Z, mask, traced=True):
 def test_every_input_form_equals_wls_coefficients_and_numpy_lstsq(n):
     """Random FRFs scaled like impedances (∝ 1 + ω²), B = 3, the paper's 28 frequencies, all
     and a 40 Hz band: every form equals wls_coefficients and the numpy lstsq reference to
-    1e-12 (n = 3 and 5 run on 4 lanes / 256 bits, n = 6 on 8 lanes / 512 bits)."""
+    1e-12."""
     rng = np.random.default_rng(n)
     w = 2 * np.pi * PAPER_FREQ_HZ
     B = 3
@@ -128,7 +128,7 @@ def test_cu5_simulated_frfs_equal_per_frf_wls_and_lstsq():
 
 
 def test_more_than_64_frequencies_and_odd_element_counts():
-    """N = 70 (the GEMM branch of both kernels) and an odd element count E = 3 (2 lanes)."""
+    """N = 70 (the GEMM branch of both kernels) and an odd element count E = 3."""
     rng = np.random.default_rng(0)
     for N, tail in ((70, (2, 3, 3)), (28, (3,))):
         w = 2 * np.pi * np.sort(rng.uniform(0.5, 90.0, N))
@@ -141,7 +141,7 @@ def test_more_than_64_frequencies_and_odd_element_counts():
 
 def test_complex_input_runs_the_pair_kernel_on_the_same_bytes(monkeypatch):
     """Outside jit, complex numpy and JAX input are fitted from a float view of their own
-    buffer (no copy) by the pair kernel, never by the complex kernel."""
+    buffer (no copy) by the float-pair kernel, never by the complex kernel."""
     rng = np.random.default_rng(1)
     Z = _aligned_copy(rng.standard_normal((2, 28, 8)) + 1j * rng.standard_normal((2, 28, 8)))
     Zj = jnp.asarray(Z)

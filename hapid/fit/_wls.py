@@ -16,10 +16,9 @@ the (Cholesky) inversion and the scaling is undone after: the same minimizer, co
 normal matrix of condition ~10 instead of ~10¹⁰.
 
 A batch of FRFs on one grid, batch first (``(B, N, ...)``), has a faster path than the complex
-GEMM: :func:`wls_batch_coefficients` computes only the real part ``Re(K z) = K_r z_r − K_i z_i``,
-outside ``jit`` on the float-pair view of Z (``(re, im)`` interleaved, no copy) as pure
-multiply-adds with the weights ``[K_r, −K_i, …]`` and one pair sum per output, inside a ``jit``
-as one fused pass over complex Z (see its docstring for what XLA:CPU makes of each).
+GEMM: :func:`wls_batch_coefficients` computes only the real part ``Re(K z) = K_r z_r − K_i z_i``
+in one fused pass over Z — outside ``jit`` on the float-pair view of Z (``(re, im)``
+interleaved, no copy), inside a ``jit`` on complex Z (see its docstring).
 """
 
 from __future__ import annotations
@@ -141,98 +140,61 @@ def _batch(omega, Z, omega_c, mask):
 _batch_program = partial(jax.jit, compiler_options=_KERNEL_OPTIONS)(_batch)
 
 
-_PAIR_LANES = (8, 4, 2)
-"""Lanes ``L`` of the float-pair kernel, widest first: the first that divides the pair axis
-(``2E``) — 8 float64 fill one 512-bit vector (``E = 2n²`` with ``n`` even), 4 one 256-bit
-vector (every ``E = 2n²``), 2 otherwise (``E`` odd)."""
+def _apply_pairs(Kr: Float[Array, "3 N"], Ki: Float[Array, "3 N"], X: Float[Array, "B N ..."]):
+    """``Re(K @ z)`` from float pairs: with ``X`` flattened to ``(B, N, M)``, ``X[b, k, 2e]``
+    and ``X[b, k, 2e + 1]`` are Re and Im of ``Z[b, k, e]``; returns ``(B, 3, M / 2)``.
 
-
-def _lanes(X) -> int:
-    """:data:`_PAIR_LANES` entry for float pairs ``X`` ``(B, N, ...)``."""
-    M = int(np.prod(X.shape[2:]))
-    return next(L for L in _PAIR_LANES if M % L == 0)
-
-
-_PATTERN_CACHE: dict = {}
-_PATTERN_CACHE_SIZE = 16
-
-
-def _pattern(K: Complex[Array, "3 N"], lanes: int) -> Float[Array, "3 N L"]:
-    """``W[j, k] = [Re K, −Im K, Re K, −Im K, …]`` (``lanes`` long): the weights of an
-    interleaved ``(re, im, re, im, …)`` slice of ``z_k``, so that ``Re(K z)`` of element ``e`` is
-    the sum of lanes ``2e`` and ``2e + 1`` of ``Σ_k W[j, k] · x_k``."""
-    return jnp.tile(jnp.stack([jnp.real(K), -jnp.imag(K)], axis=-1), (1, 1, lanes // 2))
-
-
-def _pairs_acc(W: Float[Array, "3 N L"], X: Float[Array, "B N M"]) -> Float[Array, "B 3 P L"]:
-    """``Σ_k W[j, k] · X[b, k]`` on the interleaved pairs, ``(B, 3, M / L, L)``: one fused XLA
-    loop, ``b`` outermost (one FRF's ``N × M`` block stays in L1 for its 3 rows), one vector of
-    ``L`` lanes innermost, the ``N`` weight vectors of a row held in registers, every term a
-    multiply-add on contiguous data (no shuffles); summed pairwise over ``k``."""
-    B, N, M = X.shape
-    L = W.shape[-1]
-    Xv = X.reshape(B, N, M // L, L)
-    return _pairwise_sum([W[None, :, k, None, :] * Xv[:, k, None] for k in range(N)])
-
-
-def _apply_pairs(W: Float[Array, "3 N L"], X: Float[Array, "B N ..."]) -> Float[Array, "B 3 E"]:
-    """``Re(K @ z)`` from float pairs: with ``X`` flattened to ``(B, N, M)``, ``X[b, k, 2e]``,
-    ``X[b, k, 2e + 1]`` = Re, Im of ``Z[b, k, e]``; ``(B, 3, M / 2)``.
-
-    Two fused loops: :func:`_pairs_acc` (the whole pass over Z, pure multiply-adds) and the sum
-    of adjacent lanes (one shuffle per *output* element, over an intermediate of 3/N the size of
-    Z). In one fusion XLA would iterate in the output's shape and shuffle every input again, and
-    XLA:CPU drops ``optimization_barrier``; a ``cond`` is a boundary it does not fuse across.
-    Its predicate (``W`` is not NaN) is unknown at compile time; the other branch is NaN, which
-    is what a NaN weight gives anyway.
-    """
+    The same fused pass as :func:`_apply_real` (unrolled over ``k``, summed pairwise, ``b``
+    outermost, vectorized over ``e``), reading real and imaginary parts as the even and odd
+    float64 of each slice: LLVM loads two vectors and splits them with two shuffles, where
+    from complex128 data XLA's code was 1.2–1.5× slower (measured, same run)."""
     B, N = X.shape[:2]
     X = X.reshape(B, N, -1)
-    M, L = X.shape[2], W.shape[-1]
     if N > _UNROLL_MAX_N:
-        acc = jnp.einsum("jkl,bkpl->bjpl", W, X.reshape(B, N, M // L, L))
-    else:
-        acc = jax.lax.cond(
-            W[0, 0, 0] == W[0, 0, 0],
-            _pairs_acc,
-            lambda W, X: jnp.full((B, 3, M // L, L), jnp.nan, X.dtype),
-            W,
-            X,
-        )
-    return (acc[..., 0::2] + acc[..., 1::2]).reshape(B, 3, M // 2)
+        re, im = X[..., 0::2], X[..., 1::2]
+        return jnp.einsum("jk,bke->bje", Kr, re) - jnp.einsum("jk,bke->bje", Ki, im)
+    terms = [
+        Kr[:, k, None] * X[:, k, None, 0::2] - Ki[:, k, None] * X[:, k, None, 1::2]
+        for k in range(N)
+    ]
+    return _pairwise_sum(terms)
 
 
 def _pairs_inline(omega, X, omega_c, mask):
-    """The float-pair path traced inside a caller's ``jit`` (``W`` built in the program)."""
+    """The float-pair kernel traced inside a caller's ``jit`` (``K`` built in the program)."""
     real = X.dtype
-    L = _lanes(X)
     K = wls_operator(omega.astype(real), omega_c, None if mask is None else mask.astype(real))
-    return _apply_pairs(_pattern(K, L), X)
+    return _apply_pairs(jnp.real(K), jnp.imag(K), X)
 
 
-_pattern_program = jax.jit(lambda om, oc, mask, L: _pattern(wls_operator(om, oc, mask), L),
-                           static_argnums=3)  # fmt: skip
-_pairs_programs = {
-    L: partial(jax.jit, compiler_options={"xla_cpu_prefer_vector_width": 64 * L})(_apply_pairs)
-    for L in _PAIR_LANES
-}
-"""One program per lane count, each with the vector width of its lanes (512 bits for 8)."""
+_pairs_program = partial(jax.jit, compiler_options=_KERNEL_OPTIONS)(
+    lambda Kr, Ki, X: (lambda th: (th, jnp.isfinite(jnp.sum(th))))(_apply_pairs(Kr, Ki, X))
+)
+"""The float-pair kernel as its own program (512-bit vectors), with whether the sum of θ is
+finite — false when any θ is NaN or inf (or the sum overflows, and then Z is scanned on the
+host): one bool read, no pass over Z. Measured: the check costs 5–10 % of the call."""
+
+_operator_program = jax.jit(lambda om, oc, mask: (lambda K: (jnp.real(K), jnp.imag(K)))(
+    wls_operator(om, oc, mask)))  # fmt: skip
+_OPERATOR_CACHE: dict = {}
+_OPERATOR_CACHE_SIZE = 16
 
 
-def _grid_pattern(omega, omega_c, mask, lanes: int, real) -> Float[Array, "3 N L"]:
-    """:func:`_pattern` of the grid's operator, built once per (grid, ω_c, mask, lanes, dtype)
-    and kept (the last 16): ``K`` depends only on these, and building it is ~20 small XLA
-    kernels (≈ 60 µs measured, a tenth of a 512-FRF batch)."""
+def _grid_operator(omega, omega_c, mask, real) -> tuple:
+    """``(Re K, Im K)`` of :func:`wls_operator` for (grid, ω_c, mask, dtype), built once and
+    kept (the last 16), the values checked then: ``K`` depends only on these, and building it
+    is ~20 small XLA kernels (≈ 60 µs measured, a tenth of a 512-FRF batch)."""
     om = np.asarray(omega, dtype=real)
     mk = None if mask is None else np.asarray(mask, dtype=real)
-    key = (om.tobytes(), float(omega_c), None if mk is None else mk.tobytes(), lanes, real.str)
-    W = _PATTERN_CACHE.get(key)
-    if W is None:
-        W = _pattern_program(om, float(omega_c), mk, lanes)
-        if len(_PATTERN_CACHE) >= _PATTERN_CACHE_SIZE:
-            _PATTERN_CACHE.pop(next(iter(_PATTERN_CACHE)))
-        _PATTERN_CACHE[key] = W
-    return W
+    key = (om.tobytes(), float(omega_c), None if mk is None else mk.tobytes(), real.str)
+    K = _OPERATOR_CACHE.get(key)
+    if K is None:  # a new grid: its values are checked once, here
+        _check_batch_values(omega, omega_c, mask)
+        K = _operator_program(om, float(omega_c), mk)
+        if len(_OPERATOR_CACHE) >= _OPERATOR_CACHE_SIZE:
+            _OPERATOR_CACHE.pop(next(iter(_OPERATOR_CACHE)))
+        _OPERATOR_CACHE[key] = K
+    return K
 
 
 def _float_pairs(Z, B: int, N: int):
@@ -260,8 +222,8 @@ def _float_pairs(Z, B: int, N: int):
     return host.reshape(B, N, -1).view(np.finfo(host.dtype).dtype)
 
 
-def _check_batch_input(omega, Z, omega_c, mask, float_pairs: bool) -> None:
-    """Shapes always; values (finite grid, corner and mask) on concrete input."""
+def _check_batch_shapes(omega, Z, mask, float_pairs: bool) -> None:
+    """Shapes of the grid, data and mask (and the pair axis with ``float_pairs``)."""
     name = "wls_batch_coefficients"
     w_shape, z_shape = np.shape(omega), np.shape(Z)
     if len(w_shape) != 1:
@@ -282,6 +244,11 @@ def _check_batch_input(omega, Z, omega_c, mask, float_pairs: bool) -> None:
                 f"{name}: float_pairs=True needs Z (B, N, ..., 2m) with (re, im) pairs on an "
                 f"even last axis, got shape {z_shape}"
             )
+
+
+def _check_batch_values(omega, omega_c, mask) -> None:
+    """Finite grid, corner and mask, corner > 0 (concrete input only)."""
+    name = "wls_batch_coefficients"
     for label, a in (("omega", omega), ("omega_c", omega_c), ("mask", mask)):
         if a is not None and not isinstance(a, jax.core.Tracer):
             if not np.isfinite(np.asarray(a)).all():
@@ -290,11 +257,12 @@ def _check_batch_input(omega, Z, omega_c, mask, float_pairs: bool) -> None:
         raise ValueError(f"{name}: omega_c must be > 0 rad/s, got {omega_c}")
 
 
-def _check_finite_result(theta, Z) -> None:
+def _check_finite_result(finite, Z) -> None:
     """A NaN or inf in Z reaches θ (every weight multiplies it; a masked frequency's zero
-    weight times NaN or inf is NaN): the output (3/N of Z's size) is checked, and Z only when
-    the output is not finite, to name the first bad entry. A finite Z whose θ overflows passes."""
-    if np.isfinite(np.asarray(theta)).all():
+    weight times NaN or inf is NaN), so ``finite`` — whether θ (3/N of Z's size) is finite — is
+    checked, and Z only when it is not, to name the first bad entry. A finite Z passes (also
+    when θ or its sum overflows)."""
+    if finite:
         return
     bad = np.argwhere(~np.isfinite(np.asarray(Z)))
     if len(bad):
@@ -325,26 +293,27 @@ def wls_batch_coefficients(
     pairs, ``Z[..., 2i]`` and ``Z[..., 2i + 1]`` the real and imaginary parts (what
     ``Zc.view(np.float64)`` gives for a complex ``Zc``); then ``E = Z[0, 0].size / 2``.
 
-    How it runs. Outside ``jit``, complex numpy input and a JAX array on one CPU device are
-    viewed as float pairs without a copy (:func:`_float_pairs`), and the fit is a real dot
-    product of each interleaved ``(re, im, …)`` slice with the weights ``[Re K, −Im K, …]``
-    (:func:`_pattern`, built once per grid), accumulated over the frequencies as multiply-adds
-    on contiguous vectors, the adjacent lanes added once at the end (:func:`_apply_pairs`).
-    Traced inside a ``jit`` (no float view of complex data exists in XLA) or on other devices,
-    the complex kernel (:func:`_apply_real`: the real part only, one fused pass, shuffling
-    real and imaginary parts apart for each of the 3 rows); float pairs use the pair kernel
-    inside a ``jit`` too. For more than 64 frequencies, a GEMM (``einsum``).
+    How it runs. Outside ``jit``, complex numpy input and a JAX array on the default CPU
+    device are viewed as float pairs without a copy (:func:`_float_pairs`) and fitted by the
+    float-pair kernel (:func:`_apply_pairs`: the real part only, one fused pass over Z, its
+    own program with 512-bit vectors; ``K`` built once per grid and kept), which also reports
+    whether θ is finite. Traced inside a ``jit`` (XLA has no float view of complex data) or
+    for arrays on other devices, the complex kernel (:func:`_apply_real`, same arithmetic on
+    complex128); float pairs use the float-pair kernel inside a ``jit`` too. For more than 64
+    frequencies, a GEMM (``einsum``). benchmarks/README.md ("Batched WLS") has the
+    measurements, including the interleaved multiply-add variant that was not kept.
 
     Raises ``ValueError`` on wrong shapes (``Z`` not ``(B, N, ...)``, ``mask`` not ``(N,)``, an
     odd or missing pair axis with ``float_pairs``) and, outside ``jit``, on NaN or inf in
     ``omega``, ``omega_c``, ``mask`` or ``Z`` (Z through the result: see
     :func:`_check_finite_result`).
     """
-    _check_batch_input(omega, Z, omega_c, mask, float_pairs)
+    _check_batch_shapes(omega, Z, mask, float_pairs)
     args = (omega, Z, omega_c, mask)
-    B, N = jnp.shape(Z)[:2]
+    B, N = np.shape(Z)[:2]
     if any(isinstance(a, jax.core.Tracer) for a in args):
         # inside a jit/vmap: inlined (compiler options apply to top-level programs only)
+        _check_batch_values(omega, omega_c, mask)
         if float_pairs:
             return _pairs_inline(omega, Z, omega_c, mask)
         return _batch(*args)
@@ -355,11 +324,12 @@ def wls_batch_coefficients(
     else:
         X = _float_pairs(Z, B, N)
     if X is None:
+        _check_batch_values(omega, omega_c, mask)
         theta = _batch_program(*args)
+        finite = np.isfinite(np.asarray(theta)).all()
     else:
-        L = _lanes(X)
-        theta = _pairs_programs[L](_grid_pattern(omega, omega_c, mask, L, X.dtype), X)
-    _check_finite_result(theta, Z)
+        theta, finite = _pairs_program(*_grid_operator(omega, omega_c, mask, X.dtype), X)
+    _check_finite_result(bool(finite), Z)
     return theta
 
 
