@@ -1,7 +1,7 @@
-"""wls_batch_coefficients' float-pair kernel (issue 13) against wls_coefficients and an
-independent numpy least-squares reference, for every input form it takes: complex numpy,
-complex JAX (both viewed as float pairs without a copy), float pairs (numpy and JAX), and
-traced inside a caller's jit; plus its input checks."""
+"""wls_batch_coefficients (issue 13) against wls_coefficients and an independent numpy
+least-squares reference, for every input form it takes: complex numpy, complex JAX, float
+pairs ((re, im) interleaved, numpy and JAX), and traced inside a caller's jit; the operator it
+keeps per grid; its input checks."""
 
 import re
 
@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 from helpers_fit import PAPER_FREQ_HZ
 
-import hapid.fit._wls as wls_mod
 from hapid.fit import OMEGA_C_PAPER, wls, wls_batch_coefficients, wls_coefficients
 from hapid.fit._checks import band_mask
 
@@ -48,15 +47,6 @@ def _assert_close(got, want, tol=1e-12):
     scale = np.abs(want).max(axis=(0, 2))[None, :, None]
     err = np.max(np.abs(got - want) / scale)
     assert err < tol, err
-
-
-def _aligned_copy(Z):
-    """Z in a 64-byte-aligned buffer (what JAX takes without a copy)."""
-    buf = np.empty(Z.nbytes + 64, np.uint8)
-    off = (-buf.ctypes.data) % 64
-    out = buf[off : off + Z.nbytes].view(Z.dtype).reshape(Z.shape)
-    out[...] = Z
-    return out
 
 
 def _all_forms(w, Z, mask, traced=True):
@@ -104,7 +94,7 @@ def test_every_input_form_equals_wls_coefficients_and_numpy_lstsq(n):
 def test_cu5_simulated_frfs_equal_per_frf_wls_and_lstsq():
     """Two noisy periodic runs of the cu5 device (paper protocol, hapid.experiment), stacked
     (B, N, 2, 5, 5): the batch equals wls() of each FRF (Z_H → hand, Z_T → total) and the
-    numpy lstsq reference, whole grid and in a 40 Hz band."""
+    numpy lstsq reference, in a 40 Hz band (and the whole grid against lstsq)."""
     from hapid.device import cu5
     from hapid.experiment import Protocol, estimate_frf, periodic_run
 
@@ -112,19 +102,19 @@ def test_cu5_simulated_frfs_equal_per_frf_wls_and_lstsq():
     frfs = [estimate_frf(periodic_run(dev, Protocol(), noise_seed=s)) for s in (0, 1)]
     w = np.asarray(frfs[0].omega)
     Z = np.stack([np.stack([np.asarray(f.Z_H), np.asarray(f.Z_T)], axis=1) for f in frfs])
-    for f_max in (None, F_MAX):
-        mask = None if f_max is None else np.asarray(band_mask(jnp.asarray(w), f_max))
-        ref = _lstsq_reference(w, Z, mask=mask)
-        forms = _all_forms(w, Z, mask, traced=False)
-        for got in forms.values():
-            _assert_close(got, ref)
-        th = np.asarray(forms["jax complex"]).reshape(2, 3, 2, 5, 5)
-        for b, f in enumerate(frfs):
-            model = wls(f, f_max_hz=f_max)
-            for j, so in enumerate((model.hand, model.total)):
-                for r, A in enumerate((so.M, so.B, so.K)):
-                    A = np.asarray(A)
-                    np.testing.assert_allclose(th[b, r, j], A, rtol=0, atol=1e-12 * np.abs(A).max())
+    mask = np.asarray(band_mask(jnp.asarray(w), F_MAX))
+    ref = _lstsq_reference(w, Z, mask=mask)
+    forms = _all_forms(w, Z, mask, traced=False)
+    for got in forms.values():
+        _assert_close(got, ref)
+    _assert_close(wls_batch_coefficients(w, Z), _lstsq_reference(w, Z))  # whole grid
+    th = np.asarray(forms["jax complex"]).reshape(2, 3, 2, 5, 5)
+    for b, f in enumerate(frfs):
+        model = wls(f, f_max_hz=F_MAX)
+        for j, so in enumerate((model.hand, model.total)):
+            for r, A in enumerate((so.M, so.B, so.K)):
+                A = np.asarray(A)
+                np.testing.assert_allclose(th[b, r, j], A, rtol=0, atol=1e-12 * np.abs(A).max())
 
 
 def test_more_than_64_frequencies_and_odd_element_counts():
@@ -139,25 +129,23 @@ def test_more_than_64_frequencies_and_odd_element_counts():
             _assert_close(got, ref)
 
 
-def test_complex_input_runs_the_pair_kernel_on_the_same_bytes(monkeypatch):
-    """Outside jit, complex numpy and JAX input are fitted from a float view of their own
-    buffer (no copy) by the float-pair kernel, never by the complex kernel."""
+def test_the_operator_kept_per_grid_follows_the_grid_corner_and_mask():
+    """K is built once per (grid, ω_c, mask) and kept: calls that change only the grid's
+    values, the corner or the mask (same shapes) each get their own K, and a repeated call
+    the same values."""
     rng = np.random.default_rng(1)
-    Z = _aligned_copy(rng.standard_normal((2, 28, 8)) + 1j * rng.standard_normal((2, 28, 8)))
-    Zj = jnp.asarray(Z)
-    for z in (Z, Zj):
-        X = wls_mod._float_pairs(z, 2, 28)
-        assert X.dtype == np.float64 and X.shape == (2, 28, 16)
-        assert np.shares_memory(X, Z if z is Z else np.asarray(Zj))
-
-    def refuse(*args):
-        raise AssertionError("the complex kernel ran")
-
-    monkeypatch.setattr(wls_mod, "_batch_program", refuse)
-    w = 2 * np.pi * PAPER_FREQ_HZ
-    ref = _lstsq_reference(w, Z)
-    _assert_close(wls_batch_coefficients(jnp.asarray(w), Z), ref)
-    _assert_close(wls_batch_coefficients(jnp.asarray(w), Zj), ref)
+    Z = rng.standard_normal((2, 28, 8)) + 1j * rng.standard_normal((2, 28, 8))
+    w1 = 2 * np.pi * PAPER_FREQ_HZ
+    w2 = w1 * 1.1
+    band = (PAPER_FREQ_HZ <= 40.0).astype(float)
+    for w, oc, mask in ((w1, OMEGA_C_PAPER, None), (w2, OMEGA_C_PAPER, None),
+                        (w1, 2 * np.pi * 3.0, None), (w1, OMEGA_C_PAPER, band),
+                        (w1, OMEGA_C_PAPER, None)):  # fmt: skip
+        ref = _lstsq_reference(w, Z, oc, mask)
+        _assert_close(wls_batch_coefficients(w, Z, oc, mask), ref)
+        _assert_close(
+            wls_batch_coefficients(w, Z.view(np.float64), oc, mask, float_pairs=True), ref
+        )
 
 
 @pytest.mark.parametrize(

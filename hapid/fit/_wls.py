@@ -17,8 +17,7 @@ normal matrix of condition ~10 instead of ~10¹⁰.
 
 A batch of FRFs on one grid, batch first (``(B, N, ...)``), has a faster path than the complex
 GEMM: :func:`wls_batch_coefficients` computes only the real part ``Re(K z) = K_r z_r − K_i z_i``
-in one fused pass over Z — outside ``jit`` on the float-pair view of Z (``(re, im)``
-interleaved, no copy), inside a ``jit`` on complex Z (see its docstring).
+in one fused pass over Z, complex or given as ``(re, im)`` float pairs (see its docstring).
 """
 
 from __future__ import annotations
@@ -137,7 +136,18 @@ def _batch(omega, Z, omega_c, mask):
     return _apply_real(K, Z.reshape(Z.shape[0], Z.shape[1], -1))
 
 
-_batch_program = partial(jax.jit, compiler_options=_KERNEL_OPTIONS)(_batch)
+_batch_program = partial(jax.jit, compiler_options=_KERNEL_OPTIONS)(
+    lambda K, Z: _with_finite_flag(_apply_real(K, Z.reshape(Z.shape[0], Z.shape[1], -1)))
+)
+"""The complex kernel as its own program (512-bit vectors) on a cached ``K``
+(:func:`_grid_operator`), with :func:`_with_finite_flag`."""
+
+
+def _with_finite_flag(theta):
+    """``(θ, isfinite(Σ θ))``: false when any θ is NaN or inf (or the sum overflows, and then
+    Z is scanned on the host) — the NaN check as one bool read on the host, no pass over Z.
+    Measured: it costs ~10 % of the call (one reduction and one transfer)."""
+    return theta, jnp.isfinite(jnp.sum(theta))
 
 
 def _apply_pairs(Kr: Float[Array, "3 N"], Ki: Float[Array, "3 N"], X: Float[Array, "B N ..."]):
@@ -146,8 +156,7 @@ def _apply_pairs(Kr: Float[Array, "3 N"], Ki: Float[Array, "3 N"], X: Float[Arra
 
     The same fused pass as :func:`_apply_real` (unrolled over ``k``, summed pairwise, ``b``
     outermost, vectorized over ``e``), reading real and imaginary parts as the even and odd
-    float64 of each slice: LLVM loads two vectors and splits them with two shuffles, where
-    from complex128 data XLA's code was 1.2–1.5× slower (measured, same run)."""
+    float64 of each slice (LLVM loads two vectors and splits them with two shuffles)."""
     B, N = X.shape[:2]
     X = X.reshape(B, N, -1)
     if N > _UNROLL_MAX_N:
@@ -168,22 +177,26 @@ def _pairs_inline(omega, X, omega_c, mask):
 
 
 _pairs_program = partial(jax.jit, compiler_options=_KERNEL_OPTIONS)(
-    lambda Kr, Ki, X: (lambda th: (th, jnp.isfinite(jnp.sum(th))))(_apply_pairs(Kr, Ki, X))
+    lambda K, X: _with_finite_flag(_apply_pairs(jnp.real(K), jnp.imag(K), X))
 )
-"""The float-pair kernel as its own program (512-bit vectors), with whether the sum of θ is
-finite — false when any θ is NaN or inf (or the sum overflows, and then Z is scanned on the
-host): one bool read, no pass over Z. Measured: the check costs 5–10 % of the call."""
+"""The float-pair kernel as its own program (512-bit vectors), with :func:`_with_finite_flag`."""
 
-_operator_program = jax.jit(lambda om, oc, mask: (lambda K: (jnp.real(K), jnp.imag(K)))(
-    wls_operator(om, oc, mask)))  # fmt: skip
+_operator_program = jax.jit(wls_operator)
 _OPERATOR_CACHE: dict = {}
+_REAL = {np.dtype(c): np.dtype(r) for c, r in
+         ((np.complex128, np.float64), (np.complex64, np.float32),
+          (np.float64, np.float64), (np.float32, np.float32))}  # fmt: skip
 _OPERATOR_CACHE_SIZE = 16
 
 
-def _grid_operator(omega, omega_c, mask, real) -> tuple:
-    """``(Re K, Im K)`` of :func:`wls_operator` for (grid, ω_c, mask, dtype), built once and
+def _grid_operator(omega, omega_c, mask, real) -> Complex[Array, "3 N"]:
+    """:func:`wls_operator` ``K`` for (grid, ω_c, mask, real dtype), built once and
     kept (the last 16), the values checked then: ``K`` depends only on these, and building it
     is ~20 small XLA kernels (≈ 60 µs measured, a tenth of a 512-FRF batch)."""
+    last = _OPERATOR_CACHE.get("last")  # the same JAX arrays again (immutable): no key to build
+    if last is not None and last[0] is omega and last[1] == omega_c and last[2] is mask:
+        if last[3] == real:
+            return last[4]
     om = np.asarray(omega, dtype=real)
     mk = None if mask is None else np.asarray(mask, dtype=real)
     key = (om.tobytes(), float(omega_c), None if mk is None else mk.tobytes(), real.str)
@@ -192,40 +205,19 @@ def _grid_operator(omega, omega_c, mask, real) -> tuple:
         _check_batch_values(omega, omega_c, mask)
         K = _operator_program(om, float(omega_c), mk)
         if len(_OPERATOR_CACHE) >= _OPERATOR_CACHE_SIZE:
-            _OPERATOR_CACHE.pop(next(iter(_OPERATOR_CACHE)))
+            _OPERATOR_CACHE.pop(next(k for k in _OPERATOR_CACHE if k != "last"))
         _OPERATOR_CACHE[key] = K
+    immutable = isinstance(omega, jax.Array) and (mask is None or isinstance(mask, jax.Array))
+    if immutable and isinstance(omega_c, float | int):
+        _OPERATOR_CACHE["last"] = (omega, omega_c, mask, real, K)
     return K
-
-
-def _float_pairs(Z, B: int, N: int):
-    """Complex ``Z`` outside ``jit`` as float pairs ``(B, N, 2E)`` without a copy, or ``None``.
-
-    A complex numpy array is viewed as its float dtype (``Z.view``); a JAX array on the
-    default CPU device is the same bytes seen through numpy (``np.asarray`` of a CPU array is
-    its buffer). Either is handed to the program as a numpy argument, which JAX takes without
-    copying when it is 64-byte aligned (a JAX buffer is; a numpy array may not be, and is then
-    copied, as for any numpy input). ``None`` for anything else (other devices, sharded
-    arrays, real or empty data): the complex kernel then runs."""
-    if isinstance(Z, jax.Array):
-        devices = Z.sharding.device_set if Z.is_fully_addressable else ()
-        if len(devices) != 1 or next(iter(devices)) != jax.devices()[0]:
-            return None
-        if not jnp.iscomplexobj(Z):
-            return None
-        host = np.asarray(Z)  # the device buffer itself on CPU
-    elif isinstance(Z, np.ndarray):
-        host = np.ascontiguousarray(Z)
-    else:
-        return None
-    if host.dtype not in (np.complex64, np.complex128) or host.size == 0:
-        return None
-    return host.reshape(B, N, -1).view(np.finfo(host.dtype).dtype)
 
 
 def _check_batch_shapes(omega, Z, mask, float_pairs: bool) -> None:
     """Shapes of the grid, data and mask (and the pair axis with ``float_pairs``)."""
     name = "wls_batch_coefficients"
-    w_shape, z_shape = np.shape(omega), np.shape(Z)
+    w_shape = omega.shape if hasattr(omega, "shape") else np.shape(omega)
+    z_shape = Z.shape if hasattr(Z, "shape") else np.shape(Z)
     if len(w_shape) != 1:
         raise ValueError(f"{name}: omega must be (N,), got shape {w_shape}")
     N = w_shape[0]
@@ -293,15 +285,13 @@ def wls_batch_coefficients(
     pairs, ``Z[..., 2i]`` and ``Z[..., 2i + 1]`` the real and imaginary parts (what
     ``Zc.view(np.float64)`` gives for a complex ``Zc``); then ``E = Z[0, 0].size / 2``.
 
-    How it runs. Outside ``jit``, complex numpy input and a JAX array on the default CPU
-    device are viewed as float pairs without a copy (:func:`_float_pairs`) and fitted by the
-    float-pair kernel (:func:`_apply_pairs`: the real part only, one fused pass over Z, its
-    own program with 512-bit vectors; ``K`` built once per grid and kept), which also reports
-    whether θ is finite. Traced inside a ``jit`` (XLA has no float view of complex data) or
-    for arrays on other devices, the complex kernel (:func:`_apply_real`, same arithmetic on
-    complex128); float pairs use the float-pair kernel inside a ``jit`` too. For more than 64
-    frequencies, a GEMM (``einsum``). benchmarks/README.md ("Batched WLS") has the
-    measurements, including the interleaved multiply-add variant that was not kept.
+    How it runs: the real part only, ``Re(K z) = K_r z_r − K_i z_i``, in one fused pass over Z
+    (:func:`_apply_real` on complex data, :func:`_apply_pairs` on float pairs), called on its
+    own as its own program with 512-bit vectors that also reports whether θ is finite (the
+    NaN check); traced inside a ``jit`` it is inlined into the caller's program. For more
+    than 64 frequencies, a GEMM (``einsum``). benchmarks/README.md ("Batched WLS") has the
+    measurements, including a zero-copy float view of complex input and multiply-adds on the
+    interleaved pairs, measured and not kept (no faster once complete).
 
     Raises ``ValueError`` on wrong shapes (``Z`` not ``(B, N, ...)``, ``mask`` not ``(N,)``, an
     odd or missing pair axis with ``float_pairs``) and, outside ``jit``, on NaN or inf in
@@ -310,25 +300,19 @@ def wls_batch_coefficients(
     """
     _check_batch_shapes(omega, Z, mask, float_pairs)
     args = (omega, Z, omega_c, mask)
-    B, N = np.shape(Z)[:2]
     if any(isinstance(a, jax.core.Tracer) for a in args):
         # inside a jit/vmap: inlined (compiler options apply to top-level programs only)
         _check_batch_values(omega, omega_c, mask)
         if float_pairs:
             return _pairs_inline(omega, Z, omega_c, mask)
         return _batch(*args)
-    if float_pairs and isinstance(Z, jax.Array):
-        X = Z  # reshaped inside the program (a reshape outside jit is a copy)
-    elif float_pairs:
-        X = np.ascontiguousarray(Z)
+    if float_pairs:
+        X = Z if isinstance(Z, jax.Array) else np.ascontiguousarray(Z)  # reshaped in the program
+        theta, finite = _pairs_program(_grid_operator(omega, omega_c, mask, X.dtype), X)
     else:
-        X = _float_pairs(Z, B, N)
-    if X is None:
-        _check_batch_values(omega, omega_c, mask)
-        theta = _batch_program(*args)
-        finite = np.isfinite(np.asarray(theta)).all()
-    else:
-        theta, finite = _pairs_program(*_grid_operator(omega, omega_c, mask, X.dtype), X)
+        real = _REAL.get(np.dtype(Z.dtype)) if hasattr(Z, "dtype") else None
+        real = np.finfo(jnp.result_type(Z)).dtype if real is None else real
+        theta, finite = _batch_program(_grid_operator(omega, omega_c, mask, real), Z)
     _check_finite_result(bool(finite), Z)
     return theta
 
