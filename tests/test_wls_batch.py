@@ -1,7 +1,7 @@
 """wls_batch_coefficients (issue 13) against wls_coefficients and an independent numpy
 least-squares reference, for every input form it takes: complex numpy, complex JAX, float
-pairs ((re, im) interleaved, numpy and JAX), and traced inside a caller's jit; the operator it
-keeps per grid; its input checks."""
+pairs ((re, im) interleaved, numpy and JAX), and traced inside a caller's jit; programs reused
+across values; its input checks."""
 
 import re
 
@@ -129,10 +129,9 @@ def test_more_than_64_frequencies_and_odd_element_counts():
             _assert_close(got, ref)
 
 
-def test_the_operator_kept_per_grid_follows_the_grid_corner_and_mask():
-    """K is built once per (grid, ω_c, mask) and kept: calls that change only the grid's
-    values, the corner or the mask (same shapes) each get their own K, and a repeated call
-    the same values."""
+def test_calls_that_change_only_values_of_grid_corner_or_mask_follow_them():
+    """The compiled programs are reused across calls of the same shapes: a call that changes
+    only the grid's values, the corner or the mask gets its own fit, a repeated call the same."""
     rng = np.random.default_rng(1)
     Z = rng.standard_normal((2, 28, 8)) + 1j * rng.standard_normal((2, 28, 8))
     w1 = 2 * np.pi * PAPER_FREQ_HZ

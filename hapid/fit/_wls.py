@@ -136,11 +136,7 @@ def _batch(omega, Z, omega_c, mask):
     return _apply_real(K, Z.reshape(Z.shape[0], Z.shape[1], -1))
 
 
-_batch_program = partial(jax.jit, compiler_options=_KERNEL_OPTIONS)(
-    lambda K, Z: _apply_real(K, Z.reshape(Z.shape[0], Z.shape[1], -1))
-)
-"""The complex kernel as its own program (512-bit vectors) on a cached ``K``
-(:func:`_grid_operator`)."""
+_batch_program = partial(jax.jit, compiler_options=_KERNEL_OPTIONS)(_batch)
 
 
 def _apply_pairs(Kr: Float[Array, "3 N"], Ki: Float[Array, "3 N"], X: Float[Array, "B N ..."]):
@@ -163,47 +159,14 @@ def _apply_pairs(Kr: Float[Array, "3 N"], Ki: Float[Array, "3 N"], X: Float[Arra
 
 
 def _pairs_inline(omega, X, omega_c, mask):
-    """The float-pair kernel traced inside a caller's ``jit`` (``K`` built in the program)."""
+    """The float-pair kernel with ``K`` built in the program (as :func:`_batch` does)."""
     real = X.dtype
     K = wls_operator(omega.astype(real), omega_c, None if mask is None else mask.astype(real))
     return _apply_pairs(jnp.real(K), jnp.imag(K), X)
 
 
-_pairs_program = partial(jax.jit, compiler_options=_KERNEL_OPTIONS)(
-    lambda K, X: _apply_pairs(jnp.real(K), jnp.imag(K), X)
-)
-"""The float-pair kernel as its own program (512-bit vectors) on a cached ``K``."""
-
-_operator_program = jax.jit(wls_operator)
-_OPERATOR_CACHE: dict = {}
-_REAL = {np.dtype(c): np.dtype(r) for c, r in
-         ((np.complex128, np.float64), (np.complex64, np.float32),
-          (np.float64, np.float64), (np.float32, np.float32))}  # fmt: skip
-_OPERATOR_CACHE_SIZE = 16
-
-
-def _grid_operator(omega, omega_c, mask, real) -> Complex[Array, "3 N"]:
-    """:func:`wls_operator` ``K`` for (grid, ω_c, mask, real dtype), built once and
-    kept (the last 16), the values checked then: ``K`` depends only on these, and building it
-    is ~20 small XLA kernels (≈ 60 µs measured, a tenth of a 512-FRF batch)."""
-    last = _OPERATOR_CACHE.get("last")  # the same JAX arrays again (immutable): no key to build
-    if last is not None and last[0] is omega and last[1] == omega_c and last[2] is mask:
-        if last[3] == real:
-            return last[4]
-    om = np.asarray(omega, dtype=real)
-    mk = None if mask is None else np.asarray(mask, dtype=real)
-    key = (om.tobytes(), float(omega_c), None if mk is None else mk.tobytes(), real.str)
-    K = _OPERATOR_CACHE.get(key)
-    if K is None:  # a new grid: its values are checked once, here
-        _check_batch_values(omega, omega_c, mask)
-        K = _operator_program(om, float(omega_c), mk)
-        if len(_OPERATOR_CACHE) >= _OPERATOR_CACHE_SIZE:
-            _OPERATOR_CACHE.pop(next(k for k in _OPERATOR_CACHE if k != "last"))
-        _OPERATOR_CACHE[key] = K
-    immutable = isinstance(omega, jax.Array) and (mask is None or isinstance(mask, jax.Array))
-    if immutable and isinstance(omega_c, float | int):
-        _OPERATOR_CACHE["last"] = (omega, omega_c, mask, real, K)
-    return K
+_pairs_program = partial(jax.jit, compiler_options=_KERNEL_OPTIONS)(_pairs_inline)
+"""The float-pair kernel as its own program (512-bit vectors)."""
 
 
 def _check_batch_shapes(omega, Z, mask, float_pairs: bool) -> None:
@@ -281,8 +244,8 @@ def wls_batch_coefficients(
     How it runs: the real part only, ``Re(K z) = K_r z_r − K_i z_i``, in one fused pass over Z
     (:func:`_apply_real` on complex data, :func:`_apply_pairs` on float pairs), called on its
     own as its own program with 512-bit vectors (θ is then checked for NaN/inf on the host);
-    traced inside a ``jit`` it is inlined into the caller's program. For more
-    than 64 frequencies, a GEMM (``einsum``). benchmarks/README.md ("Batched WLS") has the
+    traced inside a ``jit`` it is inlined into the caller's program. For more than 64
+    frequencies, a GEMM (``einsum``). benchmarks/README.md ("Batched WLS") has the
     measurements, including a zero-copy float view of complex input and multiply-adds on the
     interleaved pairs, measured and not kept (no faster once complete).
 
@@ -292,21 +255,18 @@ def wls_batch_coefficients(
     :func:`_check_finite_result`).
     """
     _check_batch_shapes(omega, Z, mask, float_pairs)
+    _check_batch_values(omega, omega_c, mask)
     args = (omega, Z, omega_c, mask)
     if any(isinstance(a, jax.core.Tracer) for a in args):
         # inside a jit/vmap: inlined (compiler options apply to top-level programs only)
-        _check_batch_values(omega, omega_c, mask)
-        if float_pairs:
-            return _pairs_inline(omega, Z, omega_c, mask)
-        return _batch(*args)
+        return _pairs_inline(*args) if float_pairs else _batch(*args)
     if float_pairs:
         X = Z if isinstance(Z, jax.Array) else np.ascontiguousarray(Z)  # reshaped in the program
-        theta = _pairs_program(_grid_operator(omega, omega_c, mask, X.dtype), X)
+        theta = _pairs_program(omega, X, omega_c, mask)
     else:
-        real = _REAL.get(np.dtype(Z.dtype)) if hasattr(Z, "dtype") else None
-        real = np.finfo(jnp.result_type(Z)).dtype if real is None else real
-        theta = _batch_program(_grid_operator(omega, omega_c, mask, real), Z)
-    # the NaN check on θ (3/N of Z's size) on the host: a reduction in the program cost more
+        theta = _batch_program(*args)
+    # the NaN check on θ (3/N of Z's size) on the host: +4 % (paired A/B); a reduction in the
+    # program cost more
     _check_finite_result(np.isfinite(np.asarray(theta)).all(), Z)
     return theta
 
