@@ -93,9 +93,10 @@ _UNROLL_MAX_N = 64
 above it, the complex GEMM (``einsum``)."""
 
 _KERNEL_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
-"""XLA:CPU option of the complex kernel's own program (:func:`_batch_program`, no global flag):
-512-bit vectors halve the shuffles that split complex128 into real and imaginary parts, that
-kernel's bottleneck (measured 1.05–1.45×, typically 1.1–1.15×, on the benchmark machine)."""
+"""XLA:CPU option of the kernels' own programs (:func:`_batch_program`, :func:`_pairs_program`;
+no global flag): 512-bit vectors halve the shuffles that split complex128 (or float pairs)
+into real and imaginary parts (measured 1.05–1.45×, typically 1.1–1.15×, on the benchmark
+machine)."""
 
 
 def _pairwise_sum(terms: list):
