@@ -210,7 +210,7 @@ def _check_finite_result(finite, Z) -> None:
     """A NaN or inf in Z reaches θ (every weight multiplies it; a masked frequency's zero
     weight times NaN or inf is NaN), so ``finite`` — whether θ (3/N of Z's size) is finite — is
     checked, and Z only when it is not, to name the first bad entry. A finite Z passes (also
-    when θ or its sum overflows)."""
+    when θ overflows)."""
     if finite:
         return
     bad = np.argwhere(~np.isfinite(np.asarray(Z)))
