@@ -299,7 +299,8 @@ def wls_throughput(sec: Section, quick: bool):
     t_bound = per_fit["pairs"] / (bw * 1e9)  # time per fit at the bound
     return {"id": "wls_bound",
             "work": f"batched WLS, `wls_batch_coefficients` on complex JAX input (shared grid, "
-                    f"batch first, float-pair kernel), n = {n}, N = {N}, B = {B}, per fit",
+                    f"batch first, real part in one fused pass, with the call's input and NaN "
+                    f"checks), n = {n}, N = {N}, B = {B}, per fit",
             "reference": f"memory-bandwidth bound ({bw:.1f} GB/s measured, {per_fit['pairs']} B/fit)",
             "reference_s": t_bound, "hapid_s": t_fit, "ratio": t_bound / t_fit,
             "goal": ISSUE_GOAL["wls_bound"], "met": bool(frac >= 0.5),
