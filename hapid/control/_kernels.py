@@ -190,26 +190,35 @@ def sigma_max(A, sweeps: int | None = None, unroll: bool = False):
     return jnp.sqrt(jnp.maximum(jnp.max(ev, axis=0), 0.0))
 
 
-def eig_newton(A, z0, iters: int = 6):
+def eig_newton(A, z0, iters: int = 6, active=None):
     """The eigenvalue of ``A (n, n, ...)`` nearest the guess ``z0 (...)`` (Newton on
     ``det(A − zI)``; quadratic for a simple eigenvalue once close). Stops when every step is
-    at rounding level (``|Δz| ≤ 4ε·max(|z|, ‖A‖_F·ε)``), at most ``iters`` steps."""
+    at rounding level (``|Δz| ≤ 4ε·max(|z|, ‖A‖_F)``: an eigenvalue is defined to ~ε‖A‖
+    absolutely, so a small one is not iterated on rounding noise), at most ``iters`` steps.
+    ``active`` (bool ``(...)``, optional): only these decide when to stop (the others are
+    iterated along but their results are not meant to be used). A matrix stops changing
+    once its own step is at rounding level, so its result does not depend on the batch."""
     n = A.shape[0]
     eye = jnp.eye(n, dtype=A.dtype).reshape((n, n) + (1,) * (A.ndim - 2))
-    floor = 4.0 * _ULP * _ULP * jnp.sqrt(fro2(A))
+    floor = 4.0 * _ULP * jnp.sqrt(fro2(A))
 
     def body(c):
-        it, z, _ = c
+        it, z, stopped = c
         _, Ai = det_inv(A - eye * z, unroll=True)
         tr = sum(Ai[i, i] for i in range(n))
         step = jnp.where(jnp.isfinite(tr) & (tr != 0), 1.0 / jnp.where(tr != 0, tr, 1.0), 0.0)
         small = jnp.abs(step) <= jnp.maximum(4.0 * _ULP * jnp.abs(z), floor)
-        return it + 1, z + step, jnp.all(small | ~jnp.isfinite(step))
+        # a matrix that has converged keeps its value: the result of each does not depend
+        # on what else is in the batch
+        z = jnp.where(stopped, z, z + step)
+        return it + 1, z, stopped | small | ~jnp.isfinite(step)
 
     def cond(c):
-        return (c[0] < iters) & ~c[2]
+        busy = ~c[2] if active is None else ~c[2] & active
+        return (c[0] < iters) & jnp.any(busy)
 
-    return jax.lax.while_loop(cond, body, (jnp.asarray(0), z0, jnp.asarray(False)))[1]
+    stopped = jnp.zeros(jnp.shape(z0), dtype=bool)
+    return jax.lax.while_loop(cond, body, (jnp.asarray(0), z0, stopped))[1]
 
 
 # --------------------------------------------------------------------------------------

@@ -20,6 +20,13 @@
   a time in a ``while_loop`` — the work follows the count of undecided points, and under
   ``vmap`` nothing is computed twice (``exact_fallback`` is always false; kept for callers).
 
+Two passes, each pure and jit/vmap-able: :func:`grid_pass` does the work at every grid
+frequency (the verdict; for each asked metric the grid interval to refine and a window of
+grid nodes around it) and :func:`refine_pass` the few small sequential steps (Illinois,
+Newton, multisection). :func:`metrics_screened` runs both in one program; a caller with
+many loops (``robust_check``) runs the grid pass per loop and the refinement pass once,
+vmapped, for all of them, so the refinement's step count is paid once.
+
 Crossings are **refined**, not read on the grid: the iso-bandwidth (σ̄(T − I) = σ̄(S)
 reaching ``1 − 1/√2``), gain/phase crossovers of the loci and the peak of σ̄(T) are solved
 for on ``L(jω)`` itself — given ``L_fn`` (``omega (M,) → L(jω) (M, n, n)``) exactly, else on
@@ -55,8 +62,13 @@ TWO_PI = 2.0 * np.pi
 ISO_THRESHOLD = 1.0 - 1.0 / np.sqrt(2.0)
 _ROOT_ITERS = 30
 _T_TOL = 1e-14  # Illinois: bracket width in t ∈ [0, 1] that counts as converged
-_GOLDEN_ITERS = 48
+_SECTIONS = 16  # points per multisection step (peaks)
+_SECTION_STEPS = 13  # bracket × (2/17)^13 ≈ 1e-12
+_EPS = float(np.finfo(np.float64).eps)
+_TINY = float(np.finfo(np.float64).tiny)
 _N_REFINE = 4
+_STAGE1 = 8  # Illinois steps every loci candidate gets; the rest continue in blocks
+_BLOCK = 64
 
 
 @dataclasses.dataclass(frozen=True)
@@ -179,14 +191,15 @@ class LoopMetrics(eqx.Module):
 # helpers
 
 
-def _illinois(f, fa, fb, iters=_ROOT_ITERS):
+def _illinois(f, fa, fb, iters=_ROOT_ITERS, ftol=0.0):
     """Root of ``f(t)`` on ``t ∈ [0, 1]`` given ``fa = f(0)``, ``fb = f(1)`` of opposite
     signs (vectorized over the candidates), by Illinois false position. Returns the evaluated
     point of smallest ``|f|`` (the bracket ends included): false position converges from one
     side, so the bracket's midpoint can stay far from the root while one end sits on it.
     Runs until every candidate has converged (``f = 0`` hit or the bracket below
-    ``_T_TOL``; a candidate without a sign change counts as converged), at most ``iters``
-    steps."""
+    ``_T_TOL``, or ``|f| ≤ ftol`` at an evaluated point: ``ftol`` the rounding level of
+    ``f``, per candidate; a candidate without a sign change counts as converged), at most
+    ``iters`` steps."""
     ta = jnp.zeros_like(fa)
     tb = jnp.ones_like(fb)
     a_best = jnp.abs(fa) <= jnp.abs(fb)
@@ -195,7 +208,7 @@ def _illinois(f, fa, fb, iters=_ROOT_ITERS):
 
     def done_of(ta, tb, fa, fb, best_f):
         bracket = ((fa >= 0) != (fb >= 0)) & jnp.isfinite(fa) & jnp.isfinite(fb)
-        return ~bracket | (best_f == 0) | (jnp.abs(tb - ta) <= _T_TOL)
+        return ~bracket | (best_f <= ftol) | (jnp.abs(tb - ta) <= _T_TOL)
 
     def body(c):
         it, ta, tb, fa, fb, side, best_t, best_f = c
@@ -226,6 +239,65 @@ def _illinois(f, fa, fb, iters=_ROOT_ITERS):
     return jax.lax.while_loop(cond, body, init)[6]
 
 
+def _tracked_init(la, lb, fa, fb):
+    """Start of :func:`_illinois_tracked`: the bracket ``t ∈ [0, 1]`` with the locus ``la``,
+    ``lb`` and ``f`` = ``fa``, ``fb`` at its ends."""
+    a_best = jnp.abs(fa) <= jnp.abs(fb)
+    return dict(
+        it=jnp.asarray(0), ta=jnp.zeros_like(fa), tb=jnp.ones_like(fb), fa=fa, fb=fb,
+        side=jnp.zeros(fa.shape, dtype=jnp.int32),
+        best_t=jnp.where(a_best, 0.0, 1.0), best_f=jnp.where(a_best, jnp.abs(fa), jnp.abs(fb)),
+        best_lam=jnp.where(a_best, la, lb),
+    )  # fmt: skip
+
+
+def _tracked_done(c, ftol):
+    fa, fb = c["fa"], c["fb"]
+    bracket = ((fa >= 0) != (fb >= 0)) & jnp.isfinite(fa) & jnp.isfinite(fb)
+    return ~bracket | (c["best_f"] <= ftol) | (jnp.abs(c["tb"] - c["ta"]) <= _T_TOL)
+
+
+def _illinois_tracked(c, lam_at, f_of, ftol, iters):
+    """Illinois false position on ``f(λ(t))``, ``t ∈ [0, 1]``, for a locus ``λ(t)``
+    (``lam_at(t)``: the eigenvalue of ``L`` at ``t`` nearest the locus' interpolated grid
+    ends), from the state ``c`` (:func:`_tracked_init`), at most ``iters`` more steps. A
+    candidate without a sign change has nothing to do; a candidate stops as
+    :func:`_illinois` (``ftol``: the rounding level of ``f``) and then keeps its state, so
+    its result does not depend on the other candidates of the batch. Returns the state;
+    ``best_t``/``best_lam``: the evaluated point of smallest ``|f|``."""
+
+    def body(c):
+        busy = ~_tracked_done(c, ftol)
+        ta, tb, fa, fb, side = c["ta"], c["tb"], c["fa"], c["fb"], c["side"]
+        den = fb - fa
+        t = jnp.where(
+            den != 0, (ta * fb - tb * fa) / jnp.where(den != 0, den, 1.0), 0.5 * (ta + tb)
+        )
+        t = jnp.clip(t, jnp.minimum(ta, tb), jnp.maximum(ta, tb))
+        lam = lam_at(t)
+        ft = f_of(lam)
+        better = jnp.abs(ft) < c["best_f"]
+        same_a = (ft >= 0) == (fa >= 0)
+        # Illinois: halve the stale end's value when the same end is kept twice
+        new = dict(
+            it=c["it"] + 1,
+            ta=jnp.where(same_a, t, ta), tb=jnp.where(same_a, tb, t),
+            fa=jnp.where(same_a, ft, jnp.where(side == -1, 0.5 * fa, fa)),
+            fb=jnp.where(same_a, jnp.where(side == 1, 0.5 * fb, fb), ft),
+            side=jnp.where(same_a, 1, -1).astype(jnp.int32),
+            best_t=jnp.where(better, t, c["best_t"]),
+            best_f=jnp.where(better, jnp.abs(ft), c["best_f"]),
+            best_lam=jnp.where(better, lam, c["best_lam"]),
+        )  # fmt: skip
+        # a candidate that is done keeps its state: its result does not depend on the batch
+        return {k: v if k == "it" else jnp.where(busy, v, c[k]) for k, v in new.items()}
+
+    def cond(c):
+        return (c["it"] < iters) & ~jnp.all(_tracked_done(c, ftol))
+
+    return jax.lax.while_loop(cond, body, dict(c, it=jnp.asarray(0)))
+
+
 def _lagrange_weights(x, nodes):
     """4-point Lagrange weights at ``x (C,)`` for nodes ``(C, 4)``."""
     w = []
@@ -238,30 +310,50 @@ def _lagrange_weights(x, nodes):
     return jnp.stack(w, axis=1)
 
 
-class _Interp:
-    """``L`` at log-frequencies ``x`` near grid interval ``k``: ``L_fn`` if given, else a local
-    4-point Lagrange interpolant of the grid values (linear when N < 4)."""
+_W = (
+    8  # grid nodes carried per refinement task (covers the cubic's nodes of intervals k − 1..k + 1)
+)
 
-    def __init__(self, L, lw, L_fn):
-        self.L, self.lw, self.L_fn = L, lw, L_fn
-        self.N = L.shape[0]
 
-    def __call__(self, k, x):
+def _windows(L, lw, k):
+    """Grid nodes around each task's grid interval ``k (C,)``: ``(L_win (C, W, n, n),
+    lw_win (C, W), k_local (C,))`` with ``W = min(8, N)`` starting at ``clip(k − 3, 0, N − W)``,
+    so the local interpolant picks the same nodes as one on the whole grid would."""
+    N = L.shape[0]
+    W = min(_W, N)
+    s = jnp.clip(k - 3, 0, N - W)
+    idx = s[:, None] + jnp.arange(W)[None]
+    return L[idx], lw[idx], k - s
+
+
+class _Local:
+    """``L`` at log-frequencies ``x`` near each refinement task's grid interval: ``L_fn`` if
+    given, else a 4-point Lagrange interpolant of the task's window of grid values (linear
+    when the grid has fewer than 4 points). Task ``c``, local interval ``k``: the same nodes
+    as the whole grid's interpolant (:func:`_windows`)."""
+
+    def __init__(self, Lw, lww, L_fn):
+        self.Lw, self.lww, self.L_fn = Lw, lww, L_fn
+        self.W = lww.shape[-1]
+
+    def __call__(self, c, k, x):
         if self.L_fn is not None:
             return jnp.asarray(self.L_fn(jnp.exp(x)), dtype=jnp.complex128)
-        N, lw, L = self.N, self.lw, self.L
-        if N < 4:
-            k = jnp.clip(k, 0, N - 2)
-            t = (x - lw[k]) / (lw[k + 1] - lw[k])
-            return L[k] + t[:, None, None] * (L[k + 1] - L[k])
-        j0 = jnp.clip(k - 1, 0, N - 4)
+        W, lww, Lw = self.W, self.lww, self.Lw
+        if W < 4:
+            k = jnp.clip(k, 0, W - 2)
+            x0, x1 = lww[c, k], lww[c, k + 1]
+            t = (x - x0) / (x1 - x0)
+            return Lw[c, k] + t[:, None, None] * (Lw[c, k + 1] - Lw[c, k])
+        j0 = jnp.clip(k - 1, 0, W - 4)
         idx = j0[:, None] + jnp.arange(4)[None]
-        w = _lagrange_weights(x, lw[idx])
-        return jnp.einsum("cj,cjab->cab", w.astype(L.dtype), L[idx])
+        w = _lagrange_weights(x, lww[c[:, None], idx])
+        return jnp.einsum("cj,cjab->cab", w.astype(Lw.dtype), Lw[c[:, None], idx])
 
-    def interval(self, x):
-        k = jnp.searchsorted(self.lw, x, side="right") - 1
-        return jnp.clip(k, 0, self.N - 2)
+    def interval(self, c, x):
+        """Local grid interval of ``x`` in task ``c``'s window (the node ≤ x, clipped)."""
+        k = jnp.sum(self.lww[c] <= x[:, None], axis=1) - 1
+        return jnp.clip(k, 0, self.W - 2)
 
 
 def _sigma_exact(A, kernels, unroll=False):
@@ -303,44 +395,41 @@ def _fill_where(flag, fn, out, size, stop=None):
 
 
 # --------------------------------------------------------------------------------------
-# the analysis
+# the analysis: a grid pass (every frequency) and a refinement pass (a few small tasks)
+#
+# The grid pass decides the verdict and finds, for each asked metric, the grid interval to
+# refine; it hands the refinement pass a window of grid nodes around each (``_windows``).
+# The refinement pass is sequential (Illinois, Newton, multisection) on a handful of
+# small matrices: on its own its cost is the per-step overhead, which a caller with many
+# loops (``robust_check``) shares by running it once, vmapped, over all of them.
 
 
-def _threshold_crossing(i, j, thr, interp, lw, kernels):
-    """ω (rad/s) in grid interval ``[i, j]`` where σ̄(S) = ``thr``: Illinois on the exact (or
-    interpolated) S over log ω, bracketed by its values at the interval's grid ends."""
+def _threshold_crossing(c, i, j, thr, interp, kernels):
+    """ω (rad/s) in local grid interval ``[i, j]`` of task ``c`` where σ̄(S) = ``thr``:
+    Illinois on the exact (or interpolated) S over log ω, bracketed by its values at the
+    interval's grid ends."""
+    xi, xj = interp.lww[c, i], interp.lww[c, j]
 
     def f(t):
-        x = lw[i] + t * (lw[j] - lw[i])
-        return _sigma_of_S(interp(jnp.broadcast_to(i, x.shape), x), kernels) - thr
+        x = xi + t * (xj - xi)
+        cc = jnp.broadcast_to(c, x.shape)
+        return _sigma_of_S(interp(cc, jnp.broadcast_to(i, x.shape), x), kernels) - thr
 
     fab = f(jnp.array([0.0, 1.0]))
     t = _illinois(f, fab[:1], fab[1:])[0]
-    return jnp.exp(lw[i] + t * (lw[j] - lw[i]))
+    return jnp.exp(xi + t * (xj - xi))
 
 
-def _first_crossing(sig_fn, lo, hi, thr, interp, lw, size, kernels):
-    """Refined lowest ω (rad/s) where σ̄(S) reaches ``thr``; exact σ̄ only where the bounds
-    ``lo``/``hi`` straddle it, up to the first sure crossing."""
+def _first_above(sig_fn, lo, hi, thr, size):
+    """Grid index of the lowest ω where σ̄(S) reaches ``thr`` and whether there is one;
+    exact σ̄ only where the bounds ``lo``/``hi`` straddle it, up to the first sure one."""
     N = lo.shape[0]
     maybe = hi >= thr
     sure = lo >= thr
     k1 = jnp.where(jnp.any(sure), jnp.argmax(sure), N - 1)
     amb = maybe & ~sure & (jnp.arange(N) <= k1)
     above = _fill_where(amb, lambda i: sig_fn(i) >= thr, sure, size, stop=lambda v: v)
-    k = jnp.argmax(above)
-    w = _threshold_crossing(jnp.maximum(k - 1, 0), k, thr, interp, lw, kernels)
-    return jnp.where(~jnp.any(above), jnp.inf, jnp.where(k == 0, 0.0, w))
-
-
-def _last_crossing(sig, thr, interp, lw, kernels):
-    """Refined highest ω where σ̄(S) < ``thr`` (the end of the last sub-threshold stretch;
-    the paper's literal bandwidth): inf if below at the last point, 0 if never below."""
-    N = sig.shape[0]
-    below = sig < thr
-    j = N - 1 - jnp.argmax(below[::-1])
-    w = _threshold_crossing(j, jnp.minimum(j + 1, N - 1), thr, interp, lw, kernels)
-    return jnp.where(~jnp.any(below), 0.0, jnp.where(j == N - 1, jnp.inf, w))
+    return jnp.argmax(above), jnp.any(above)
 
 
 def _sigma_of_S(L, kernels):
@@ -371,20 +460,18 @@ def _peak_grid(M_grid, size, kernels):
     return jnp.where(better, j2, kpk), jnp.where(better, sig2[j2], vpk)
 
 
-def _peaks(grid_peaks, kinds, interp, lw, kernels):
+def _peaks(task, kinds, interp, kernels):
     """Refined maxima of σ̄(M) (``kinds``: "T" → T = I − S, "SmT" → S − T = 2S − I) from
-    their grid maxima ``[(index, value), ...]``: golden-section searches on
-    ``[x_{k−1}, x_{k+1}]`` (piecewise-cubic L between the nodes), all kinds in one loop.
-    Returns ``[(value, omega), ...]``."""
-    N = lw.shape[0]
+    their grid maxima (``task``: value ``v``, search bracket ``a``/``b`` = log ω of the
+    grid neighbours, ``x0`` = log ω of the grid maximum): multisection searches on
+    ``[a, b]`` (piecewise-cubic L between the nodes), all kinds in one loop. Returns
+    ``[(value, omega), ...]``."""
     nk = len(kinds)
-    kpk = jnp.stack([k for k, _ in grid_peaks])
-    vpk = jnp.stack([v for _, v in grid_peaks])
-    a = lw[jnp.maximum(kpk - 1, 0)]
-    b = lw[jnp.minimum(kpk + 1, N - 1)]
+    vpk, a, b = task["v"], task["a"], task["b"]
 
     def val(x):  # x (r·nk,): the searches in order, repeated r times
-        Lx = interp(interp.interval(x), x)
+        c = jnp.arange(x.shape[0]) % nk
+        Lx = interp(c, interp.interval(c, x), x)
         n = Lx.shape[-1]
         eye = jnp.eye(n, dtype=Lx.dtype)
         _, S = _det_inv(Lx + eye, kernels, unroll=True)
@@ -393,30 +480,29 @@ def _peaks(grid_peaks, kinds, interp, lw, kernels):
         )
         return _sigma_exact(M, kernels)
 
-    gr = (np.sqrt(5.0) - 1.0) / 2.0
-    c = b - gr * (b - a)
-    d = a + gr * (b - a)
+    # multisection: _SECTIONS points inside the bracket per step (one batch), the bracket
+    # shrinks to the two intervals around the best: a factor (M + 1)/2 per step instead of
+    # golden section's 1.618, so a few steps instead of 48 (the cost of a step is its count
+    # of small sequential programs, not its handful of matrices)
+    M = _SECTIONS
+    u = jnp.arange(1, M + 1) / (M + 1.0)  # (M,)
 
-    def body(_, s):
-        a, b, c, d, fc, fd = s
-        left = fc >= fd
-        a2 = jnp.where(left, a, c)
-        b2 = jnp.where(left, d, b)
-        c2 = jnp.where(left, b2 - gr * (b2 - a2), d)
-        d2 = jnp.where(left, c, a2 + gr * (b2 - a2))
-        x_new = jnp.where(left, c2, d2)
-        f_new = val(x_new)
-        fc2 = jnp.where(left, f_new, fd)
-        fd2 = jnp.where(left, fc, f_new)
-        return a2, b2, c2, d2, fc2, fd2
+    def body(_, st):
+        a, b, xm, vm = st
+        x = a[:, None] + u[None] * (b - a)[:, None]  # (nk, M)
+        f = val(x.T.ravel()).reshape(M, nk).T  # val's order: the searches repeated
+        j = jnp.argmax(f, axis=1)
+        fj = jnp.take_along_axis(f, j[:, None], axis=1)[:, 0]
+        xj = jnp.take_along_axis(x, j[:, None], axis=1)[:, 0]
+        h = (b - a) / (M + 1.0)
+        better = fj > vm
+        return xj - h, xj + h, jnp.where(better, xj, xm), jnp.where(better, fj, vm)
 
-    fcd = val(jnp.concatenate([c, d]))
-    s = jax.lax.fori_loop(0, _GOLDEN_ITERS, body, (a, b, c, d, fcd[:nk], fcd[nk:]))
-    xm = jnp.where(s[4] >= s[5], s[2], s[3])
-    vm = jnp.maximum(s[4], s[5])
+    init = (a, b, task["x0"], jnp.full_like(vpk, -jnp.inf))
+    _, _, xm, vm = jax.lax.fori_loop(0, _SECTION_STEPS, body, init)
     better = vm > vpk
     v = jnp.where(better, vm, vpk)
-    w = jnp.where(better, jnp.exp(xm), jnp.exp(lw[kpk]))
+    w = jnp.where(better, jnp.exp(xm), jnp.exp(task["x0"]))
     return [(v[i], w[i]) for i in range(nk)]
 
 
@@ -439,10 +525,11 @@ def _loci_pairs(L, spec):
     return a.T, bp
 
 
-def _refine_loci(a, b, interp, lw, kernels):
-    """Refined worst gain and phase margins: ``((gm_db, omega), (pm_deg, omega))``; the
-    ``_N_REFINE`` best grid candidates of each kind refined together (one Illinois loop on
-    ``Im λ`` resp. ``log|λ|`` of the locus followed by Newton, :func:`._kernels.eig_newton`)."""
+def _loci_candidates(a, b):
+    """The ``_N_REFINE`` best grid candidates of each kind (gain margin: negative-real-axis
+    crossings; phase margin: unit-circle crossings) of the paired loci ``a``/``b``: grid
+    interval ``k``, the locus' ends ``la``/``lb`` and whether the candidate exists
+    (``ok``), gain-margin candidates first."""
     C, n = a.shape
     okg, _, gval = phase_crossing(a, b)
     okp, _, pval = gain_crossing(a, b)
@@ -454,23 +541,69 @@ def _refine_loci(a, b, interp, lw, kernels):
         sels.append(sel)
         oks.append(jnp.isfinite(neg))
     sel = jnp.concatenate(sels)
-    sel_ok = jnp.concatenate(oks)
-    is_gm = jnp.arange(2 * nr) < nr
     k, li = sel // n, sel % n  # grid interval k = [ω_k, ω_{k+1}], locus li
-    la, lb = a[k, li], b[k, li]
+    gm = jnp.arange(2 * nr) < nr
+    return dict(k=k, la=a[k, li], lb=b[k, li], ok=jnp.concatenate(oks), gm=gm)
+
+
+def _loci_problem(task, L_fn):
+    """``(f_of, lam_at, ftol, x0, x1)`` of the loci candidates ``task`` (flat, any number)."""
+    sel_ok, k, la, lb, is_gm = task["ok"], task["k"], task["la"], task["lb"], task["gm"]
+    interp = _Local(task["L"], task["lw"], L_fn)
+    c = jnp.arange(k.shape[0])
+    x0, x1 = interp.lww[c, k], interp.lww[c, k + 1]
 
     def f_of(lam):
         return jnp.where(is_gm, jnp.imag(lam), jnp.log(jnp.abs(lam)))
 
-    def eig_at(t):
-        x = lw[k] + t * (lw[k + 1] - lw[k])
-        Lm = interp(k, x)
-        guess = la + t * (lb - la)
-        return K.eig_newton(K.to_entries(Lm), guess)
+    def lam_at(t):
+        x = x0 + t * (x1 - x0)
+        return K.eig_newton(K.to_entries(interp(c, k, x)), la + t * (lb - la), active=sel_ok)
 
-    ts = _illinois(lambda t: f_of(eig_at(t)), f_of(la), f_of(lb))
-    lam = eig_at(ts)
-    w = jnp.exp(lw[k] + ts * (lw[k + 1] - lw[k]))
+    # rounding level of f: λ is known to ~ε·max(|λ|, ‖L‖_F) (the Newton steps' floor), so
+    # Im λ to that and log|λ| to that over |λ|
+    fro = jnp.sqrt(K.fro2(K.to_entries(interp.Lw[c, k]))) if L_fn is None else 0.0
+    lam_min = jnp.minimum(jnp.abs(la), jnp.abs(lb))
+    scale = jnp.maximum(lam_min, fro)
+    ftol = 16.0 * _EPS * jnp.where(is_gm, scale, scale / jnp.maximum(lam_min, _TINY))
+    return f_of, lam_at, ftol, x0, x1
+
+
+def _loci_refined(task, L_fn):
+    """The loci candidates ``task`` (flat: every candidate of one loop, or of many) refined:
+    ``(t, λ)`` each (Illinois on ``Im λ`` resp. ``log|λ|`` of the locus followed by Newton,
+    :func:`._kernels.eig_newton`). Every candidate gets ``_STAGE1`` steps together; the
+    few that need more (a locus that moves far within its grid interval) continue in blocks
+    of ``_BLOCK``, so they do not make every candidate pay their step count."""
+    f_of, lam_at, ftol, _, _ = _loci_problem(task, L_fn)
+    la, lb, sel_ok = task["la"], task["lb"], task["ok"]
+    # candidates that do not exist (fewer crossings than slots): no bracket, so they
+    # neither keep Illinois nor Newton running
+    fa = jnp.where(sel_ok, f_of(la), 1.0)
+    fb = jnp.where(sel_ok, f_of(lb), 1.0)
+    c1 = _illinois_tracked(_tracked_init(la, lb, fa, fb), lam_at, f_of, ftol, _STAGE1)
+    packed = jnp.stack([c1["best_t"].astype(la.dtype), c1["best_lam"]], axis=1)
+    C = la.shape[0]
+
+    def more(idx):
+        sub = {k: v[idx] for k, v in task.items()}
+        f2, lam2, ftol2, _, _ = _loci_problem(sub, L_fn)
+        c2 = {k: (v if k == "it" else v[idx]) for k, v in c1.items()}
+        c2 = _illinois_tracked(c2, lam2, f2, ftol2, _ROOT_ITERS - _STAGE1)
+        return jnp.stack([c2["best_t"].astype(la.dtype), c2["best_lam"]], axis=1)
+
+    packed = _fill_where(~_tracked_done(c1, ftol), more, packed, min(_BLOCK, C))
+    return jnp.real(packed[:, 0]), packed[:, 1]
+
+
+def _loci_select(task, ts, lam):
+    """Worst refined gain and phase margins of one loop's candidates:
+    ``((gm_db, omega), (pm_deg, omega))``."""
+    sel_ok = task["ok"]
+    nr = sel_ok.shape[0] // 2
+    c = jnp.arange(2 * nr)
+    x0, x1 = task["lw"][c, task["k"]], task["lw"][c, task["k"] + 1]
+    w = jnp.exp(x0 + ts * (x1 - x0))
     gm = jnp.where(sel_ok & (jnp.real(lam) < 0), -_DB * jnp.log(jnp.abs(lam)), jnp.inf)[:nr]
     pm = jnp.where(sel_ok, _pm_deg(lam), jnp.inf)[nr:]
     out = []
@@ -480,17 +613,29 @@ def _refine_loci(a, b, interp, lw, kernels):
     return out
 
 
-def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec):
+def _interval_task(L, lw, i, j):
+    """A refinement task on grid interval ``[i, j]`` (``j`` = ``i`` or ``i + 1``): its
+    window of nodes and the local indices."""
+    Lw, lww, il = _windows(L, lw, jnp.reshape(i, (1,)))
+    return dict(L=Lw, lw=lww, i=il[0], j=il[0] + (j - i))
+
+
+def grid_pass(P, G, omega, p_ol, spec: MetricsSpec):
+    """Everything :func:`loop_metrics` does at every grid frequency: the verdict, and for
+    each asked metric the grid interval and window of nodes to refine (``tasks``). Pure,
+    jit/vmap-able. Returns ``(out, tasks)``: ``out`` the verdict fields (and the arrays),
+    ``tasks`` what :func:`refine_pass` needs."""
     kern = spec.kernels
     N, n, _ = P.shape
     size = spec.n_candidates
-    L = jnp.einsum("wij,wjk->wik", P, G)
+    if kern == "xla":  # the product entry by entry, batch last, as the kernels read it
+        L = K.from_entries(K.matmul(K.to_entries(P), K.to_entries(G)))
+    else:
+        L = jnp.einsum("wij,wjk->wik", P, G)
     eye = jnp.eye(n, dtype=L.dtype)
     IL = L + eye
     det, S = _det_inv(IL, kern, unroll=True)
     lw = jnp.log(omega)
-    interp = _Interp(L, lw, L_fn)
-    nan = jnp.asarray(jnp.nan)
 
     # --- singular I + L: σ̲(I+L) = 1/σ̄(S) ≤ rtol·max(1, σ̄(I+L)) ---------------------------
     rtol = spec.singular_rtol
@@ -516,7 +661,7 @@ def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec):
     n_enc, _, resolved = nyquist_encirclements(det, spec.max_phase_step)
     p_ol = jnp.asarray(p_ol, dtype=jnp.float64)
 
-    # --- loci where needed: resolution of every 1 + λ_i, margins ------------------------------
+    # --- loci where needed: resolution of every 1 + λ_i, margin candidates --------------------
     la, lb = _loci_pairs(after(L, det), spec)
     dphi = jnp.abs(jnp.angle((1.0 + lb) / (1.0 + la)))
     loci_ok = ~jnp.any(~(dphi < spec.max_phase_step))
@@ -529,28 +674,17 @@ def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec):
         n_closed_loop_rhp=n_enc + p_ol,
         singular=singular,
         nyquist_resolved=resolved,
-        iso_bandwidth_hz=nan,
-        gm_db=nan,
-        gm_freq_hz=nan,
-        pm_deg=nan,
-        pm_freq_hz=nan,
-        t_peak_db=nan,
-        t_peak_hz=nan,
-        disk_margin=nan,
-        iso_bandwidth_literal_hz=nan,
-        disk_gm_db=nan,
-        disk_pm_deg=nan,
     )
+    tasks = {}
     if spec.margins:
-        (g, gw), (p, pw) = _refine_loci(la, lb, interp, lw, kern)
-        out.update(gm_db=g, gm_freq_hz=gw / TWO_PI, pm_deg=p, pm_freq_hz=pw / TWO_PI)
-
+        t = _loci_candidates(la, lb)
+        t["L"], t["lw"], t["k"] = _windows(L, lw, t["k"])
+        tasks["margins"] = t
     if spec.bandwidth:
         lo, hi = K.sigma_bounds(K.to_entries(S))
-        bw = _first_crossing(
-            lambda i: _sigma_exact(S[i], kern), lo, hi, ISO_THRESHOLD, interp, lw, size, kern
-        )
-        out["iso_bandwidth_hz"] = jnp.where(stable, bw / TWO_PI, nan)
+        k, any_above = _first_above(lambda i: _sigma_exact(S[i], kern), lo, hi, ISO_THRESHOLD, size)
+        t = _interval_task(L, lw, jnp.maximum(k - 1, 0), k)
+        tasks["bandwidth"] = t | dict(first=k == 0, none=~any_above)
     kinds, grid = [], []
     if spec.t_peak:
         kinds.append("T")
@@ -559,33 +693,77 @@ def _metrics(P, G, omega, p_ol, L_fn, spec: MetricsSpec):
         kinds.append("SmT")
         grid.append(_peak_grid(2.0 * S - eye, size, kern))
     if kinds:
-        res = dict(zip(kinds, _peaks(grid, tuple(kinds), interp, lw, kern), strict=True))
-    if spec.t_peak:
-        v, w = res["T"]
-        out["t_peak_db"] = jnp.where(stable, _DB * jnp.log(v), nan)
-        out["t_peak_hz"] = jnp.where(stable, w / TWO_PI, nan)
-    if spec.disk:
-        v, _ = res["SmT"]
-        out["disk_margin"] = jnp.where(stable, 2.0 / v, 0.0)
-        dm = disk_margin_from_peak(v)
-        out["disk_gm_db"] = jnp.where(stable, dm["disk_gm_db"], 0.0)
-        out["disk_pm_deg"] = jnp.where(stable, dm["disk_pm_deg"], 0.0)
+        kpk = jnp.stack([k for k, _ in grid])
+        Lw, lww, _ = _windows(L, lw, jnp.minimum(kpk, N - 2))
+        tasks["peaks"] = dict(
+            L=Lw, lw=lww, v=jnp.stack([v for _, v in grid]), x0=lw[kpk],
+            a=lw[jnp.maximum(kpk - 1, 0)], b=lw[jnp.minimum(kpk + 1, N - 1)],
+        )  # fmt: skip
     # σ̄(S) on the whole grid only for what needs it (the literal bandwidth, the arrays)
     sig_S_all = None
     if spec.literal or (spec.arrays and not spec.full_sv):
         sig_S_all = _sigma_exact(S, kern)
     if spec.literal:
-        lit = _last_crossing(sig_S_all, ISO_THRESHOLD, interp, lw, kern)
-        out["iso_bandwidth_literal_hz"] = jnp.where(stable, lit / TWO_PI, nan)
+        # the end of the last sub-threshold stretch: inf if below at the last point, 0 if
+        # never below
+        below = sig_S_all < ISO_THRESHOLD
+        j = N - 1 - jnp.argmax(below[::-1])
+        t = _interval_task(L, lw, j, jnp.minimum(j + 1, N - 1))
+        tasks["literal"] = t | dict(last=j == N - 1, none=~jnp.any(below))
     if spec.arrays:
         from ._nyquist import characteristic_loci
 
         if spec.full_sv:
-            sv = jnp.linalg.svd(after(S, out["stable"]), compute_uv=False)
+            sv = jnp.linalg.svd(after(S, stable), compute_uv=False)
         else:
             sv = sig_S_all
         out.update(freq_hz=omega / TWO_PI, sv_T_minus_I=sv, loci=characteristic_loci(after(L, sv)))
-    return out
+    return out, tasks
+
+
+def refine_pass(out, tasks, L_fn, spec: MetricsSpec):
+    """The refined metrics from :func:`grid_pass`'s ``(out, tasks)``: a dict of every
+    :class:`LoopMetrics` field. Pure, jit/vmap-able; ``L_fn`` as :func:`loop_metrics`."""
+    kern = spec.kernels
+    stable = out["stable"]
+    nan = jnp.full(jnp.shape(stable), jnp.nan)
+    res = dict(out)
+    for name in _SCALARS[5:]:
+        res[name] = nan
+    if spec.margins:
+        t = tasks["margins"]
+        loci = tasks.get("loci")  # (t, λ) refined by the caller (many loops at once), or here
+        (g, gw), (p, pw) = _loci_select(t, *(loci or _loci_refined(t, L_fn)))
+        res.update(gm_db=g, gm_freq_hz=gw / TWO_PI, pm_deg=p, pm_freq_hz=pw / TWO_PI)
+    if spec.bandwidth:
+        t = tasks["bandwidth"]
+        w = _threshold_crossing(
+            0, t["i"], t["j"], ISO_THRESHOLD, _Local(t["L"], t["lw"], L_fn), kern
+        )
+        bw = jnp.where(t["none"], jnp.inf, jnp.where(t["first"], 0.0, w))
+        res["iso_bandwidth_hz"] = jnp.where(stable, bw / TWO_PI, nan)
+    kinds = tuple(k for k, on in (("T", spec.t_peak), ("SmT", spec.disk)) if on)
+    if kinds:
+        t = tasks["peaks"]
+        pk = dict(zip(kinds, _peaks(t, kinds, _Local(t["L"], t["lw"], L_fn), kern), strict=True))
+    if spec.t_peak:
+        v, w = pk["T"]
+        res["t_peak_db"] = jnp.where(stable, _DB * jnp.log(v), nan)
+        res["t_peak_hz"] = jnp.where(stable, w / TWO_PI, nan)
+    if spec.disk:
+        v, _ = pk["SmT"]
+        res["disk_margin"] = jnp.where(stable, 2.0 / v, 0.0)
+        dm = disk_margin_from_peak(v)
+        res["disk_gm_db"] = jnp.where(stable, dm["disk_gm_db"], 0.0)
+        res["disk_pm_deg"] = jnp.where(stable, dm["disk_pm_deg"], 0.0)
+    if spec.literal:
+        t = tasks["literal"]
+        w = _threshold_crossing(
+            0, t["i"], t["j"], ISO_THRESHOLD, _Local(t["L"], t["lw"], L_fn), kern
+        )
+        lit = jnp.where(t["none"], 0.0, jnp.where(t["last"], jnp.inf, w))
+        res["iso_bandwidth_literal_hz"] = jnp.where(stable, lit / TWO_PI, nan)
+    return res
 
 
 def _check(P, G, omega):
@@ -596,8 +774,10 @@ def _check(P, G, omega):
 
 
 def metrics_screened(P, G, omega, p_ol, L_fn, spec):
-    """The analysis as a dict of :class:`LoopMetrics` fields; pure, jit/vmap-able."""
-    return _metrics(P, G, omega, p_ol, L_fn, spec)
+    """The analysis as a dict of :class:`LoopMetrics` fields; pure, jit/vmap-able
+    (:func:`grid_pass` then :func:`refine_pass`)."""
+    out, tasks = grid_pass(P, G, omega, p_ol, spec)
+    return refine_pass(out, tasks, L_fn, spec)
 
 
 _metrics_jit = eqx.filter_jit(metrics_screened)

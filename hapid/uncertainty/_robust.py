@@ -51,13 +51,16 @@ plants (unstable: ``−inf``); :meth:`RobustReport.rows` keeps the signed values
 Compute path. ``backend="metrics"`` (the default): every plant is analysed by
 :func:`hapid.control.loop_metrics`'s program (XLA small-matrix kernels for det/inverse/σ̄ and
 the eigenvalues of the loci, no LAPACK inside; exact values only where the cheap bounds do
-not decide; refined crossings), once per plant (``vectorize=False``, the default: the plain
-jitted program, no ``vmap``) or ``vmap``-ed over chunks of ``chunk`` plants (the last chunk
-padded, ``p_ol`` an array: one compile). Measured on the 2-core machine, the per-plant
-program is the faster: under ``vmap`` the batch axis sits in front of the kernels'
-entry-major ``(n, n, N)`` layout and the grid kernels cost 2–3× more per plant (det/inverse
-7.3 vs 2.6 ms per plant at 8 plants × 1000 frequencies), which outweighs sharing the
-sequential refinement steps. Same verdicts as the reference on 1000 cu5 posterior draws
+not decide; refined crossings) in its two passes (:mod:`hapid.control._metrics`): the
+grid pass (every frequency) once per plant — the plain jitted program, no ``vmap`` — and the
+refinement pass (a few small sequential root-finding steps per plant) once per chunk of
+``chunk`` plants, ``vmap``-ed, so its step count is paid once per chunk instead of once per
+plant (``vectorize=False``, the default); or the whole analysis ``vmap``-ed over chunks
+(``vectorize=True``; the last chunk padded, ``p_ol`` an array: one compile). Measured on the
+2-core machine, the grid pass per plant is the faster: under ``vmap`` the batch axis sits in
+front of the kernels' entry-major ``(n, n, N)`` layout and the grid kernels cost 2–3× more
+per plant (det/inverse 7.3 vs 2.6 ms per plant at 8 plants × 1000 frequencies). Same
+verdicts as the reference on 1000 cu5 posterior draws
 (benchmarks/bench_fast.py, tests/test_control_metrics.py). ``backend="reference"``:
 :func:`hapid.control.analyze_loop` (the LAPACK reference, grid values) once per plant.
 """
@@ -65,6 +68,7 @@ sequential refinement steps. Same verdicts as the reference on 1000 cu5 posterio
 from __future__ import annotations
 
 import dataclasses
+from functools import partial
 
 import equinox as eqx
 import jax
@@ -75,7 +79,7 @@ from .. import _config, _distributed  # noqa: F401  (float64)
 from .._grids import continuous_grid as posterior_omega
 from .._grids import sampled_grid as robust_omega
 from ..control import Compensator, MetricsSpec, analyze_loop, disk_margin_from_peak
-from ..control._metrics import metrics_screened
+from ..control._metrics import _loci_refined, grid_pass, metrics_screened, refine_pass
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
 from ._sampler import PosteriorSamples
@@ -283,21 +287,37 @@ def _metrics_chunk(P, p_ol, G, omega, spec):
     return jax.vmap(one)(P, p_ol)
 
 
-@eqx.filter_jit
-def _metrics_one(P, p_ol, G, omega, spec):
-    return _fields(metrics_screened(P, G, omega, p_ol, None, spec), spec)
+@partial(jax.jit, static_argnames="spec")
+def _grid_one(P, i, p_ol, G, omega, spec):
+    """The grid pass of plant ``i`` of a chunk (the chunk stays on the device: no slice is
+    dispatched from Python)."""
+    return grid_pass(P[i], G, omega, p_ol[i], spec)
+
+
+@partial(jax.jit, static_argnames="spec")
+def _refine_chunk(grids, spec):
+    """The refinement pass of every plant of a chunk at once (vmapped: its sequential steps
+    are shared by the chunk instead of paid per plant)."""
+    out, tasks = jax.tree.map(lambda *x: jnp.stack(x), *grids)
+    if "margins" in tasks:  # every plant's loci candidates as one flat batch
+        m = tasks["margins"]
+        D, C = m["k"].shape
+        ts, lam = _loci_refined(jax.tree.map(lambda a: a.reshape((D * C,) + a.shape[2:]), m), None)
+        tasks = dict(tasks, loci=(ts.reshape(D, C), lam.reshape(D, C)))
+    return jax.vmap(lambda o, t: _fields(refine_pass(o, t, None, spec), spec))(out, tasks)
 
 
 def _analyze_chunk(P, p_ol, G, omega, vectorize, spec):
     """Per-plant fields of a (padded) chunk: :func:`~hapid.control.loop_metrics`'s program
-    vmapped over the chunk (one compile for every chunk: same shapes, ``p_ol`` an array),
-    or once per plant (``vectorize=False``)."""
+    vmapped over the chunk (``vectorize=True``), or its grid pass once per plant and its
+    refinement pass vmapped over the chunk (default)."""
     if vectorize:
         return {k: np.asarray(v) for k, v in _metrics_chunk(P, p_ol, G, omega, spec).items()}
-    # not a vmap of size 1: a vmapped program keeps the batch axis in front of the kernels'
-    # entry-major layout, which measured ~2-3x slower per plant than the plain program
-    outs = [_metrics_one(P[i], p_ol[i], G, omega, spec) for i in range(P.shape[0])]
-    return {k: np.stack([np.asarray(o[k]) for o in outs]) for k in _KEYS}
+    # the grid pass per plant, not vmapped: a vmapped program keeps the batch axis in front
+    # of the kernels' entry-major layout (measured ~2-3x slower per plant); the refinement
+    # is a few small sequential steps, whose cost is their count, so it is shared
+    grids = [_grid_one(P, np.int32(i), p_ol, G, omega, spec) for i in range(P.shape[0])]
+    return {k: np.asarray(v) for k, v in _refine_chunk(grids, spec).items()}
 
 
 def _pad(x, size):
@@ -383,8 +403,9 @@ def robust_check(
     - ``backend``: ``"metrics"`` (default): :func:`~hapid.control.loop_metrics` (XLA
       kernels, refined crossings); ``"reference"``: :func:`~hapid.control.analyze_loop` once
       per plant (LAPACK, grid values). See "Compute path".
-    - ``vectorize`` (``backend="metrics"``): ``False`` (default) runs the analysis once per
-      plant; ``True`` vmaps it over each chunk (slower on CPU for large chunks).
+    - ``vectorize`` (``backend="metrics"``): ``False`` (default) runs the grid pass once per
+      plant and the refinement vmapped over each chunk; ``True`` vmaps the whole analysis
+      over each chunk (slower on CPU for large chunks).
     - ``metrics``: what to compute beyond the verdict, the isotropic bandwidth and the loci
       GM/PM (which ``passed`` uses): any of ``"disk"`` (balanced disk margin, its GM/PM) and
       ``"t_peak"`` (peak of σ̄(T)), or ``"all"``. Fields not asked for are NaN and listed in
