@@ -17,7 +17,7 @@ normal matrix of condition ~10 instead of ~10¹⁰.
 
 A batch of FRFs on one grid, batch first (``(B, N, ...)``), has a faster path than the complex
 GEMM: :func:`wls_batch_coefficients` computes only the real part ``Re(K z) = K_r z_r − K_i z_i``
-in one fused elementwise pass over Z (see its docstring for what XLA:CPU makes of it).
+in one fused pass over Z, complex or given as ``(re, im)`` float pairs (see its docstring).
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
+import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from .._constants import TWO_PI
@@ -92,9 +93,10 @@ _UNROLL_MAX_N = 64
 above it, the complex GEMM (``einsum``)."""
 
 _KERNEL_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
-"""XLA:CPU option of the top-level :func:`wls_batch_coefficients` program only (no global
-flag): 512-bit vectors halve the shuffles that split complex128 into real and imaginary parts,
-the kernel's bottleneck (measured 1.05–1.45×, typically 1.1–1.15×, on the benchmark machine)."""
+"""XLA:CPU option of the kernels' own programs (:func:`_batch_program`, :func:`_pairs_program`;
+no global flag): 512-bit vectors halve the shuffles that split complex128 (or float pairs)
+into real and imaginary parts (measured 1.05–1.45×, typically 1.1–1.15×, on the benchmark
+machine)."""
 
 
 def _pairwise_sum(terms: list):
@@ -138,11 +140,94 @@ def _batch(omega, Z, omega_c, mask):
 _batch_program = partial(jax.jit, compiler_options=_KERNEL_OPTIONS)(_batch)
 
 
+def _apply_pairs(Kr: Float[Array, "3 N"], Ki: Float[Array, "3 N"], X: Float[Array, "B N ..."]):
+    """``Re(K @ z)`` from float pairs: with ``X`` flattened to ``(B, N, M)``, ``X[b, k, 2e]``
+    and ``X[b, k, 2e + 1]`` are Re and Im of ``Z[b, k, e]``; returns ``(B, 3, M / 2)``.
+
+    The same fused pass as :func:`_apply_real` (unrolled over ``k``, summed pairwise, ``b``
+    outermost, vectorized over ``e``), reading real and imaginary parts as the even and odd
+    float64 of each slice (LLVM loads two vectors and splits them with two shuffles)."""
+    B, N = X.shape[:2]
+    X = X.reshape(B, N, -1)
+    if N > _UNROLL_MAX_N:
+        re, im = X[..., 0::2], X[..., 1::2]
+        return jnp.einsum("jk,bke->bje", Kr, re) - jnp.einsum("jk,bke->bje", Ki, im)
+    terms = [
+        Kr[:, k, None] * X[:, k, None, 0::2] - Ki[:, k, None] * X[:, k, None, 1::2]
+        for k in range(N)
+    ]
+    return _pairwise_sum(terms)
+
+
+def _pairs_inline(omega, X, omega_c, mask):
+    """The float-pair kernel with ``K`` built in the program (as :func:`_batch` does)."""
+    real = X.dtype
+    K = wls_operator(omega.astype(real), omega_c, None if mask is None else mask.astype(real))
+    return _apply_pairs(jnp.real(K), jnp.imag(K), X)
+
+
+_pairs_program = partial(jax.jit, compiler_options=_KERNEL_OPTIONS)(_pairs_inline)
+"""The float-pair kernel as its own program (512-bit vectors)."""
+
+
+def _check_batch_shapes(omega, Z, mask, float_pairs: bool) -> None:
+    """Shapes of the grid, data and mask (and the pair axis with ``float_pairs``)."""
+    name = "wls_batch_coefficients"
+    w_shape = omega.shape if hasattr(omega, "shape") else np.shape(omega)
+    z_shape = Z.shape if hasattr(Z, "shape") else np.shape(Z)
+    if len(w_shape) != 1:
+        raise ValueError(f"{name}: omega must be (N,), got shape {w_shape}")
+    N = w_shape[0]
+    if len(z_shape) < 2 or z_shape[1] != N:
+        raise ValueError(
+            f"{name}: Z must be (B, N, ...) with N = len(omega) = {N}, got shape {z_shape}"
+        )
+    if mask is not None and np.shape(mask) != (N,):
+        raise ValueError(f"{name}: mask must be (N,) = ({N},), got shape {np.shape(mask)}")
+    if float_pairs:
+        dtype = jnp.result_type(Z)
+        if not jnp.issubdtype(dtype, jnp.floating):
+            raise ValueError(f"{name}: float_pairs=True needs real floating Z, got {dtype}")
+        if len(z_shape) < 3 or z_shape[-1] % 2:
+            raise ValueError(
+                f"{name}: float_pairs=True needs Z (B, N, ..., 2m) with (re, im) pairs on an "
+                f"even last axis, got shape {z_shape}"
+            )
+
+
+def _check_batch_values(omega, omega_c, mask) -> None:
+    """Finite grid, corner and mask, corner > 0 (concrete input only)."""
+    name = "wls_batch_coefficients"
+    for label, a in (("omega", omega), ("omega_c", omega_c), ("mask", mask)):
+        if a is not None and not isinstance(a, jax.core.Tracer):
+            if not np.isfinite(np.asarray(a)).all():
+                raise ValueError(f"{name}: {label} contains NaN or inf")
+    if not isinstance(omega_c, jax.core.Tracer) and not np.asarray(omega_c) > 0:
+        raise ValueError(f"{name}: omega_c must be > 0 rad/s, got {omega_c}")
+
+
+def _check_finite_result(finite, Z) -> None:
+    """A NaN or inf in Z reaches θ (every weight multiplies it; a masked frequency's zero
+    weight times NaN or inf is NaN), so ``finite`` — whether θ (3/N of Z's size) is finite — is
+    checked, and Z only when it is not, to name the first bad entry. A finite Z passes (also
+    when θ overflows)."""
+    if finite:
+        return
+    bad = np.argwhere(~np.isfinite(np.asarray(Z)))
+    if len(bad):
+        raise ValueError(
+            "wls_batch_coefficients: Z contains NaN or inf (first at index "
+            f"{tuple(int(i) for i in bad[0])})"
+        )
+
+
 def wls_batch_coefficients(
     omega: Float[Array, " N"],
     Z: Complex[Array, "B N ..."],
     omega_c: float = OMEGA_C_PAPER,
     mask: Float[Array, " N"] | None = None,
+    *,
+    float_pairs: bool = False,
 ) -> Float[Array, "B 3 E"]:
     """Per-element paper WLS of a batch of FRFs on one grid, batch first: ``(B, 3, E)`` real.
 
@@ -151,24 +236,40 @@ def wls_batch_coefficients(
     ``mask`` (``(N,)``, 0/1) drops frequencies. Returns ``θ[b, j, e]`` = ``[m, b, k][j]`` of
     element ``e`` of ``Z[b, k].ravel()`` (kg, N·s/m, N/m); ``θ.reshape(B, 3, *Z.shape[2:])``
     gives the matrices. Same values as :func:`wls_coefficients` (to rounding: the sum over
-    frequencies is taken in another order), computed as the real part only in one pass over
-    Z (:func:`_apply_real`); for more than 64 frequencies, the complex GEMM.
+    frequencies is taken in another order).
 
-    Called on its own, it runs as its own XLA program with 512-bit vectors
-    (``_KERNEL_OPTIONS``); traced inside another ``jit`` it is inlined into that program and
-    runs with that program's options (same values).
+    ``float_pairs=True``: ``Z`` is real ``(B, N, ..., 2m)`` holding the same data as float
+    pairs, ``Z[..., 2i]`` and ``Z[..., 2i + 1]`` the real and imaginary parts (what
+    ``Zc.view(np.float64)`` gives for a complex ``Zc``); then ``E = Z[0, 0].size / 2``.
+
+    How it runs: the real part only, ``Re(K z) = K_r z_r − K_i z_i``, in one fused pass over Z
+    (:func:`_apply_real` on complex data, :func:`_apply_pairs` on float pairs), called on its
+    own as its own program with 512-bit vectors (θ is then checked for NaN/inf on the host);
+    traced inside a ``jit`` it is inlined into the caller's program. For more than 64
+    frequencies, a GEMM (``einsum``). benchmarks/README.md ("Batched WLS") has the
+    measurements, including a zero-copy float view of complex input and multiply-adds on the
+    interleaved pairs, measured and not kept (no faster once complete).
+
+    Raises ``ValueError`` on wrong shapes (``Z`` not ``(B, N, ...)``, ``mask`` not ``(N,)``, an
+    odd or missing pair axis with ``float_pairs``) and, outside ``jit``, on NaN or inf in
+    ``omega``, ``omega_c``, ``mask`` or ``Z`` (Z through the result: see
+    :func:`_check_finite_result`).
     """
-    N = jnp.shape(omega)[-1]
-    if jnp.ndim(Z) < 2 or jnp.shape(Z)[1] != N:
-        raise ValueError(
-            f"wls_batch_coefficients: Z must be (B, N, ...) with N = len(omega) = {N}, "
-            f"got shape {jnp.shape(Z)}"
-        )
+    _check_batch_shapes(omega, Z, mask, float_pairs)
+    _check_batch_values(omega, omega_c, mask)
     args = (omega, Z, omega_c, mask)
     if any(isinstance(a, jax.core.Tracer) for a in args):
         # inside a jit/vmap: inlined (compiler options apply to top-level programs only)
-        return _batch(*args)
-    return _batch_program(*args)
+        return _pairs_inline(*args) if float_pairs else _batch(*args)
+    if float_pairs:
+        X = Z if isinstance(Z, jax.Array) else np.ascontiguousarray(Z)  # reshaped in the program
+        theta = _pairs_program(omega, X, omega_c, mask)
+    else:
+        theta = _batch_program(*args)
+    # the NaN check on θ (3/N of Z's size) on the host: +4 % (paired A/B); a reduction in the
+    # program cost more
+    _check_finite_result(np.isfinite(np.asarray(theta)).all(), Z)
+    return theta
 
 
 def wls(frf: FRF, omega_c: float = OMEGA_C_PAPER, f_max_hz: float | None = None) -> ImpedanceModel:
