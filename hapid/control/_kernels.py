@@ -356,26 +356,37 @@ def eigvals(A, max_iter: int = 40):
 
 def pair_optimal(a, b):
     """Order eigenvalues ``b (n, ...)`` to continue ``a (n, ...)``: the permutation σ that
-    minimizes ``Σ|a_i − b_σ(i)|²`` (the reference tracker's choice, ties aside), by dynamic
-    programming over subsets (``n·2ⁿ⁻¹`` elementwise steps instead of ``n·n!``)."""
+    minimizes ``Σ|a_i − b_σ(i)|²`` (the reference tracker's choice), by dynamic programming
+    over subsets (``n·2ⁿ⁻¹`` candidate sums instead of ``n·n!``).
+
+    ``f(S) = min_{j ∈ S} f(S ∖ j) + |a_{|S|−1} − b_j|²``, one level of subsets of equal size
+    at a time: the candidates of a level stacked ``(subsets, |S|, ...)`` and reduced with
+    ``min`` / ``argmin`` (a reduction is where XLA stores a level instead of recomputing it
+    in every consumer, which a chain of selects does not give); ties go to the smallest
+    ``j`` (``argmin``'s first minimum). The traceback reads the choices from a ``(2ⁿ, ...)``
+    table."""
     n = a.shape[0]
-    d = [[jnp.abs(a[i] - b[j]) ** 2 for j in range(n)] for i in range(n)]
-    f = {0: jnp.zeros(a.shape[1:], dtype=jnp.float64)}
-    choice = {}
-    for S in sorted(range(1, 1 << n), key=lambda s: (bin(s).count("1"), s)):
-        i = bin(S).count("1") - 1
-        best, arg = None, None
-        for j in range(n):
-            if S >> j & 1:
-                c = f[S ^ (1 << j)] + d[i][j]
-                if best is None:
-                    best, arg = c, jnp.full(c.shape, j, dtype=jnp.int32)
-                else:
-                    lt = c < best
-                    best, arg = jnp.where(lt, c, best), jnp.where(lt, j, arg)
-        f[S], choice[S] = best, arg
-    tab = jnp.stack([choice.get(S, jnp.zeros_like(choice[1])) for S in range(1 << n)])
-    S = jnp.full(a.shape[1:], (1 << n) - 1, dtype=jnp.int32)
+    bshape = a.shape[1:]
+    d = jnp.abs(a[:, None] - b[None, :]) ** 2  # (n, n, ...): d[i, j]
+    F = jnp.zeros((1,) + bshape, dtype=jnp.float64)
+    row = {0: 0}
+    order, levels = [0], [jnp.zeros((1,) + bshape, dtype=jnp.int32)]
+    ex = (slice(None), slice(None)) + (None,) * len(bshape)
+    for k in range(1, n + 1):
+        level = [S for S in range(1, 1 << n) if bin(S).count("1") == k]
+        js = np.array([[j for j in range(n) if S >> j & 1] for S in level])  # (L, k)
+        prev = np.array(
+            [[row[S ^ (1 << j)] for j in js_S] for S, js_S in zip(level, js, strict=True)]
+        )
+        cand = F[prev] + d[k - 1][js]  # (L, k, ...)
+        F = jnp.min(cand, axis=1)
+        p = jnp.argmin(cand, axis=1).astype(jnp.int32)
+        jsel = jnp.broadcast_to(jnp.asarray(js, dtype=jnp.int32)[ex], cand.shape)
+        levels.append(jnp.take_along_axis(jsel, p[:, None], axis=1)[:, 0])
+        row = {S: r for r, S in enumerate(level)}
+        order += level
+    tab = jnp.concatenate(levels)[np.argsort(order)]  # (2ⁿ, ...): row S = the choice at S
+    S = jnp.full(bshape, (1 << n) - 1, dtype=jnp.int32)
     sig = [None] * n
     for i in range(n - 1, -1, -1):
         j = jnp.take_along_axis(tab, S[None], axis=0)[0]
