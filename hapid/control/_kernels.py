@@ -37,6 +37,8 @@ from .. import _config  # noqa: F401  (float64)
 
 MAX_UNROLLED_N = 12
 MAX_EIG_N = 6  # unrolled QR compiles in ~25 s at n = 6, minutes at n = 8
+_EIG_CAP = 2  # QR steps per deflation stage for the whole batch; the rest in blocks
+_EIG_BLOCK = 128
 _JACOBI_SWEEPS = {2: 3, 3: 5, 4: 6, 5: 6, 6: 7}
 _ULP = float(np.finfo(np.float64).eps)
 _SAFMIN = float(np.finfo(np.float64).tiny)
@@ -307,8 +309,9 @@ def eigvals(A, max_iter: int = 40):
     Householder reduction to Hessenberg form, then single-shift (Wilkinson) QR on the active
     leading block, deflating one eigenvalue at the bottom when its subdiagonal entry falls
     below ``ulp·(|h_{m−1,m−1}| + |h_{m,m}|)`` (LAPACK ``zlahqr``'s test), with an
-    exceptional shift every 10 iterations. Each deflation stage is a ``while_loop`` that runs
-    until every matrix of the batch has deflated (at most ``max_iter`` steps). Backward
+    exceptional shift every 10 iterations. Each deflation stage runs ``_EIG_CAP`` steps on
+    the whole batch, then continues only the matrices not yet deflated, gathered in blocks
+    (at most ``max_iter`` steps each; a matrix's steps do not depend on the batch). Backward
     stable like LAPACK's ``zgeev``; the order is the deflation order (no sorting).
     """
     n = A.shape[0]
@@ -317,6 +320,8 @@ def eigvals(A, max_iter: int = 40):
         return A[0]
     if n > MAX_EIG_N:
         return to_entries(jnp.linalg.eigvals(from_entries(A))[..., None])[:, 0]
+    bshape = A.shape[2:]
+    A = A.reshape(n, n, -1)  # one flat batch (B,)
     H = hessenberg(A)
     out = [None] * n
     for m in range(n, 1, -1):
@@ -331,27 +336,61 @@ def eigvals(A, max_iter: int = 40):
             tst = _cabs1(Hm[m - 1][m - 1]) + _cabs1(Hm[m - 2][m - 2])
             return (sub <= _ULP * tst) | (sub <= _SAFMIN) | ~jnp.isfinite(sub)
 
-        def cond(c, done_of=done_of, unflat=unflat):
-            it, f = c
-            return (it < max_iter) & ~jnp.all(done_of(unflat(f)))
+        def qr(it0, f, stop, done_of=done_of, unflat=unflat, m=m):
+            """QR steps from iteration ``it0`` until every matrix of ``f`` has deflated or
+            the iteration count reaches ``stop``; a deflated matrix keeps its values."""
 
-        def body(c, done_of=done_of, unflat=unflat, m=m):
-            it, f = c
-            Hm = unflat(f)
-            done = done_of(Hm)
-            mu = _wilkinson(Hm[m - 2][m - 2], Hm[m - 2][m - 1], Hm[m - 1][m - 2], Hm[m - 1][m - 1])
-            exc = Hm[m - 1][m - 1] + 0.75 * jnp.abs(jnp.real(Hm[m - 1][m - 2]))
-            mu = jnp.where((it % 10) == 9, exc, mu)
-            new = _qr_step(Hm, mu)
-            nf = [x for row in new for x in row]
-            return it + 1, tuple(jnp.where(done, o, x) for o, x in zip(f, nf, strict=True))
+            def cond(c):
+                it, f = c
+                return (it < stop) & ~jnp.all(done_of(unflat(f)))
 
-        _, flat = jax.lax.while_loop(cond, body, (jnp.asarray(0), tuple(flat)))
+            def body(c):
+                it, f = c
+                Hm = unflat(f)
+                done = done_of(Hm)
+                a, b = Hm[m - 2][m - 2], Hm[m - 2][m - 1]
+                mu = _wilkinson(a, b, Hm[m - 1][m - 2], Hm[m - 1][m - 1])
+                exc = Hm[m - 1][m - 1] + 0.75 * jnp.abs(jnp.real(Hm[m - 1][m - 2]))
+                mu = jnp.where((it % 10) == 9, exc, mu)
+                new = _qr_step(Hm, mu)
+                nf = [x for row in new for x in row]
+                return it + 1, tuple(jnp.where(done, o, x) for o, x in zip(f, nf, strict=True))
+
+            return jax.lax.while_loop(cond, body, (jnp.asarray(it0), tuple(f)))[1]
+
+        # every matrix gets _EIG_CAP steps together; the few that need more (the batch's
+        # slowest set the step count of a shared loop) continue in blocks of _EIG_BLOCK,
+        # on the same shift schedule, so each matrix's result is the same either way
+        flat = qr(0, flat, min(_EIG_CAP, max_iter))
+        flat = _compacted(~done_of(unflat(flat)), lambda f: qr(_EIG_CAP, f, max_iter), flat)
         Hm = unflat(flat)
         out[m - 1] = Hm[m - 1][m - 1]
         H = [row[: m - 1] for row in Hm[: m - 1]]
     out[0] = H[0][0]
-    return jnp.stack(out)
+    return jnp.stack(out).reshape((n,) + bshape)
+
+
+def _compacted(flag, fn, arrays, size=None):
+    """``arrays`` (a tuple of ``(B,)``) with ``fn`` applied to the entries where ``flag``:
+    the flagged entries are gathered ``size`` at a time (default ``_EIG_BLOCK``) in a
+    ``while_loop`` — the work follows the count of flagged entries, not the batch."""
+    B = flag.shape[0]
+    size = min(size or _EIG_BLOCK, B)
+    idx = jnp.nonzero(flag, size=B, fill_value=B)[0]
+    idx = jnp.concatenate([idx, jnp.full(size, B, dtype=idx.dtype)])
+    count = jnp.sum(flag)
+
+    def body(c):
+        j, f = c
+        sl = jax.lax.dynamic_slice(idx, (j * size,), (size,))
+        g = jnp.minimum(sl, B - 1)
+        sub = fn(tuple(x[g] for x in f))
+        return j + 1, tuple(x.at[sl].set(v, mode="drop") for x, v in zip(f, sub, strict=True))
+
+    def cond(c):
+        return c[0] * size < count
+
+    return jax.lax.while_loop(cond, body, (jnp.asarray(0), tuple(arrays)))[1]
 
 
 def pair_optimal(a, b):
