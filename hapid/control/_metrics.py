@@ -193,55 +193,18 @@ class LoopMetrics(eqx.Module):
 
 def _illinois(f, fa, fb, iters=_ROOT_ITERS, ftol=0.0):
     """Root of ``f(t)`` on ``t ∈ [0, 1]`` given ``fa = f(0)``, ``fb = f(1)`` of opposite
-    signs (vectorized over the candidates), by Illinois false position. Returns the evaluated
-    point of smallest ``|f|`` (the bracket ends included): false position converges from one
-    side, so the bracket's midpoint can stay far from the root while one end sits on it.
-    Runs until every candidate has converged (``f = 0`` hit or the bracket below
-    ``_T_TOL``, or ``|f| ≤ ftol`` at an evaluated point: ``ftol`` the rounding level of
-    ``f``, per candidate; a candidate without a sign change counts as converged), at most
-    ``iters`` steps."""
-    ta = jnp.zeros_like(fa)
-    tb = jnp.ones_like(fb)
-    a_best = jnp.abs(fa) <= jnp.abs(fb)
-    best_t = jnp.where(a_best, ta, tb)
-    best_f = jnp.where(a_best, jnp.abs(fa), jnp.abs(fb))
-
-    def done_of(ta, tb, fa, fb, best_f):
-        bracket = ((fa >= 0) != (fb >= 0)) & jnp.isfinite(fa) & jnp.isfinite(fb)
-        return ~bracket | (best_f <= ftol) | (jnp.abs(tb - ta) <= _T_TOL)
-
-    def body(c):
-        it, ta, tb, fa, fb, side, best_t, best_f = c
-        den = fb - fa
-        t = jnp.where(
-            den != 0, (ta * fb - tb * fa) / jnp.where(den != 0, den, 1.0), 0.5 * (ta + tb)
-        )
-        t = jnp.clip(t, jnp.minimum(ta, tb), jnp.maximum(ta, tb))
-        ft = f(t)
-        better = jnp.abs(ft) < best_f
-        best_t = jnp.where(better, t, best_t)
-        best_f = jnp.where(better, jnp.abs(ft), best_f)
-        same_a = (ft >= 0) == (fa >= 0)
-        # Illinois: halve the stale end's value when the same end is kept twice
-        fa_new = jnp.where(same_a, ft, jnp.where(side == -1, 0.5 * fa, fa))
-        fb_new = jnp.where(same_a, jnp.where(side == 1, 0.5 * fb, fb), ft)
-        ta_new = jnp.where(same_a, t, ta)
-        tb_new = jnp.where(same_a, tb, t)
-        side = jnp.where(same_a, 1, -1).astype(jnp.int32)
-        return it + 1, ta_new, tb_new, fa_new, fb_new, side, best_t, best_f
-
-    def cond(c):
-        it, ta, tb, fa, fb, _, _, best_f = c
-        return (it < iters) & ~jnp.all(done_of(ta, tb, fa, fb, best_f))
-
-    side = jnp.zeros(fa.shape, dtype=jnp.int32)
-    init = (jnp.asarray(0), ta, tb, fa, fb, side, best_t, best_f)
-    return jax.lax.while_loop(cond, body, init)[6]
+    signs (vectorized over the candidates), by Illinois false position
+    (:func:`_illinois_state` with ``f`` itself as the value carried). Returns the evaluated
+    point of smallest ``|f|`` (the bracket ends included): false position converges from
+    one side, so the bracket's midpoint can stay far from the root while one end sits on
+    it."""
+    c = _illinois_state(_illinois_init(fa, fb, fa, fb), f, lambda v: v, ftol, iters)
+    return c["best_t"]
 
 
-def _tracked_init(la, lb, fa, fb):
-    """Start of :func:`_illinois_tracked`: the bracket ``t ∈ [0, 1]`` with the locus ``la``,
-    ``lb`` and ``f`` = ``fa``, ``fb`` at its ends."""
+def _illinois_init(la, lb, fa, fb):
+    """Start of :func:`_illinois_state`: the bracket ``t ∈ [0, 1]`` with the values ``la``,
+    ``lb`` (e.g. the locus) and ``f`` = ``fa``, ``fb`` at its ends."""
     a_best = jnp.abs(fa) <= jnp.abs(fb)
     return dict(
         it=jnp.asarray(0), ta=jnp.zeros_like(fa), tb=jnp.ones_like(fb), fa=fa, fb=fb,
@@ -251,23 +214,24 @@ def _tracked_init(la, lb, fa, fb):
     )  # fmt: skip
 
 
-def _tracked_done(c, ftol):
+def _illinois_done(c, ftol):
     fa, fb = c["fa"], c["fb"]
     bracket = ((fa >= 0) != (fb >= 0)) & jnp.isfinite(fa) & jnp.isfinite(fb)
     return ~bracket | (c["best_f"] <= ftol) | (jnp.abs(c["tb"] - c["ta"]) <= _T_TOL)
 
 
-def _illinois_tracked(c, lam_at, f_of, ftol, iters):
-    """Illinois false position on ``f(λ(t))``, ``t ∈ [0, 1]``, for a locus ``λ(t)``
-    (``lam_at(t)``: the eigenvalue of ``L`` at ``t`` nearest the locus' interpolated grid
-    ends), from the state ``c`` (:func:`_tracked_init`), at most ``iters`` more steps. A
-    candidate without a sign change has nothing to do; a candidate stops as
-    :func:`_illinois` (``ftol``: the rounding level of ``f``) and then keeps its state, so
-    its result does not depend on the other candidates of the batch. Returns the state;
-    ``best_t``/``best_lam``: the evaluated point of smallest ``|f|``."""
+def _illinois_state(c, lam_at, f_of, ftol, iters):
+    """Illinois false position on ``f_of(lam_at(t))``, ``t ∈ [0, 1]`` (vectorized over the
+    candidates; ``lam_at(t)`` e.g. the eigenvalue of ``L`` at ``t`` nearest the locus'
+    interpolated grid ends), from the state ``c`` (:func:`_illinois_init`), at most
+    ``iters`` more steps. Stops when every candidate has converged (``f = 0`` hit, ``|f| ≤
+    ftol``, or the bracket below ``_T_TOL``; a candidate without a sign change counts as
+    converged); a converged candidate keeps its state, so its result does not depend on the
+    other candidates of the batch. Returns the state; ``best_t``/``best_lam``: the evaluated
+    point of smallest ``|f|`` and its value."""
 
     def body(c):
-        busy = ~_tracked_done(c, ftol)
+        busy = ~_illinois_done(c, ftol)
         ta, tb, fa, fb, side = c["ta"], c["tb"], c["fa"], c["fb"], c["side"]
         den = fb - fa
         t = jnp.where(
@@ -293,7 +257,7 @@ def _illinois_tracked(c, lam_at, f_of, ftol, iters):
         return {k: v if k == "it" else jnp.where(busy, v, c[k]) for k, v in new.items()}
 
     def cond(c):
-        return (c["it"] < iters) & ~jnp.all(_tracked_done(c, ftol))
+        return (c["it"] < iters) & ~jnp.all(_illinois_done(c, ftol))
 
     return jax.lax.while_loop(cond, body, dict(c, it=jnp.asarray(0)))
 
@@ -617,7 +581,7 @@ def _loci_refined(task, L_fn):
     # neither keep Illinois nor Newton running
     fa = jnp.where(sel_ok, f_of(la), 1.0)
     fb = jnp.where(sel_ok, f_of(lb), 1.0)
-    c1 = _illinois_tracked(_tracked_init(la, lb, fa, fb), lam_at, f_of, ftol, _STAGE1)
+    c1 = _illinois_state(_illinois_init(la, lb, fa, fb), lam_at, f_of, ftol, _STAGE1)
     packed = jnp.stack([c1["best_t"].astype(la.dtype), c1["best_lam"]], axis=1)
     C = la.shape[0]
 
@@ -625,10 +589,10 @@ def _loci_refined(task, L_fn):
         sub = {k: v[idx] for k, v in task.items()}
         f2, lam2, ftol2, _, _ = _loci_problem(sub, L_fn)
         c2 = {k: (v if k == "it" else v[idx]) for k, v in c1.items()}
-        c2 = _illinois_tracked(c2, lam2, f2, ftol2, _ROOT_ITERS - _STAGE1)
+        c2 = _illinois_state(c2, lam2, f2, ftol2, _ROOT_ITERS - _STAGE1)
         return jnp.stack([c2["best_t"].astype(la.dtype), c2["best_lam"]], axis=1)
 
-    packed = _fill_where(~_tracked_done(c1, ftol), more, packed, min(_BLOCK, C))
+    packed = _fill_where(~_illinois_done(c1, ftol), more, packed, min(_BLOCK, C))
     return jnp.real(packed[:, 0]), packed[:, 1]
 
 
