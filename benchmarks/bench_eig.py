@@ -24,7 +24,9 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -32,6 +34,10 @@ import numpy as np
 
 import hapid  # noqa: F401  (float64)
 from hapid.control import _kernels as K
+
+# the previous pairing (select-chain DP), for comparison: the tests' reference of the tie rule
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+from test_kernels_eig import _pair_select_chain as pair_select_chain  # noqa: E402
 
 _ULP = float(np.finfo(np.float64).eps)
 _SAFMIN = float(np.finfo(np.float64).tiny)
@@ -187,36 +193,6 @@ def charpoly_aberth_eigvals(A, iters: int = 12):
 
     z = jax.lax.fori_loop(0, iters, body, tuple(r * ang[i] for i in range(n)))
     return jnp.stack([zi / s + c for zi in z])
-
-
-# --- the previous pairing (select chains), for comparison ---------------------------------------
-
-
-def pair_select_chain(a, b):
-    n = a.shape[0]
-    d = [[jnp.abs(a[i] - b[j]) ** 2 for j in range(n)] for i in range(n)]
-    f = {0: jnp.zeros(a.shape[1:], dtype=jnp.float64)}
-    choice = {}
-    for S in sorted(range(1, 1 << n), key=lambda s: (bin(s).count("1"), s)):
-        i = bin(S).count("1") - 1
-        best, arg = None, None
-        for j in range(n):
-            if S >> j & 1:
-                c = f[S ^ (1 << j)] + d[i][j]
-                if best is None:
-                    best, arg = c, jnp.full(c.shape, j, dtype=jnp.int32)
-                else:
-                    lt = c < best
-                    best, arg = jnp.where(lt, c, best), jnp.where(lt, j, arg)
-        f[S], choice[S] = best, arg
-    tab = jnp.stack([choice.get(S, jnp.zeros_like(choice[1])) for S in range(1 << n)])
-    S = jnp.full(a.shape[1:], (1 << n) - 1, dtype=jnp.int32)
-    sig = [None] * n
-    for i in range(n - 1, -1, -1):
-        j = jnp.take_along_axis(tab, S[None], axis=0)[0]
-        sig[i] = j
-        S = S - jnp.left_shift(1, j)
-    return jnp.take_along_axis(b, jnp.stack(sig), axis=0)
 
 
 # --- measurement -------------------------------------------------------------------------------

@@ -142,12 +142,12 @@ def det_inv_screened(A, tau: float = 0.5):
     flat = [A[i, j] for i in range(n) for j in range(n)]
     S = [M[i][n + j] for i in range(n) for j in range(n)]
 
-    def redo(f):
+    def redo(_, f):
         Ab = jnp.stack(f[: n * n]).reshape(n, n, -1)
         d, Si = det_inv(Ab, unroll=True)
         return tuple(f[: n * n]) + (d,) + tuple(Si.reshape(n * n, -1))
 
-    out = _compacted(~ok, redo, tuple(flat) + (det,) + tuple(S), size=256)
+    out = compacted(~ok, redo, tuple(flat) + (det,) + tuple(S), size=256)
     return out[n * n], jnp.stack(out[n * n + 1 :]).reshape(n, n, B)
 
 
@@ -406,7 +406,7 @@ def eigvals(A, max_iter: int = 40):
         # slowest set the step count of a shared loop) continue in blocks of _EIG_BLOCK,
         # on the same shift schedule, so each matrix's result is the same either way
         flat = qr(0, flat, min(_EIG_CAP, max_iter))
-        flat = _compacted(~done_of(unflat(flat)), lambda f: qr(_EIG_CAP, f, max_iter), flat)
+        flat = compacted(~done_of(unflat(flat)), lambda _, f: qr(_EIG_CAP, f, max_iter), flat)
         Hm = unflat(flat)
         out[m - 1] = Hm[m - 1][m - 1]
         H = [row[: m - 1] for row in Hm[: m - 1]]
@@ -414,10 +414,14 @@ def eigvals(A, max_iter: int = 40):
     return jnp.stack(out).reshape((n,) + bshape)
 
 
-def _compacted(flag, fn, arrays, size=None):
-    """``arrays`` (a tuple of ``(B,)``) with ``fn`` applied to the entries where ``flag``:
-    the flagged entries are gathered ``size`` at a time (default ``_EIG_BLOCK``) in a
-    ``while_loop`` — the work follows the count of flagged entries, not the batch."""
+def compacted(flag, fn, arrays, size=None, stop=None):
+    """``arrays`` (a tuple of arrays sharing the leading axis ``(B, ...)``) with
+    ``fn(idx, sub) → sub'`` applied to the entries where ``flag (B,)``: the flagged entries
+    are gathered ``size`` at a time (default ``_EIG_BLOCK``; ``idx`` their indices in
+    increasing order, ``sub`` the gathered arrays) in a ``while_loop`` and scattered back —
+    the work follows the count of flagged entries, not the batch (under ``vmap`` the loop runs
+    to the largest count of the batch). ``stop(sub', valid) → bool``: end after the first
+    block where it holds (ascending scans; ``valid`` masks the block's padding)."""
     B = flag.shape[0]
     size = min(size or _EIG_BLOCK, B)
     idx = jnp.nonzero(flag, size=B, fill_value=B)[0]
@@ -425,16 +429,31 @@ def _compacted(flag, fn, arrays, size=None):
     count = jnp.sum(flag)
 
     def body(c):
-        j, f = c
+        j, f, _ = c
         sl = jax.lax.dynamic_slice(idx, (j * size,), (size,))
         g = jnp.minimum(sl, B - 1)
-        sub = fn(tuple(x[g] for x in f))
-        return j + 1, tuple(x.at[sl].set(v, mode="drop") for x, v in zip(f, sub, strict=True))
+        sub = fn(g, tuple(x[g] for x in f))
+        found = jnp.asarray(False) if stop is None else stop(sub, sl < B)
+        f = tuple(x.at[sl].set(v.astype(x.dtype), mode="drop") for x, v in zip(f, sub, strict=True))
+        return j + 1, f, found
 
     def cond(c):
-        return c[0] * size < count
+        return (c[0] * size < count) & ~c[2]
 
-    return jax.lax.while_loop(cond, body, (jnp.asarray(0), tuple(arrays)))[1]
+    return jax.lax.while_loop(cond, body, (jnp.asarray(0), tuple(arrays), jnp.asarray(False)))[1]
+
+
+def _pair_traceback(tab, b):
+    """``b (n, ...)`` ordered by the optimal-permutation DP's choice table ``tab (2ⁿ, ...)``
+    (row ``S``: the ``j`` chosen for the last row of the subset ``S``)."""
+    n = b.shape[0]
+    S = jnp.full(b.shape[1:], (1 << n) - 1, dtype=jnp.int32)
+    sig = [None] * n
+    for i in range(n - 1, -1, -1):
+        j = jnp.take_along_axis(tab, S[None], axis=0)[0]
+        sig[i] = j
+        S = S - jnp.left_shift(1, j)
+    return jnp.take_along_axis(b, jnp.stack(sig), axis=0)
 
 
 def pair_optimal(a, b):
@@ -469,10 +488,4 @@ def pair_optimal(a, b):
         row = {S: r for r, S in enumerate(level)}
         order += level
     tab = jnp.concatenate(levels)[np.argsort(order)]  # (2ⁿ, ...): row S = the choice at S
-    S = jnp.full(bshape, (1 << n) - 1, dtype=jnp.int32)
-    sig = [None] * n
-    for i in range(n - 1, -1, -1):
-        j = jnp.take_along_axis(tab, S[None], axis=0)[0]
-        sig[i] = j
-        S = S - jnp.left_shift(1, j)
-    return jnp.take_along_axis(b, jnp.stack(sig), axis=0)
+    return _pair_traceback(tab, b)

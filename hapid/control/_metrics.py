@@ -65,7 +65,6 @@ _T_TOL = 1e-14  # Illinois: bracket width in t ∈ [0, 1] that counts as converg
 _SECTIONS = 16  # points per multisection step (peaks)
 _SECTION_STEPS = 4  # bracket × (2/17)^4 ≈ 2e-4, then
 _PARABOLA_STEPS = 2  # parabolic steps on the best point
-_EPS = float(np.finfo(np.float64).eps)
 _N_REFINE = 4
 _STAGE1 = 8  # Illinois steps every loci candidate gets; the rest continue in blocks
 _BLOCK = 64
@@ -191,14 +190,14 @@ class LoopMetrics(eqx.Module):
 # helpers
 
 
-def _illinois(f, fa, fb, iters=_ROOT_ITERS, ftol=0.0):
+def _illinois(f, fa, fb, iters=_ROOT_ITERS):
     """Root of ``f(t)`` on ``t ∈ [0, 1]`` given ``fa = f(0)``, ``fb = f(1)`` of opposite
     signs (vectorized over the candidates), by Illinois false position
     (:func:`_illinois_state` with ``f`` itself as the value carried). Returns the evaluated
     point of smallest ``|f|`` (the bracket ends included): false position converges from
     one side, so the bracket's midpoint can stay far from the root while one end sits on
     it."""
-    c = _illinois_state(_illinois_init(fa, fb, fa, fb), f, lambda v: v, ftol, iters)
+    c = _illinois_state(_illinois_init(fa, fb, fa, fb), f, lambda v: v, iters)
     return c["best_t"]
 
 
@@ -214,24 +213,24 @@ def _illinois_init(la, lb, fa, fb):
     )  # fmt: skip
 
 
-def _illinois_done(c, ftol):
+def _illinois_done(c):
     fa, fb = c["fa"], c["fb"]
     bracket = ((fa >= 0) != (fb >= 0)) & jnp.isfinite(fa) & jnp.isfinite(fb)
-    return ~bracket | (c["best_f"] <= ftol) | (jnp.abs(c["tb"] - c["ta"]) <= _T_TOL)
+    return ~bracket | (c["best_f"] == 0) | (jnp.abs(c["tb"] - c["ta"]) <= _T_TOL)
 
 
-def _illinois_state(c, lam_at, f_of, ftol, iters):
+def _illinois_state(c, lam_at, f_of, iters):
     """Illinois false position on ``f_of(lam_at(t))``, ``t ∈ [0, 1]`` (vectorized over the
     candidates; ``lam_at(t)`` e.g. the eigenvalue of ``L`` at ``t`` nearest the locus'
     interpolated grid ends), from the state ``c`` (:func:`_illinois_init`), at most
-    ``iters`` more steps. Stops when every candidate has converged (``f = 0`` hit, ``|f| ≤
-    ftol``, or the bracket below ``_T_TOL``; a candidate without a sign change counts as
-    converged); a converged candidate keeps its state, so its result does not depend on the
+    ``iters`` more steps. Stops when every candidate has converged (``f = 0`` hit or the
+    bracket below ``_T_TOL``; a candidate without a sign change counts as converged); a
+    converged candidate keeps its state, so its result does not depend on the
     other candidates of the batch. Returns the state; ``best_t``/``best_lam``: the evaluated
     point of smallest ``|f|`` and its value."""
 
     def body(c):
-        busy = ~_illinois_done(c, ftol)
+        busy = ~_illinois_done(c)
         ta, tb, fa, fb, side = c["ta"], c["tb"], c["fa"], c["fb"], c["side"]
         den = fb - fa
         t = jnp.where(
@@ -257,7 +256,7 @@ def _illinois_state(c, lam_at, f_of, ftol, iters):
         return {k: v if k == "it" else jnp.where(busy, v, c[k]) for k, v in new.items()}
 
     def cond(c):
-        return (c["it"] < iters) & ~jnp.all(_illinois_done(c, ftol))
+        return (c["it"] < iters) & ~jnp.all(_illinois_done(c))
 
     return jax.lax.while_loop(cond, body, dict(c, it=jnp.asarray(0)))
 
@@ -337,25 +336,11 @@ def _det_inv(IL, kernels, unroll=False):
 
 def _fill_where(flag, fn, out, size, stop=None):
     """``out`` with ``out[i] = fn(idx)[j]`` for every ``i`` where ``flag`` (``idx`` the flagged
-    indices in increasing order, ``size`` at a time in a ``while_loop``: the work follows the
-    count, no fallback; under ``vmap`` the loop runs to the largest count of the batch).
-    ``stop(vals) → bool``: end after the first chunk where it holds (ascending scans)."""
-    N = flag.shape[0]
-    idx = jnp.nonzero(flag, size=N, fill_value=N)[0]
-    idx = jnp.concatenate([idx, jnp.full(size, N, dtype=idx.dtype)])
-    count = jnp.sum(flag)
-
-    def body(c):
-        j, out, _ = c
-        sl = jax.lax.dynamic_slice(idx, (j * size,), (size,))
-        vals = fn(jnp.minimum(sl, N - 1))
-        found = jnp.asarray(False) if stop is None else jnp.any(stop(vals) & (sl < N))
-        return j + 1, out.at[sl].set(vals.astype(out.dtype), mode="drop"), found
-
-    def cond(c):
-        return (c[0] * size < count) & ~c[2]
-
-    return jax.lax.while_loop(cond, body, (jnp.asarray(0), out, jnp.asarray(False)))[1]
+    indices in increasing order, ``size`` at a time: :func:`._kernels.compacted`, the work
+    follows the count). ``stop(vals) → bool``: end after the first chunk where it holds
+    (ascending scans)."""
+    st = None if stop is None else (lambda new, valid: jnp.any(stop(new[0]) & valid))
+    return K.compacted(flag, lambda idx, _: (fn(idx),), (out,), size, stop=st)[0]
 
 
 # --------------------------------------------------------------------------------------
@@ -548,7 +533,12 @@ def _loci_candidates(a, b):
 
 
 def _loci_problem(task, L_fn):
-    """``(f_of, lam_at, ftol, x0, x1)`` of the loci candidates ``task`` (flat, any number)."""
+    """``(f_of, lam_at)`` of the loci candidates ``task`` (flat, any number): the function
+    Illinois zeroes (``Im λ`` for a gain margin, ``log|λ|`` for a phase margin) and the
+    locus at ``t`` in its grid interval (Newton from the interpolated grid ends). There is
+    no early stop on ``|f|``: a crossing whose locus meets the axis at a shallow angle has
+    ``f`` at rounding level over a stretch of ``t``, and stopping anywhere in it moved the
+    crossing frequency by ~1e-8 between the XLA and LAPACK paths (1 of 1000 cu5 draws)."""
     sel_ok, k, la, lb, is_gm = task["ok"], task["k"], task["la"], task["lb"], task["gm"]
     interp = _Local(task["L"], task["lw"], L_fn)
     c = jnp.arange(k.shape[0])
@@ -561,12 +551,7 @@ def _loci_problem(task, L_fn):
         x = x0 + t * (x1 - x0)
         return K.eig_newton(K.to_entries(interp(c, k, x)), la + t * (lb - la), active=sel_ok)
 
-    # no early stop on |f|: a crossing whose locus meets the axis at a shallow angle has f
-    # at rounding level over a stretch of t, and stopping anywhere in it moved the crossing
-    # frequency by ~1e-8 between the XLA and LAPACK paths (1 of 1000 cu5 draws); the
-    # bracket tolerance does not (the few candidates that need it run in compacted blocks)
-    ftol = jnp.zeros_like(x0)
-    return f_of, lam_at, ftol, x0, x1
+    return f_of, lam_at
 
 
 def _loci_refined(task, L_fn):
@@ -575,25 +560,25 @@ def _loci_refined(task, L_fn):
     :func:`._kernels.eig_newton`). Every candidate gets ``_STAGE1`` steps together; the
     few that need more (a locus that moves far within its grid interval) continue in blocks
     of ``_BLOCK``, so they do not make every candidate pay their step count."""
-    f_of, lam_at, ftol, _, _ = _loci_problem(task, L_fn)
+    f_of, lam_at = _loci_problem(task, L_fn)
     la, lb, sel_ok = task["la"], task["lb"], task["ok"]
     # candidates that do not exist (fewer crossings than slots): no bracket, so they
     # neither keep Illinois nor Newton running
     fa = jnp.where(sel_ok, f_of(la), 1.0)
     fb = jnp.where(sel_ok, f_of(lb), 1.0)
-    c1 = _illinois_state(_illinois_init(la, lb, fa, fb), lam_at, f_of, ftol, _STAGE1)
-    packed = jnp.stack([c1["best_t"].astype(la.dtype), c1["best_lam"]], axis=1)
-    C = la.shape[0]
+    c1 = _illinois_state(_illinois_init(la, lb, fa, fb), lam_at, f_of, _STAGE1)
+    state = {k: v for k, v in c1.items() if k != "it"}
 
-    def more(idx):
+    def more(idx, sub_state):
         sub = {k: v[idx] for k, v in task.items()}
-        f2, lam2, ftol2, _, _ = _loci_problem(sub, L_fn)
-        c2 = {k: (v if k == "it" else v[idx]) for k, v in c1.items()}
-        c2 = _illinois_state(c2, lam2, f2, ftol2, _ROOT_ITERS - _STAGE1)
-        return jnp.stack([c2["best_t"].astype(la.dtype), c2["best_lam"]], axis=1)
+        f2, lam2 = _loci_problem(sub, L_fn)
+        c2 = dict(zip(state, sub_state, strict=True))
+        c2 = _illinois_state(c2, lam2, f2, _ROOT_ITERS - _STAGE1)
+        return tuple(c2[k] for k in state)
 
-    packed = _fill_where(~_illinois_done(c1, ftol), more, packed, min(_BLOCK, C))
-    return jnp.real(packed[:, 0]), packed[:, 1]
+    out = K.compacted(~_illinois_done(c1), more, tuple(state.values()), _BLOCK)
+    out = dict(zip(state, out, strict=True))
+    return out["best_t"], out["best_lam"]
 
 
 def _loci_select(task, ts, lam):
@@ -768,6 +753,19 @@ def refine_pass(out, tasks, L_fn, spec: MetricsSpec):
         lit = jnp.where(t["none"], 0.0, jnp.where(t["last"], jnp.inf, w))
         res["iso_bandwidth_literal_hz"] = jnp.where(stable, lit / TWO_PI, nan)
     return res
+
+
+def refine_many(out, tasks, L_fn, spec: MetricsSpec):
+    """:func:`refine_pass` of many loops at once: ``out``/``tasks`` are :func:`grid_pass`'s
+    results stacked on a leading axis ``(D, ...)``. Every loop's loci candidates are refined
+    as one flat batch (its few slow candidates in compacted blocks), the rest vmapped; the
+    sequential steps are paid once for the ``D`` loops. Returns the fields ``(D,)``."""
+    if "margins" in tasks:
+        m = tasks["margins"]
+        D, C = m["k"].shape
+        ts, lam = _loci_refined(jax.tree.map(lambda a: a.reshape((D * C,) + a.shape[2:]), m), L_fn)
+        tasks = dict(tasks, loci=(ts.reshape(D, C), lam.reshape(D, C)))
+    return jax.vmap(lambda o, t: refine_pass(o, t, L_fn, spec))(out, tasks)
 
 
 def _check(P, G, omega):

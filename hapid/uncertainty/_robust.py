@@ -78,8 +78,8 @@ import numpy as np
 from .. import _config, _distributed  # noqa: F401  (float64)
 from .._grids import continuous_grid as posterior_omega
 from .._grids import sampled_grid as robust_omega
-from ..control import Compensator, MetricsSpec, analyze_loop, disk_margin_from_peak
-from ..control._metrics import _loci_refined, grid_pass, metrics_screened, refine_pass
+from ..control import Compensator, MetricsSpec, analyze_loop
+from ..control._metrics import grid_pass, metrics_screened, refine_many
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
 from ._sampler import PosteriorSamples
@@ -257,11 +257,8 @@ def _fields(m: dict, spec: MetricsSpec) -> dict:
     out = {k: m[k] for k in ("stable", "n_closed_loop_rhp", "gm_db", "pm_deg", "iso_bandwidth_hz")}
     nan = jnp.full_like(m["gm_db"], jnp.nan)
     out["t_peak_db"] = m["t_peak_db"] if spec.t_peak else nan
-    if spec.disk:
-        d = disk_margin_from_peak(2.0 / m["disk_margin"])
-        out["disk_margin"] = m["disk_margin"]
-        out["disk_gm_db"] = jnp.where(m["stable"], d["disk_gm_db"], 0.0)
-        out["disk_pm_deg"] = jnp.where(m["stable"], d["disk_pm_deg"], 0.0)
+    if spec.disk:  # loop_metrics fills the disk margin's GM/PM (0 when not stable)
+        out |= {k: m[k] for k in ("disk_margin", "disk_gm_db", "disk_pm_deg")}
     else:
         out["disk_margin"] = out["disk_gm_db"] = out["disk_pm_deg"] = nan
     return out
@@ -299,12 +296,7 @@ def _refine_chunk(grids, spec):
     """The refinement pass of every plant of a chunk at once (vmapped: its sequential steps
     are shared by the chunk instead of paid per plant)."""
     out, tasks = jax.tree.map(lambda *x: jnp.stack(x), *grids)
-    if "margins" in tasks:  # every plant's loci candidates as one flat batch
-        m = tasks["margins"]
-        D, C = m["k"].shape
-        ts, lam = _loci_refined(jax.tree.map(lambda a: a.reshape((D * C,) + a.shape[2:]), m), None)
-        tasks = dict(tasks, loci=(ts.reshape(D, C), lam.reshape(D, C)))
-    return jax.vmap(lambda o, t: _fields(refine_pass(o, t, None, spec), spec))(out, tasks)
+    return _fields(refine_many(out, tasks, None, spec), spec)
 
 
 def _analyze_chunk(P, p_ol, G, omega, vectorize, spec):
