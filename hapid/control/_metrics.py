@@ -11,10 +11,13 @@
 * σ̄ of ``S``, ``T`` (and ``S − T``) is *bounded* cheaply at every frequency and computed
   exactly (Jacobi on ``AᴴA``) only where the bounds do not decide — around the first
   crossing of ``1 − 1/√2`` and around the peaks;
-* eigenvalues of ``L`` (the loci) at every frequency by the XLA QR kernel
-  (:func:`._kernels.eigvals`: Hessenberg + Wilkinson-shifted QR, no LAPACK), paired between
-  neighbouring frequencies by the reference tracker's rule (optimal permutation, by dynamic
-  programming over subsets: :func:`._kernels.pair_optimal`);
+* eigenvalues of ``L`` (the loci) by the XLA QR kernel (:func:`._kernels.eigvals`:
+  Hessenberg + Wilkinson-shifted QR, no LAPACK), paired between neighbouring frequencies by
+  the reference tracker's rule (optimal permutation, by dynamic programming over subsets:
+  :func:`._kernels.pair_optimal`) — only on the grid intervals where a disc that provably
+  holds every eigenvalue (centre ``tr L/n``, radius ``‖L − tr L/n·I‖_F``) leaves the loci
+  rules anything to decide (:func:`_loci_screen`; where the model is right the loci cluster
+  about ``g`` and most intervals are left out);
 * one path, no whole-grid fallback: where the cheap bounds do not decide (singularity,
   bandwidth, peaks), exact values are computed for the undecided points ``n_candidates`` at
   a time in a ``while_loop`` — the work follows the count of undecided points, and under
@@ -68,6 +71,8 @@ _PARABOLA_STEPS = 2  # parabolic steps on the best point
 _N_REFINE = 4
 _STAGE1 = 8  # Illinois steps every loci candidate gets; the rest continue in blocks
 _BLOCK = 64
+_LOCI_BLOCK = 256  # frequencies per block of the screened eigenvalues
+SCREEN_LOCI = True  # False: eigenvalues at every frequency (for benchmarks: read at trace time)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -478,23 +483,83 @@ def _peaks(task, kinds, interp, kernels):
     return [(v[i], w[i]) for i in range(nk)]
 
 
-def _loci_pairs(L, spec):
-    """Paired loci at the ends of every grid interval: ``(a, b)``, each ``(N − 1, n)``.
+def _loci_screen(L, spec):
+    """``(N − 1,)`` bool: the grid intervals where the loci rules may act — an interval left
+    out provably has no unresolved locus step and (with ``spec.margins``) no margin candidate,
+    whatever eigenvalues the kernel returns and however they are paired.
 
-    Eigenvalues of ``L`` at every frequency by the XLA QR kernel (:func:`._kernels.eigvals`;
-    LAPACK with ``kernels="lapack"``), paired between neighbours as the reference tracker
-    does (optimal permutation for ``n ≤ 6`` by :func:`._kernels.pair_optimal`, greedy
-    above)."""
+    Every eigenvalue of ``L(jω_k)`` lies in the disc of centre ``c_k = tr L/n`` and radius
+    ``r_k = ‖L − c_k I‖_F`` (Schur), inflated by ``1e-10 ‖L‖_F`` so that it also holds the
+    computed ones (the QR kernel is backward stable: an exact eigenvalue of ``L + E``,
+    ``‖E‖ ~ n² ε ‖L‖``); both ends of an interval lie in one disc ``(m, R)``. The interval
+    is left out when that disc (i) sees ``−1`` under a half-angle below half the allowed
+    phase step (every paired ``1 + λ`` then turns less than ``max_phase_step``), and with
+    margins (ii) lies inside or outside the unit circle (no ``|λ|`` crosses 1) and (iii) does
+    not meet the negative real axis (a sign change of ``Im λ`` there is interpolated on a
+    chord inside the disc, at ``Re > 0``). NaN anywhere: kept. Where the model is right the
+    loci cluster about ``g`` and most intervals are left out (default loop draws of cu5: 66 %);
+    a loop whose loci spread over decades keeps nearly all (benchmarks/study_loci_screen.py)."""
+    n = L.shape[-1]
+    Le = K.to_entries(L)
+    c = sum(Le[i, i] for i in range(n)) / n
+    eye = jnp.eye(n, dtype=Le.dtype)[:, :, None]
+    r = jnp.sqrt(K.fro2(Le - c[None, None] * eye)) + 1e-10 * jnp.sqrt(K.fro2(Le))
+    m = 0.5 * (c[1:] + c[:-1])
+    R = 0.5 * jnp.abs(c[1:] - c[:-1]) + jnp.maximum(r[1:], r[:-1])
+    half = min(0.5 * spec.max_phase_step, 0.5 * np.pi)
+    left_out = R < jnp.abs(1.0 + m) * np.sin(half)
+    if spec.margins:
+        am = jnp.abs(m)
+        chord = jnp.sqrt(jnp.maximum(R**2 - jnp.imag(m) ** 2, 0.0))
+        off_axis = (jnp.abs(jnp.imag(m)) > R) | (jnp.real(m) - chord > 0)
+        left_out = left_out & ((am - R > 1.0) | (am + R < 1.0)) & off_axis
+    return ~left_out
+
+
+def _loci_pairs(L, spec):
+    """Paired loci at the ends of the grid intervals the loci rules need: ``(a, b, keep)``,
+    ``a``/``b`` ``(N − 1, n)``, ``keep (N − 1,)`` the intervals :func:`_loci_screen` keeps
+    (elsewhere ``a``, ``b`` are placeholders the rules must not read).
+
+    Eigenvalues of ``L`` by the XLA QR kernel (:func:`._kernels.eigvals`) at the ends of the
+    kept intervals only, gathered in blocks (:func:`._kernels.compacted`); with
+    ``kernels="lapack"`` (the reference) or ``arrays`` at every frequency. Paired between
+    neighbours as the reference tracker does (optimal permutation for ``n ≤ 6`` by
+    :func:`._kernels.pair_optimal`, greedy above)."""
+    N, n = L.shape[0], L.shape[-1]
     if spec.kernels == "lapack":
         e = jnp.linalg.eigvals(L).T  # the reference
-    else:
+        keep = jnp.ones(N - 1, dtype=bool)
+    elif spec.arrays or not SCREEN_LOCI:
         e = K.eigvals(K.to_entries(L))  # (n, N)
-    a, b = e[:, :-1], e[:, 1:]
-    if L.shape[-1] <= _MAX_PERMUTATION_N:
-        bp = K.pair_optimal(a, b).T
+        keep = jnp.ones(N - 1, dtype=bool)
     else:
-        bp = jax.vmap(_match_greedy)(a.T, b.T)
-    return a.T, bp
+        keep = _loci_screen(L, spec)
+        node = jnp.concatenate([keep, jnp.zeros(1, bool)]) | jnp.concatenate(
+            [jnp.zeros(1, bool), keep]
+        )
+        e0 = jnp.zeros((N, n), dtype=L.dtype)
+
+        def eig(idx, sub):
+            return (K.eigvals(K.to_entries(L[idx])).T,)
+
+        (e,) = K.compacted(node, eig, (e0,), _LOCI_BLOCK)
+        a = e[:-1]
+
+        def pair(idx, sub):
+            return (_pair(e[idx].T, e[idx + 1].T).T,)
+
+        (bp,) = K.compacted(keep, pair, (jnp.zeros_like(a),), _LOCI_BLOCK)
+        return a, bp, keep
+    return e[:, :-1].T, _pair(e[:, :-1], e[:, 1:]).T, keep
+
+
+def _pair(a, b):
+    """``b (n, M)`` ordered to continue ``a (n, M)``: optimal permutation for ``n ≤ 6``
+    (:func:`._kernels.pair_optimal`), greedy above (as the reference tracker)."""
+    if a.shape[0] <= _MAX_PERMUTATION_N:
+        return K.pair_optimal(a, b)
+    return jax.vmap(_match_greedy)(a.T, b.T).T
 
 
 def _smallest(score, k):
@@ -511,14 +576,15 @@ def _smallest(score, k):
     return jnp.stack(sel), jnp.stack(fin)
 
 
-def _loci_candidates(a, b):
+def _loci_candidates(a, b, keep):
     """The ``_N_REFINE`` best grid candidates of each kind (gain margin: negative-real-axis
-    crossings; phase margin: unit-circle crossings) of the paired loci ``a``/``b``: grid
-    interval ``k``, the locus' ends ``la``/``lb`` and whether the candidate exists
-    (``ok``), gain-margin candidates first."""
+    crossings; phase margin: unit-circle crossings) of the paired loci ``a``/``b`` on the
+    intervals ``keep``: grid interval ``k``, the locus' ends ``la``/``lb`` and whether the
+    candidate exists (``ok``), gain-margin candidates first."""
     C, n = a.shape
     okg, _, gval = phase_crossing(a, b)
     okp, _, pval = gain_crossing(a, b)
+    okg, okp = okg & keep[:, None], okp & keep[:, None]
     nr = min(_N_REFINE, C * n)
     sels, oks = [], []
     for ok, grid_val in ((okg, gval), (okp, pval)):
@@ -651,8 +717,8 @@ def grid_pass(P, G, omega, p_ol, spec: MetricsSpec):
     p_ol = jnp.asarray(p_ol, dtype=jnp.float64)
 
     # --- loci where needed: resolution of every 1 + λ_i, margin candidates --------------------
-    la, lb = _loci_pairs(after(L, det), spec)
-    dphi = jnp.abs(jnp.angle((1.0 + lb) / (1.0 + la)))
+    la, lb, keep = _loci_pairs(after(L, det), spec)
+    dphi = jnp.where(keep[:, None], jnp.abs(jnp.angle((1.0 + lb) / (1.0 + la))), 0.0)
     loci_ok = ~jnp.any(~(dphi < spec.max_phase_step))
     resolved = resolved & loci_ok
     stable = nyquist_verdict(n_enc, p_ol, resolved, singular)
@@ -666,7 +732,7 @@ def grid_pass(P, G, omega, p_ol, spec: MetricsSpec):
     )
     tasks = {}
     if spec.margins:
-        t = _loci_candidates(la, lb)
+        t = _loci_candidates(la, lb, keep)
         t["L"], t["lw"], t["k"] = _windows(L, lw, t["k"])
         tasks["margins"] = t
     if spec.bandwidth:
