@@ -51,7 +51,6 @@ def posterior_from_files(
     Returns the :class:`PosteriorSamples`.
     """
     from ..io import load_frf
-    from ..pipeline import fit_for_control
     from ._likelihood import boundary_fixed, make_log_posterior
     from ._loopgp import measured_data
     from ._sampler import posterior_laplace_samples, sample_posterior, save_samples
@@ -60,11 +59,8 @@ def posterior_from_files(
         raise ValueError(f"method must be 'emcee' or 'laplace', got {method!r}")
     frf = load_frf(frf_path)
     fit_options = {"weight": "relative", "f_max_hz": 40.0} | dict(fit_options or {})
-    f_max = fit_options.pop("f_max_hz")
-    band = frf if f_max is None else frf.band(0.0, float(f_max))  # as hapid fit cuts it
-    f, refit = fit_for_control(band, boundary_refit=boundary_refit, f_max_hz=None, **fit_options)
-    nls = f.result.raise_if_failed()
-    popts = {"f_max_hz": f_max} | dict(posterior_options or {})
+    nls, refit = posterior_fit(frf, boundary_refit=boundary_refit, **fit_options)
+    popts = {"f_max_hz": fit_options["f_max_hz"]} | dict(posterior_options or {})
     if fix_boundary and nls.boundary and "fixed" not in popts:
         popts["fixed"] = boundary_fixed(nls)
     if popts.get("model_error") in ("gp", "gp_corr"):
@@ -81,6 +77,19 @@ def posterior_from_files(
     ps = dataclasses.replace(ps, measured=measured_data(frf), diagnostics=ps.diagnostics | fit_diag)
     save_samples(out_path, ps)
     return ps
+
+
+def posterior_fit(frf, *, f_max_hz: float | None = 40.0, boundary_refit: bool = True, **options):
+    """``(nls, refit_pd_eps)``: the fit :func:`posterior_from_files` builds the posterior
+    around — ``hapid fit``'s NLS fit, by the same call: ``frf`` cut to ``0–f_max_hz`` (Hz)
+    and :func:`hapid.pipeline.fit_for_control` (``options``: its NLS options; the
+    PSD-boundary refit unless ``boundary_refit`` is false). ``nls`` is the
+    :class:`~hapid.fit.NLSResult` (``FitFailedError`` if it did not converge)."""
+    from ..pipeline import fit_for_control
+
+    band = frf if f_max_hz is None else frf.band(0.0, float(f_max_hz))  # as hapid fit cuts it
+    f, refit = fit_for_control(band, boundary_refit=boundary_refit, f_max_hz=None, **options)
+    return f.result.raise_if_failed(), refit
 
 
 DRAWS = ("auto", "loop_gp", "params")
