@@ -71,6 +71,16 @@ def test_posterior_is_built_around_the_model_hapid_fit_writes(tmp_path, boundary
         np.testing.assert_allclose(draws[name], np.broadcast_to(ref, draws[name].shape),
                                    rtol=1e-9, atol=1e-12 * np.abs(ref).max())  # fmt: skip
     assert np.linalg.eigvalsh(draws["M_H"])[:, 0].min() > 0
+    # the fit's own Laplace draws (laplace_samples) hold the same refitted matrices
+    from hapid.uncertainty import laplace_samples
+    from hapid.uncertainty._files import posterior_fit
+
+    nls, eps = posterior_fit(boundary_frf)
+    assert eps == PD_EPS and _rel_diff(nls.model, model) < 1e-12
+    lap = laplace_samples(nls, 20).physical()
+    np.testing.assert_allclose(lap["M_H"], np.broadcast_to(_mats(model)[0], lap["M_H"].shape),
+                               rtol=1e-9, atol=1e-12 * np.abs(_mats(model)[0]).max())  # fmt: skip
+    assert np.linalg.eigvalsh(lap["M_H"])[:, 0].min() > 0
 
 
 def test_keep_boundary_keeps_the_bare_fit_in_fit_and_posterior(tmp_path, boundary_frf, monkeypatch):
