@@ -18,6 +18,15 @@ pipeline order, on cu5 with the paper protocol:
 Then the whole paper reproduction (``hapid paper``), cold and warm, as ``bench_paper.py``
 measures it (full run only; ``--quick`` skips it). Note: hapid writes to the persistent
 cache only compilations that took ≥ 0.5 s (``hapid/_config.py``).
+
+Where the compile time of the loop program goes (``--ir N``, a separate mode): every function
+of ``hapid.control._kernels`` and ``_metrics`` is wrapped in a ``jax.named_scope`` (in this
+process only), ``loop_metrics`` (default spec, N = 1000) on the n-rod preset loop of
+``bench_n.py`` is compiled with ``XLA_FLAGS=--xla_dump_to`` in a subprocess, and the
+optimized LLVM IR of its kernels (XLA:CPU compile time is mostly LLVM, roughly in
+proportion to it) is summed by the innermost two scopes of each kernel's ``op_name``:
+
+    HAPID_JAX_CACHE= PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_compile.py --ir 5
 """
 
 from __future__ import annotations
@@ -153,8 +162,77 @@ def run(quick: bool = False, out: str = "out/bench") -> Section:
     return sec
 
 
+def _ir_worker(n: int):
+    """Compile loop_metrics on the n-rod loop with every kernel/metrics function scoped."""
+    import functools
+    import inspect
+
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import hapid  # noqa: F401
+    from hapid.control import _kernels, _metrics
+
+    for mod in (_kernels, _metrics):
+        for name, f in list(vars(mod).items()):
+            if inspect.isfunction(f) and f.__module__ == mod.__name__:
+
+                @functools.wraps(f)
+                def g(*a, _f=f, _n=name, **k):
+                    with jax.named_scope("S_" + _n):
+                        return _f(*a, **k)
+
+                setattr(mod, name, g)
+    from bench_n import _device_loop
+
+    from hapid.uncertainty import posterior_omega
+
+    omega = np.asarray(posterior_omega(1000))
+    P, G, p_ol, _ = _device_loop(n, omega)
+    w = jnp.asarray(omega)
+    f = jax.jit(lambda P, G: _metrics.loop_metrics(P, G, w, p_ol=p_ol))
+    f.lower(jnp.asarray(P), jnp.asarray(G)).compile()
+
+
+def ir_attribution(n: int) -> str:
+    """Table: optimized LLVM IR (kB) and kernel count of loop_metrics by function scope."""
+    import collections
+    import re
+
+    with tempfile.TemporaryDirectory() as d:
+        env = dict(os.environ, HAPID_JAX_CACHE="", XLA_FLAGS=f"--xla_dump_to={d} --xla_dump_hlo_module_re=.*lambda.*")  # fmt: skip
+        subprocess.run([sys.executable, __file__, "--ir-worker", str(n)], env=env, check=True)
+        mod = sorted(
+            {m.group(1) for f in os.listdir(d) if (m := re.match(r"(module_\d+\.jit__lambda)", f))}
+        )[-1]
+        scope = {}
+        for line in (Path(d) / f"{mod}.cpu_after_optimizations.txt").read_text().splitlines():
+            m = re.match(r"\s*(?:ROOT )?%?([\w.\-]+) = .* fusion\(", line)
+            if m:
+                on = re.search(r'op_name="([^"]+)"', line)
+                sc = re.findall(r"S_(\w+)", on.group(1)) if on else []
+                scope[m.group(1)] = "/".join(sc[-2:]) or "(unscoped)"
+        size, count, total = collections.Counter(), collections.Counter(), 0
+        for f in Path(d).glob(f"{mod}.*ir-with-opt.ll"):
+            k = re.search(r"jit__lambda\.(.*?)(?:_kernel_module)?\.ir-with-opt", f.name).group(1)
+            b = f.stat().st_size
+            total += b
+            size[scope.get(k, "(unscoped)")] += b
+            count[scope.get(k, "(unscoped)")] += 1
+    rows = [{"scope (outer/inner)": k, "IR kB": f"{v / 1e3:.0f}", "share": f"{v / total:.0%}",
+             "kernels": count[k]} for k, v in size.most_common(20)]  # fmt: skip
+    head = f"loop_metrics, n = {n}, N = 1000: {total / 1e6:.1f} MB optimized LLVM IR"
+    return head + "\n" + table(rows)
+
+
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
+    if "--ir-worker" in argv:
+        return _ir_worker(int(argv[argv.index("--ir-worker") + 1]))
+    if "--ir" in argv:
+        print(ir_attribution(int(argv[argv.index("--ir") + 1])))
+        return None
     if "--worker" in argv:
         return _worker()
     return standalone(run, __doc__, argv)
