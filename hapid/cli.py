@@ -370,7 +370,13 @@ def cmd_posterior(a):
                               | ({"gp_hyper": a.gp_hyper} if a.gp_hyper and a.model_error in ("gp", "gp_corr") else {})
                               | ({"error_scale": a.error_scale} if a.error_scale else {}),
                               sampler_options={"moves": a.moves} | ({"n_walkers": a.walkers} if a.walkers else {}),
-                              fix_boundary=not a.free_boundary)  # fmt: skip
+                              fix_boundary=not a.free_boundary,
+                              boundary_refit=not a.keep_boundary)  # fmt: skip
+    eps = float(ps.diagnostics.get("fit_pd_eps", 0.0))
+    if eps > 0:  # the same note and metadata as hapid fit (diag_fit_pd_eps in the file)
+        print(f"note: fit refitted with pd_eps = {eps:g}: the PSD-boundary fit put a root of "
+              "det Ẑ_H at ∞ or on the imaginary axis (--keep-boundary keeps that fit); the "
+              "posterior is built around the refitted model, as hapid fit writes it")  # fmt: skip
     print(ps.summary())
     print(f"samples → {a.out}")
 
@@ -485,7 +491,7 @@ def _register_stages(sub):
                         epilog="example: hapid posterior frf.npz --out samples.npz --method laplace")  # fmt: skip
     po.add_argument("frf")
     po.add_argument("--out", required=True)
-    po.add_argument("--model", help="(unused: the NLS fit is redone as the start point)")
+    po.add_argument("--model", help="(unused: the fit is redone, as hapid fit makes it)")
     po.add_argument("--method", choices=["emcee", "laplace"], default="emcee")
     po.add_argument("--walkers", type=int, default=0, help="0 = 2·dim + 2")
     po.add_argument(
@@ -493,6 +499,9 @@ def _register_stages(sub):
         action="store_true",
         help="also sample matrices the NLS fit put on the PSD boundary (default: hold them)",
     )
+    po.add_argument("--keep-boundary", action="store_true",
+                    help="keep an NLS fit whose det Ẑ_H has a root at ∞ or on the imaginary axis "
+                    "(default: refit it strictly PD, pd_eps = 1e-3, as hapid fit does)")  # fmt: skip
     po.add_argument(
         "--moves", default="de", help="emcee moves: de (default), laplace_de, de_mix, stretch"
     )

@@ -4,7 +4,9 @@
 forms the Cartesian product of the values and evaluates, per configuration, the scene's chain
 composed from :mod:`hapid.pipeline`: device (pose, virtual subject) → simulated FRF
 (:func:`hapid.pipeline.simulated_frf`: exact averaged-noise statistics) → fit with the named
-estimator and its options → inverse-model controller sampled at the device's rate → loop
+estimator and its options (``nls``: :func:`hapid.pipeline.control_fit`, the fit ``hapid fit``,
+``hapid posterior`` and a scene make, PSD-boundary refit included unless the scene's
+``fit.boundary_refit`` is false; the ``fit_refit`` column says where it happened) → inverse-model controller sampled at the device's rate → loop
 metrics on the true sampled plant, with the pipeline's verdict rule (the same as a single
 ``hapid analyze``: Nyquist resolved per determinant and per locus, ``I + L`` nonsingular,
 encirclements = −(RHP poles of plant and controller), the controller's own RHP poles —
@@ -59,7 +61,7 @@ _NO_EFFECT = {
 }
 METRICS = ("stable", "n_encirclements", "p_ol", "nyquist_resolved", "iso_bandwidth_hz", "gm_db",
            "pm_deg", "t_peak_db", "t_peak_hz", "disk_margin", "pphat_min_db", "pphat_max_db",
-           "crhp_hand", "crhp_total", "fit_ok")  # fmt: skip
+           "crhp_hand", "crhp_total", "fit_ok", "fit_refit")  # fmt: skip
 ESTIMATOR_DEFAULT = "wls+positize"
 
 
@@ -138,6 +140,7 @@ def point_fn(cfg: dict, keys: tuple[str, ...], estimator: str = ESTIMATOR_DEFAUL
     fit_static = {k: cfg["fit"][k] for k in ("weight", "solver")} | {
         "max_steps": int(cfg["fit"]["max_steps"])
     }
+    refit_on = bool(cfg["fit"].get("boundary_refit", True))
 
     def point(params):
         c = copy.deepcopy(cfg)
@@ -148,7 +151,10 @@ def point_fn(cfg: dict, keys: tuple[str, ...], estimator: str = ESTIMATOR_DEFAUL
         frf = pipeline.simulated_frf(dev, prot, p["seed"], noise=p["noise"], position_noise=p["position_noise"],
                                      periods=p["periods"])  # fmt: skip
         fo = _fit_options(c["fit"] | fit_static, estimator)
-        f = pipeline.fit(frf, estimator, **fo)
+        if estimator == "nls":  # the one NLS fit for control use, boundary refit included
+            f, refit = pipeline.control_fit(frf, boundary_refit=refit_on, **fo)
+        else:
+            f, refit = pipeline.fit(frf, estimator, **fo), jnp.asarray(False)
         omega = pipeline.analysis_grid(c["analysis"]["f_min_hz"], n_freq, fs)
         ctrl = pipeline.controller(f.model, pipeline.compensator(c["controller"]), ts=ts)
         rep = pipeline.loop(ctrl, pipeline.device_plant(dev, omega), pipeline.SPEC_SWEEP)
@@ -159,6 +165,7 @@ def point_fn(cfg: dict, keys: tuple[str, ...], estimator: str = ESTIMATOR_DEFAUL
             dev.sampled_P(frf.omega), f.model, frf.omega, c["analysis"]["band_hz"]
         )
         out["crhp_hand"], out["crhp_total"], out["fit_ok"] = f.crhp_hand, f.crhp_total, f.ok
+        out["fit_refit"] = refit
         return out
 
     return point
@@ -286,6 +293,7 @@ def run_sweep(cfg: dict, vary: dict[str, list], *, chunk: int = 64, progress: bo
     out["stable"] = out["stable"].astype(bool)
     out["nyquist_resolved"] = out["nyquist_resolved"].astype(bool)
     out["fit_ok"] = out["fit_ok"].astype(bool)
+    out["fit_refit"] = out["fit_refit"].astype(bool)
     return keys, rows, out
 
 

@@ -36,7 +36,10 @@ def reference(cfg, keys, params, estimator, margins=True):
     frf = pipeline.simulated_frf(dev, pipeline.protocol(cfg["protocol"]), int(p["seed"]), noise=p["noise"],
                                  position_noise=p["position_noise"], periods=p["periods"])  # fmt: skip
     fo = sweep._fit_options(c["fit"], estimator)
-    model = pipeline.fit(frf, estimator, **fo).model
+    if estimator == "nls":  # the one NLS fit for control use (boundary refit), at the edge
+        model = pipeline.fit_for_control(frf, **fo)[0].model
+    else:
+        model = pipeline.fit(frf, estimator, **fo).model
     g = pipeline.compensator(c["controller"])
     ctrl = discretize_controller(model, g, dev.ts)
     A, B, C, D = (np.asarray(x) for x in (ctrl.A, ctrl.B, ctrl.C, ctrl.D))

@@ -22,6 +22,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Int
 
@@ -150,35 +151,65 @@ def fit(frf, estimator: str = "nls", **options) -> Fit:
     return fn(frf, **dict(options))
 
 
+def _ready(model) -> Bool[Array, ""]:
+    """:func:`controller_ready` as a jittable bool array."""
+    from .._grids import NYQUIST_F_MIN_HZ
+    from ..control import controller_is_stable
+
+    return controller_is_stable(model, tol=TWO_PI * NYQUIST_F_MIN_HZ)
+
+
 def controller_ready(model) -> bool:
     """Is the inverse-model controller ``g Ẑ_T Ẑ_H⁻¹`` of ``model`` proper and strictly
     stable: every root of det Ẑ_H finite, with Re < −2π·10⁻³ rad/s (slower than the analysis
     grid's lowest frequency, :data:`hapid._grids.NYQUIST_F_MIN_HZ`)? A root closer to the
     imaginary axis acts as an integrator the loop analysis cannot resolve; a root at ∞ (a
     singular M̂_H) makes the controller improper. At the edge (python bool)."""
-    from .._grids import NYQUIST_F_MIN_HZ
-    from ..control import controller_is_stable
-
-    return bool(controller_is_stable(model, tol=TWO_PI * NYQUIST_F_MIN_HZ))
+    return bool(_ready(model))
 
 
-def fit_for_control(frf, *, boundary_refit: bool = True, **options) -> tuple[Fit, float | None]:
-    """``(fit, refit_pd_eps)``: the NLS fit (:func:`fit` with ``"nls"`` and ``options``)
-    whose inverse-model controller is realizable. With ``pd_eps = 0`` (the default) a fit
-    that lands on the PSD boundary with a root of det Ẑ_H at ∞ or on the imaginary axis
+def _select(c, a, b):
+    """``a`` where the bool ``c`` holds, else ``b``, leaf by leaf (same tree structure)."""
+    return jax.tree.map(lambda x, y: jnp.where(c, x, y) if eqx.is_array(x) else x, a, b)
+
+
+def control_fit(frf, *, boundary_refit: bool = True, **options) -> tuple[Fit, Bool[Array, ""]]:
+    """``(fit, refitted)``: THE NLS fit for control use, shared by ``hapid fit``, ``hapid
+    posterior``, scenes and sweeps (:func:`fit_for_control` is its edge form). The fit is
+    :func:`fit` with ``"nls"`` and ``options``; with ``pd_eps = 0`` (the default) a fit that
+    lands on the PSD boundary with a root of det Ẑ_H at ∞ or on the imaginary axis
     (:func:`controller_ready` false: hexapod6, whose hand acts on 3 of its 6 rod directions)
-    is refitted with ``pd_eps = PD_EPS`` (every matrix strictly PD; ≤ 0.3 dB of P·P̂⁻¹ band)
-    and ``refit_pd_eps`` is that value, else ``None``. The loops the paper's controller
-    would close through the boundary fit cannot be certified by any analysis. At the edge
-    (python control flow); sweeps call :func:`fit` and get the bare fit.
-    ``boundary_refit=False`` keeps the boundary fit (``refit_pd_eps`` None)."""
+    is refitted from the same start with ``pd_eps = PD_EPS`` (every matrix strictly PD; ≤ 0.3
+    dB of P·P̂⁻¹ band) and ``refitted`` (a bool array) is true. The loops the paper's
+    controller would close through the boundary fit cannot be certified by any analysis.
+    ``boundary_refit=False`` (static) keeps the boundary fit.
+
+    Jittable and vmappable. At the edge (concrete data) the refit runs only when needed;
+    traced (a sweep's ``vmap``) both fits run and the result is selected per element (where
+    no refit is needed the second fit repeats the first, discarded: a warm start from the
+    bare optimum was measured 8× slower, its L Lᵀ boundary crawl running to the patience
+    stop)."""
     from ..fit._nls import PD_EPS
 
     f = fit(frf, "nls", **options)
-    if (
-        boundary_refit
-        and float(options.get("pd_eps", 0.0)) == 0.0
-        and not controller_ready(f.model)
-    ):
-        return fit(frf, "nls", **(dict(options) | {"pd_eps": PD_EPS})), float(PD_EPS)
-    return f, None
+    if not boundary_refit:
+        return f, jnp.asarray(False)
+    pd_eps = options.get("pd_eps", 0.0)
+    need = (jnp.asarray(pd_eps) == 0.0) & ~_ready(f.model)
+    if not isinstance(need, jax.core.Tracer):
+        if bool(need):
+            return fit(frf, "nls", **(dict(options) | {"pd_eps": PD_EPS})), jnp.asarray(True)
+        return f, jnp.asarray(False)
+    o = dict(options) | {"pd_eps": jnp.where(need, PD_EPS, pd_eps)}
+    return _select(need, fit(frf, "nls", **o), f), need
+
+
+def fit_for_control(frf, *, boundary_refit: bool = True, **options) -> tuple[Fit, float | None]:
+    """``(fit, refit_pd_eps)`` of :func:`control_fit` at the edge: ``refit_pd_eps`` is
+    ``PD_EPS`` when the boundary fit was refitted, else ``None``. What ``hapid fit``,
+    ``hapid posterior`` and a scene's ``nls`` stage fit (a sweep's ``nls`` calls
+    :func:`control_fit` under ``vmap``). ``boundary_refit=False`` keeps the boundary fit."""
+    from ..fit._nls import PD_EPS
+
+    f, refitted = control_fit(frf, boundary_refit=boundary_refit, **options)
+    return f, (float(PD_EPS) if bool(refitted) else None)

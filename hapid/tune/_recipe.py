@@ -511,18 +511,6 @@ FRF_FLOOR = 0.5  # min |1 + λ_i| ≥ 0.5 on the measured loop ⇒ loci GM ≥ 6
 FRF_KEY = "frf_min_loci_distance"  # the measured-FRF figure rows are compared on (certificate)
 
 
-def frf_return_difference(data: dict, model, g: Compensator) -> float:
-    """``min_ω σ̲(I + P̂_meas G)`` on the fit frequencies: the data's own plant ``P = Z_H Z_T⁻¹``
-    (from the FRF stored with the samples, ``data`` = :attr:`PosteriorSamples.predictive`)
-    in closed loop with the continuous inverse-model controller of ``(model, g)``. The
-    distance of the loop to −1 (a return difference, not a Nyquist count: the FRF has too
-    few frequencies to count encirclements); ≥ ``FRF_FLOOR`` means disk margins of
-    6 dB / 29° at those frequencies."""
-    from ._evidence import frf_return_difference as _rd
-
-    return _rd(evidence_from_frf(data, model, mismatch=1.0), model, g)
-
-
 def training_no_worse(res) -> tuple[bool, str]:
     """``(ok, why)``: is the tuned g (``res.training``) stable on at least as many training
     loops as the start (``res.training0``), and on all it must be wherever the start is?

@@ -23,20 +23,33 @@ def posterior_from_files(
     posterior_options: dict | None = None,
     sampler_options: dict | None = None,
     fix_boundary: bool = True,
+    boundary_refit: bool = True,
 ):
     """FRF file → NLS fit (start point) → posterior samples file (``.npz``).
 
+    The fit is ``hapid fit``'s, made by the same call: the FRF cut to ``0–f_max_hz`` and
+    :func:`hapid.pipeline.fit_for_control` (relative weights, 40 Hz band by default; a fit
+    whose inverse-model controller would be improper or marginal is refitted with
+    ``pd_eps = PD_EPS`` unless ``boundary_refit`` is false, ``hapid posterior
+    --keep-boundary``), so the posterior is built around the model ``hapid fit`` writes for
+    the same FRF. ``fit_options`` are the pipeline's NLS options (``weight``, ``solver``,
+    ``omega_c_hz``, ``max_steps``, ``f_max_hz``…). The draws' diagnostics record the fit:
+    ``fit_pd_eps`` (the refit's floor, 0 without a refit), ``fit_theta`` (its θ, in the
+    samples' scale: ``theta_to_model(fit_theta, scale)`` is the model) and ``fit_fixed``
+    (the matrices held).
+
     ``method``: ``"emcee"`` (default; ``n_steps`` None = run to 50 τ) or ``"laplace"``
     (``n_samples`` draws of the posterior's Laplace Gaussian in matrix coordinates, projected
-    onto the PSD cone: :func:`posterior_laplace_samples`). ``fit_options`` go to ``fit_nls``
-    (default relative weights, 40 Hz band); ``posterior_options`` to ``make_log_posterior``
-    (its ``f_max_hz`` defaults to the fit's; ``model_error="gp"`` uses the NLS fit as the GP
-    amplitudes' reference and as the start of the hyperparameters' mode search, ``gp_hyper``
-    ``"map"`` by default; with ``fix_boundary`` the fit's matrices at the
-    PSD boundary are held fixed, :func:`boundary_fixed`); ``sampler_options`` (``n_walkers``, ``moves``,
-    ``max_steps``…) to ``sample_posterior``. Returns the :class:`PosteriorSamples`.
+    onto the PSD cone: :func:`posterior_laplace_samples`); ``posterior_options`` go to
+    ``make_log_posterior`` (its ``f_max_hz`` defaults to the fit's; ``model_error="gp"`` uses
+    the NLS fit as the GP amplitudes' reference and as the start of the hyperparameters' mode
+    search, ``gp_hyper`` ``"map"`` by default); with ``fix_boundary`` the fit's matrices at
+    the PSD boundary are held fixed (:func:`boundary_fixed`) — after a refit those are the
+    refit's strictly PD matrices (``L Lᵀ + pd_eps·I``, whose ``L Lᵀ`` part is on the
+    boundary), so every draw keeps the refit's realizable controller there;
+    ``sampler_options`` (``n_walkers``, ``moves``, ``max_steps``…) to ``sample_posterior``.
+    Returns the :class:`PosteriorSamples`.
     """
-    from ..fit import fit_nls
     from ..io import load_frf
     from ._likelihood import boundary_fixed, make_log_posterior
     from ._loopgp import measured_data
@@ -46,7 +59,7 @@ def posterior_from_files(
         raise ValueError(f"method must be 'emcee' or 'laplace', got {method!r}")
     frf = load_frf(frf_path)
     fit_options = {"weight": "relative", "f_max_hz": 40.0} | dict(fit_options or {})
-    nls = fit_nls(frf, **fit_options).raise_if_failed()
+    nls, refit = posterior_fit(frf, boundary_refit=boundary_refit, **fit_options)
     popts = {"f_max_hz": fit_options["f_max_hz"]} | dict(posterior_options or {})
     if fix_boundary and nls.boundary and "fixed" not in popts:
         popts["fixed"] = boundary_fixed(nls)
@@ -58,9 +71,25 @@ def posterior_from_files(
     else:
         ps = sample_posterior(post, nls, n_steps=n_steps, seed=seed, progress=progress,
                               backend_path=backend_path, **dict(sampler_options or {}))  # fmt: skip
-    ps = dataclasses.replace(ps, measured=measured_data(frf))
+    fit_diag = {"fit_pd_eps": 0.0 if refit is None else float(refit),
+                "fit_theta": np.asarray(nls.theta),
+                "fit_fixed": np.asarray(sorted(popts.get("fixed") or ()), dtype=str)}  # fmt: skip
+    ps = dataclasses.replace(ps, measured=measured_data(frf), diagnostics=ps.diagnostics | fit_diag)
     save_samples(out_path, ps)
     return ps
+
+
+def posterior_fit(frf, *, f_max_hz: float | None = 40.0, boundary_refit: bool = True, **options):
+    """``(nls, refit_pd_eps)``: the fit :func:`posterior_from_files` builds the posterior
+    around — ``hapid fit``'s NLS fit, by the same call: ``frf`` cut to ``0–f_max_hz`` (Hz)
+    and :func:`hapid.pipeline.fit_for_control` (``options``: its NLS options; the
+    PSD-boundary refit unless ``boundary_refit`` is false). ``nls`` is the
+    :class:`~hapid.fit.NLSResult` (``FitFailedError`` if it did not converge)."""
+    from ..pipeline import fit_for_control
+
+    band = frf if f_max_hz is None else frf.band(0.0, float(f_max_hz))  # as hapid fit cuts it
+    f, refit = fit_for_control(band, boundary_refit=boundary_refit, f_max_hz=None, **options)
+    return f.result.raise_if_failed(), refit
 
 
 DRAWS = ("auto", "loop_gp", "params")

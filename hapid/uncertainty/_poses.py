@@ -4,7 +4,8 @@ For each stylus pose of a grid (offsets of the grip point from the home pose), t
 true sampled plant ``P(ω)`` at that pose is analysed in closed loop with
 
 - the **nominal** controller ``G₀ = g Ẑ_T,0 Ẑ_H,0⁻¹`` identified once at the home pose, and
-- a **re-identified** controller ``G_pose``: ``periodic_run → estimate_frf → fit_nls → G``
+- a **re-identified** controller ``G_pose``: ``periodic_run → estimate_frf → fit → G`` (the
+  control fit of ``hapid fit``: :func:`hapid.pipeline.fit_for_control`)
   at that pose (same protocol, fit options and g).
 
 The paper's "future work": how far can the stylus move before the home-pose controller
@@ -59,13 +60,16 @@ def pose_grid(
 
 
 def identify(device, protocol=None, *, noise_seed: int = 0, **fit_options):
-    """``periodic_run → estimate_frf → fit_nls`` on a device; returns the NLS result."""
+    """``periodic_run → estimate_frf →`` the NLS fit for control use
+    (:func:`hapid.pipeline.fit_for_control`: PSD-boundary refit included; ``fit_options``
+    are its options, e.g. ``boundary_refit``, ``f_max_hz``, ``omega_c_hz``) on a device;
+    returns the NLS result."""
     from ..experiment import Protocol, estimate_frf, periodic_run
-    from ..fit import fit_nls
+    from ..pipeline import fit_for_control
 
     protocol = Protocol() if protocol is None else protocol
     frf = estimate_frf(periodic_run(device, protocol, noise_seed=noise_seed))
-    return fit_nls(frf, **fit_options)
+    return fit_for_control(frf, **fit_options)[0].result
 
 
 def pose_study(
@@ -86,7 +90,8 @@ def pose_study(
     - ``offsets``: ``(dx, dy, dz)`` grip-point offsets in m (default: home and ±4 cm per axis;
       see :func:`pose_grid`).
     - ``g``: compensator (default the paper's); ``protocol``: experiment (default
-      ``Protocol()``); ``fit_options``: for ``fit_nls`` (default relative weights, 40 Hz).
+      ``Protocol()``); ``fit_options``: for :func:`hapid.pipeline.fit_for_control` (default relative
+      weights, 40 Hz).
     - ``nominal_model``: the home-pose model (default: identified here at home).
     - ``reidentify``: also identify a controller at each pose (the costly part).
 
