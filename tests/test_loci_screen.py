@@ -12,6 +12,7 @@ import pytest
 import hapid  # noqa: F401  (float64)
 import hapid.control._metrics as M
 from hapid.control import MetricsSpec
+from hapid.control import _kernels as K
 
 
 def _clustered_loops(n: int, N: int, spread: float, seed: int):
@@ -46,7 +47,7 @@ def _np_crossings(a, b):
 def test_left_out_intervals_have_nothing_for_any_pairing(n, spread, seed):
     L = _clustered_loops(n, 800, spread, seed)
     spec = MetricsSpec()
-    keep = np.asarray(M._loci_screen(jnp.asarray(L), spec))
+    keep = np.asarray(M._loci_screen(K.to_entries(jnp.asarray(L)), spec))
     out = np.flatnonzero(~keep)
     assert out.size >= 0.3 * keep.size, out.size  # the screen has work to skip here
     e = np.linalg.eigvals(L)  # the independent reference's eigenvalues
@@ -64,7 +65,7 @@ def test_left_out_intervals_have_nothing_for_any_pairing(n, spread, seed):
 def test_nan_and_spread_loops_keep_everything():
     L = _clustered_loops(3, 200, 0.05, 0)
     L[50, 0, 0] = np.nan
-    keep = np.asarray(M._loci_screen(jnp.asarray(L), MetricsSpec()))
+    keep = np.asarray(M._loci_screen(K.to_entries(jnp.asarray(L)), MetricsSpec()))
     assert keep[49] and keep[50]
     # loci spread over decades about their mean: nothing can be left out
     rng = np.random.default_rng(0)
@@ -74,7 +75,7 @@ def test_nan_and_spread_loops_keep_everything():
         np.broadcast_to(V @ D @ np.linalg.inv(V), (50, 3, 3))
         * np.exp(-1j * np.linspace(0, 3, 50))[:, None, None]
     )
-    assert np.all(np.asarray(M._loci_screen(jnp.asarray(L), MetricsSpec())))
+    assert np.all(np.asarray(M._loci_screen(K.to_entries(jnp.asarray(L)), MetricsSpec())))
 
 
 @pytest.mark.slow  # two compiles of the whole analysis
