@@ -67,6 +67,7 @@ def test_just_below_the_data_the_draw_continues_its_value_at_omega_1():
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)
 def test_quad4_with_two_samples_of_delay_does_not_collapse():
     """``hapid tune``'s default route (loop draws on the paper protocol's FRF, evidence with the
     1 kHz controller; quick sizes) on quad4 with 2 samples of delay: the returned g is stable
