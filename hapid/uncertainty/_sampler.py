@@ -247,7 +247,35 @@ def _check_key(key):
     return key
 
 
-def laplace_samples(nls_result: NLSResult, n_samples: int, key=0) -> PosteriorSamples:
+def _held_boundary(theta, cov, n: int, boundary) -> np.ndarray:
+    """``cov`` conditioned on the factor entries of the matrices in ``boundary`` (names of
+    :data:`~hapid.fit._pd.MATRIX_NAMES`) staying at ``theta``: the Schur complement
+    ``Σ_oo − Σ_of Σ_ff⁺ Σ_fo`` on the other entries, zero rows and columns for the held ones.
+
+    Why: at the PSD boundary a matrix's Cholesky factor is ≈ 0, where the model does not
+    depend on it to first order, so ``σ̂²(JᵀJ)⁺`` gives it a standard deviation of ~10⁴ (in
+    scaled units; cu5's ``K_M`` on the paper protocol) and a draw's matrix ``LLᵀ`` lands 10⁵–
+    10⁸ times the fit's size — every draw. ``hapid posterior`` holds these matrices
+    (:func:`~hapid.uncertainty.boundary_fixed`); this is the same rule for the Laplace draws
+    of a fit."""
+    names = param_names(n, model_error=False)
+    held = np.array([nm[2:].split("[")[0] in boundary for nm in names])
+    if not held.any():
+        return cov
+    o, f = ~held, held
+    S_of = cov[np.ix_(o, f)]
+    cond = (
+        cov[np.ix_(o, o)]
+        - S_of @ np.linalg.pinv(cov[np.ix_(f, f)], rcond=1e-12, hermitian=True) @ S_of.T
+    )
+    out = np.zeros_like(cov)
+    out[np.ix_(o, o)] = 0.5 * (cond + cond.T)
+    return out
+
+
+def laplace_samples(
+    nls_result: NLSResult, n_samples: int, key=0, *, fix_boundary: bool = True
+) -> PosteriorSamples:
     """Fast path: ``n_samples`` draws of θ from ``N(θ̂, Σ)`` of an NLS fit (no MCMC).
 
     ``Σ = nls_result.covariance`` (``σ̂²(JᵀJ)⁺``). The NLS θ̂ is first made canonical (column
@@ -255,6 +283,12 @@ def laplace_samples(nls_result: NLSResult, n_samples: int, key=0) -> PosteriorSa
     folded (``|diag|``). With noise weights this is the Laplace approximation of the
     pure-noise posterior under a flat prior; with relative/blend weights its σ̂² absorbs the
     model error as a single scale. ``key``: a JAX PRNG key or an int seed.
+
+    ``fix_boundary`` (default, as ``hapid posterior``): the matrices the fit put on the PSD
+    boundary (``nls_result.boundary``) are held at the fit's value and the other entries drawn
+    from the Gaussian conditioned on that (:func:`_held_boundary`: without it every draw of
+    cu5's paper fit has a device stiffness 10⁵–10⁸ times the fit's). ``False``: the plain
+    ``N(θ̂, Σ)``.
     """
     if not isinstance(nls_result, NLSResult):
         raise ValueError(f"laplace_samples: expected an NLSResult, got {type(nls_result).__name__}")
@@ -268,6 +302,8 @@ def laplace_samples(nls_result: NLSResult, n_samples: int, key=0) -> PosteriorSa
     if not (np.all(np.isfinite(theta)) and np.all(np.isfinite(cov))):
         raise ValueError("laplace_samples: the NLS result has a non-finite θ or covariance")
     n = n_from_params(theta.shape[0])
+    if fix_boundary and nls_result.boundary:
+        cov = _held_boundary(theta, cov, n, tuple(nls_result.boundary))
     draws = _mvn(_check_key(key), theta, cov, n_samples)
     return PosteriorSamples(
         samples=fold_theta(draws),
