@@ -657,6 +657,9 @@ def cmd_tune(a):
     print(res.get("decision", ""))
     print(f"tuned in {r.wall_s:.1f} s: claimed robust bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, "
           f"smooth constraints {'met' if r.feasible else 'NOT met'} on the training scenarios")  # fmt: skip
+    if r.gain_backoff < 1.0:  # a gain back-off: the first sign of a collapse
+        print(f"  the tuner started from g with its gain scaled by {r.gain_backoff:.3g}: at full gain it "
+              "left more training loops unstable than the quantile allows (hapid.tune.gain_backoff)")  # fmt: skip
     for p in r.parameters():
         print(f"  {p['name']:16s} {p['start']:10.4g} → {p['tuned']:10.4g}")
     tab = res.get("table", {})

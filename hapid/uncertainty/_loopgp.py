@@ -23,8 +23,10 @@ the exact GP conditional on the measured ``Δ_k``.
 
 Outside the measured band the data say nothing; the draws continue as stated assumptions:
 
-- below ``ω_1`` (lowest measured): the GP's own extrapolation (reverting to its prior, of
-  the size the lowest measured frequencies show: the envelope held at ``a(u_1)``), with the
+- below ``ω_1`` (lowest measured): each draw continues from its value at ``ω_1`` as the
+  Matérn process of the fitted ``ℓ`` conditioned on it, reverting to a prior of the size the
+  lowest measured frequencies show (``E|Δ_ij|² → a(u_1)²``, *not* ``σ² a(u_1)²``: ``σ²``
+  sizes the interpolation between measured frequencies; :func:`_below`), with the
   imaginary part scaled by ``ω/ω_1`` — a stable plant's response is real at DC, and the
   Nyquist count needs the loop real at the grid's low end;
 - above ``ω_e`` (highest measured): ``Δ(ω_e)`` tapered to 0 (raised cosine over ``TOP_TAPER`` in
@@ -169,26 +171,53 @@ def loop_gp_draws(gp: LoopGP, omega, n_draws: int, seed: int = 0) -> np.ndarray:
     u1, ue = float(gp.u[0]), float(gp.u[-1])
     lo, hi = u <= u1, u >= ue
     inside = ~lo & ~hi
-    u_pred = np.concatenate([u[lo], u[inside], [ue]])
+    u_pred = np.concatenate([[u1], u[inside], [ue]])
     mean, cov = conditional(gp, u_pred)
-    w, V = np.linalg.eigh(cov)
-    root = V * np.sqrt(np.clip(w, 0.0, None))[None]  # cov = root rootᵀ (PSD-safe)
     rng = np.random.default_rng(seed)
-    E, M = gp.D.shape[1], u_pred.size
-    z = (
-        rng.standard_normal((n_draws, M, E)) + 1j * rng.standard_normal((n_draws, M, E))
-    ) / np.sqrt(2)
-    Dd = mean[None] + np.einsum("mk,ske->sme", root, z)  # (S, M, E)
-    nlo = int(np.sum(lo))
-    dlo, din, de = Dd[:, :nlo], Dd[:, nlo:-1], Dd[:, -1]
+    E = gp.D.shape[1]
+    Dd = mean[None] + _correlated(cov, n_draws, E, rng)  # (S, M, E)
+    d1, din, de = Dd[:, 0], Dd[:, 1:-1], Dd[:, -1]
     N = omega.size
     out = np.zeros((n_draws, N, E), complex)
     out[:, inside] = din
-    ratio = (omega[lo] / np.exp(u1))[None, :, None]
-    out[:, lo] = dlo.real + 1j * ratio * dlo.imag
+    if np.any(lo):
+        dlo = _below(gp, u[lo], d1, rng)
+        ratio = (omega[lo] / np.exp(u1))[None, :, None]
+        out[:, lo] = dlo.real + 1j * ratio * dlo.imag
     t = np.clip((u[hi] - ue) / TOP_TAPER, 0.0, 1.0)
     out[:, hi] = de[:, None] * (0.5 * (1.0 + np.cos(np.pi * t)))[None, :, None]
     return np.eye(gp.n) + out.reshape(n_draws, N, gp.n, gp.n)
+
+
+def _correlated(cov, n_draws: int, E: int, rng) -> np.ndarray:
+    """``(S, M, E)`` circular complex Gaussian draws with covariance ``cov (M, M)`` per
+    element (PSD-safe square root)."""
+    w, V = np.linalg.eigh(cov)
+    root = V * np.sqrt(np.clip(w, 0.0, None))[None]
+    M = cov.shape[0]
+    z = (
+        rng.standard_normal((n_draws, M, E)) + 1j * rng.standard_normal((n_draws, M, E))
+    ) / np.sqrt(2)
+    return np.einsum("mk,ske->sme", root, z)
+
+
+def _below(gp: LoopGP, u_lo, d1, rng) -> np.ndarray:
+    """``Δ`` below the lowest measured frequency ``u_1`` ``(S, M_lo, E)``, continuing each
+    draw's value ``d1 (S, E)`` at ``u_1``: ``ρ(u) d1 + e(u)``, ``ρ = m(|u − u_1|/ℓ)``, ``e`` the
+    zero-mean GP with kernel ``a(u_1)² [m(|u − u'|/ℓ) − ρ(u) ρ(u')]`` — the Matérn process of
+    the fitted ``ℓ`` conditioned on ``d1``, reverting to a prior of the size the lowest
+    measured frequencies show (``E|Δ_ij|² → a(u_1)²``, the measured RMS element size there).
+    Not ``σ² a(u_1)²``: ``σ²`` calibrates how far the data predict themselves *between*
+    measured frequencies (cu5 1.5, quad4 with 2 samples of delay 7.1); as the size of an
+    unmeasured band it gave that quad4 draws with a left-half-plane eigenvalue of Q below
+    1 Hz on 19 of 60 (truth: Re λ ≥ 0.95 there), which no g with the paper's static gain holds
+    (docs/robust-design.md, "The collapse")."""
+    a1 = float(gp.envelope(gp.u[:1])[0])
+    rho = matern52((gp.u[0] - u_lo) / gp.ell)
+    C = a1**2 * (matern52((u_lo[:, None] - u_lo[None]) / gp.ell) - rho[:, None] * rho[None])
+    return rho[None, :, None] * d1[:, None, :] + _correlated(
+        0.5 * (C + C.T), d1.shape[0], d1.shape[1], rng
+    )
 
 
 def loop_gp_plants(gp: LoopGP, model, omega, n_draws: int, seed: int = 0) -> np.ndarray:
