@@ -284,11 +284,13 @@ def _metrics_chunk(P, p_ol, G, omega, spec):
     return jax.vmap(one)(P, p_ol)
 
 
-@partial(jax.jit, static_argnames="spec")
-def _grid_one(P, i, p_ol, G, omega, spec):
+def grid_pass_one(P, i, p_ol, G, omega, spec):
     """The grid pass of plant ``i`` of a chunk (the chunk stays on the device: no slice is
     dispatched from Python)."""
     return grid_pass(P[i], G, omega, p_ol[i], spec)
+
+
+_grid_one = partial(jax.jit, static_argnames="spec")(grid_pass_one)
 
 
 @partial(jax.jit, static_argnames="spec")
