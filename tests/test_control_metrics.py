@@ -48,6 +48,7 @@ def _loop(n=5, eps=0.03, seed=0):
 
 
 @pytest.mark.slow  # CI budget: covered in the default run by test_one_answer / test_readme_table
+@pytest.mark.timeout(1200)  # five compiles of the analysis: > 300 s on a loaded 2-core machine
 def test_verdict_and_refined_metrics_match_the_reference_and_do_not_depend_on_the_grid():
     on, L_fn = _loop()
     P, G, w = on(3000)
