@@ -181,12 +181,13 @@ def _why(bd, budget, what, whole="loop_metrics: everything"):
     full = p.get(whole, float("nan"))
     return (f"the goal allows {fs(budget)} ({what}); the per-frequency work alone takes {fs(floor)} "
             f"(L, det/inverse, eigenvalues {fs(eig)}, pairing, σ̄ bounds, each timed on its own), "
-            "and the eigenvalues of L are needed at every ω: the loci rules (resolution of every "
-            "1 + λᵢ, the margin candidates) read them on every interval and no exact screen decides "
-            "enough intervals to pay (benchmarks/study_loci_screen.py: Gershgorin discs in a "
+            "and the loci rules (resolution of every 1 + λᵢ, the margin candidates) need the "
+            "eigenvalues of L on every interval they can act on: the exact disc screen "
+            "(_metrics._loci_screen) leaves out 66 % of the intervals on the default loop draws "
+            "(section 3) and 7 % on these parameter draws, whose loci spread about their mean; "
+            "other screens decide less (benchmarks/study_loci_screen.py: Gershgorin discs in a "
             "neighbour's eigenbasis leave > 75 % undecided; root counts of the characteristic "
-            "polynomial cannot decide the resolution rule where ρ(L) ≥ 1/3, ≈ 2/3 of the "
-            "intervals); the whole program "
+            "polynomial cannot decide the resolution rule where ρ(L) ≥ 1/3); the whole program "
             f"{fs(full)} (breakdown table)")  # fmt: skip
 
 
