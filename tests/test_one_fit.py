@@ -111,6 +111,7 @@ def test_keep_boundary_keeps_the_bare_fit_in_fit_and_posterior(tmp_path, boundar
         assert seen["boundary_refit"] is (not keep)
 
 
+@pytest.mark.slow  # CI budget (~18 s cold); the slow hexapod6 sweep test covers the traced path too
 def test_control_fit_traced_equals_the_edge_fit(boundary_frf):
     """Under ``vmap`` (a sweep) the control fit selects per element: a batch of a boundary FRF
     (refitted) and a regular one (kept) gives the edge's two fits (:func:`fit_for_control`)."""
