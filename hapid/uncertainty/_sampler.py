@@ -32,7 +32,7 @@ import numpy as np
 import optimistix as optx
 
 from .. import _config  # noqa: F401  (float64)
-from ..fit._pd import Scale, n_from_params, n_params, theta_to_model
+from ..fit._pd import MATRIX_NAMES, Scale, n_from_params, n_params, theta_to_model
 from ..fit._result import NLSResult
 from ..impedance import ImpedanceModel
 from ._likelihood import (
@@ -247,9 +247,9 @@ def _check_key(key):
     return key
 
 
-def _held_boundary(theta, cov, n: int, boundary) -> np.ndarray:
+def _held_boundary(cov, n: int, boundary) -> np.ndarray:
     """``cov`` conditioned on the factor entries of the matrices in ``boundary`` (names of
-    :data:`~hapid.fit._pd.MATRIX_NAMES`) staying at ``theta``: the Schur complement
+    :data:`~hapid.fit._pd.MATRIX_NAMES`) staying at the fit's values: the Schur complement
     ``Σ_oo − Σ_of Σ_ff⁺ Σ_fo`` on the other entries, zero rows and columns for the held ones.
 
     Why: at the PSD boundary a matrix's Cholesky factor is ≈ 0, where the model does not
@@ -258,8 +258,8 @@ def _held_boundary(theta, cov, n: int, boundary) -> np.ndarray:
     10⁸ times the fit's size — every draw. ``hapid posterior`` holds these matrices
     (:func:`~hapid.uncertainty.boundary_fixed`); this is the same rule for the Laplace draws
     of a fit."""
-    names = param_names(n, model_error=False)
-    held = np.array([nm[2:].split("[")[0] in boundary for nm in names])
+    t = n * (n + 1) // 2  # factor entries per matrix, in MATRIX_NAMES order
+    held = np.repeat([name in boundary for name in MATRIX_NAMES], t)
     if not held.any():
         return cov
     o, f = ~held, held
@@ -303,7 +303,7 @@ def laplace_samples(
         raise ValueError("laplace_samples: the NLS result has a non-finite θ or covariance")
     n = n_from_params(theta.shape[0])
     if fix_boundary and nls_result.boundary:
-        cov = _held_boundary(theta, cov, n, tuple(nls_result.boundary))
+        cov = _held_boundary(cov, n, tuple(nls_result.boundary))
     draws = _mvn(_check_key(key), theta, cov, n_samples)
     return PosteriorSamples(
         samples=fold_theta(draws),
