@@ -486,9 +486,10 @@ def _peaks(task, kinds, interp, kernels):
 
 
 def _loci_screen(Le, spec):
-    """``(N − 1,)`` bool for ``Le (n, n, N)`` (entry-major): the grid intervals where the loci rules may act — an interval left
-    out provably has no unresolved locus step and (with ``spec.margins``) no margin candidate,
-    whatever eigenvalues the kernel returns and however they are paired.
+    """``(N − 1,)`` bool for ``Le (n, n, N)`` (entry-major): the grid intervals where the loci
+    rules may act — an interval left out provably has no unresolved locus step and (with
+    ``spec.margins``) no margin candidate, whatever eigenvalues the kernel returns and
+    however they are paired.
 
     Every eigenvalue of ``L(jω_k)`` lies in the disc of centre ``c_k = tr L/n`` and radius
     ``r_k = ‖L − c_k I‖_F`` (Schur), inflated by ``1e-10 ‖L‖_F`` so that it also holds the
@@ -500,7 +501,7 @@ def _loci_screen(Le, spec):
     not meet the negative real axis (a sign change of ``Im λ`` there is interpolated on a
     chord inside the disc, at ``Re > 0``). NaN anywhere: kept. Where the model is right the
     loci cluster about ``g`` and most intervals are left out (default loop draws of cu5: 66 %);
-    a loop whose loci spread over decades keeps nearly all (benchmarks/study_loci_screen.py)."""
+    where they spread about their mean few are (parameter draws of cu5: 7 %)."""
     n = Le.shape[0]
     c = sum(Le[i, i] for i in range(n)) / n
     r2 = sum(
@@ -537,44 +538,40 @@ def _loci_pairs(L, spec, Le=None):
     neighbours as the reference tracker does (optimal permutation for ``n ≤ 6`` by
     :func:`._kernels.pair_optimal`, greedy above)."""
     N, n = L.shape[0], L.shape[-1]
+
+    def paired(e):  # eigenvalues (n, N) at every frequency → both ends of every interval
+        return e[:, :-1].T, _pair(e[:, :-1], e[:, 1:]).T
+
+    every = jnp.ones(N - 1, dtype=bool)
     if spec.kernels == "lapack":
-        e = jnp.linalg.eigvals(L).T  # the reference
-        keep = jnp.ones(N - 1, dtype=bool)
-    elif spec.arrays or not SCREEN_LOCI:
-        e = K.eigvals(K.to_entries(L))  # (n, N)
-        keep = jnp.ones(N - 1, dtype=bool)
-    else:
-        keep = _loci_screen(K.to_entries(L) if Le is None else Le, spec)
-        node = jnp.concatenate([keep, jnp.zeros(1, bool)]) | jnp.concatenate(
-            [jnp.zeros(1, bool), keep]
-        )
-        blk = -(-N // 2)
+        return *paired(jnp.linalg.eigvals(L).T), every  # the reference
 
-        def few(_):  # at most half the nodes: one block of N/2 (a kernel launch costs per block)
-            def eig(idx, sub):
-                return (K.eigvals(K.to_entries(L[idx])).T,)
+    def many(_):
+        return paired(K.eigvals(K.to_entries(L)))
 
-            (e,) = K.compacted(node, eig, (jnp.zeros((N, n), dtype=L.dtype),), blk)
+    if spec.arrays or not SCREEN_LOCI:
+        return *many(None), every
+    keep = _loci_screen(K.to_entries(L) if Le is None else Le, spec)
+    node = jnp.concatenate([keep, jnp.zeros(1, bool)]) | jnp.concatenate([jnp.zeros(1, bool), keep])
+    blk = -(-N // 2)
 
-            def pair(idx, sub):
-                return (_pair(e[idx].T, e[idx + 1].T).T,)
+    def few(_):  # at most half the nodes: one block of N/2 (a kernel launch costs per block)
+        def eig(idx, sub):
+            return (K.eigvals(K.to_entries(L[idx])).T,)
 
-            (bp,) = K.compacted(keep, pair, (jnp.zeros((N - 1, n), dtype=L.dtype),), blk)
-            return e[:-1], bp
+        (e,) = K.compacted(node, eig, (jnp.zeros((N, n), dtype=L.dtype),), blk)
 
-        def many(_):
-            e = K.eigvals(K.to_entries(L))
-            return e[:, :-1].T, _pair(e[:, :-1], e[:, 1:]).T
+        def pair(idx, sub):
+            return (_pair(e[idx].T, e[idx + 1].T).T,)
 
-        if isinstance(node, _BATCHED):
-            # under vmap a cond runs both branches: the whole grid, as without the screen
-            # (a vmap of a jit is batched after tracing: there the cond runs both — correct,
-            # slower)
-            a, bp = many(None)
-        else:
-            a, bp = jax.lax.cond(jnp.sum(node) <= blk, few, many, None)
-        return a, bp, keep
-    return e[:, :-1].T, _pair(e[:, :-1], e[:, 1:]).T, keep
+        (bp,) = K.compacted(keep, pair, (jnp.zeros((N - 1, n), dtype=L.dtype),), blk)
+        return e[:-1], bp
+
+    if isinstance(node, _BATCHED):
+        # under vmap a cond runs both branches: the whole grid, as without the screen (a vmap
+        # of a jit is batched after tracing: there the cond runs both — correct, slower)
+        return *many(None), keep
+    return *jax.lax.cond(jnp.sum(node) <= blk, few, many, None), keep
 
 
 def _pair(a, b):
