@@ -10,7 +10,7 @@ and on ``--method`` through :data:`PAIR_METHODS` / :data:`SINGLE_METHODS` (name 
 ``(data, args, band_hz) -> Fitted``; ``data`` already restricted to the band): adding a method
 is one function and one table entry. Every
 method sees the band given by ``--f-min-hz``/``--f-max-hz`` (default every frequency in the
-file, except NLS on the haptic pair: up to 40 Hz, :data:`NLS_DEFAULT_F_MAX_HZ`), selected before the fit and echoed in the report; every fit gets a
+file, except NLS and ML on the haptic pair: up to :data:`NLS_DEFAULT_F_MAX_HZ`), selected before the fit and echoed in the report; every fit gets a
 :class:`hapid.fit.FitQuality` over that band, printed and stored in the model file. Extra
 report lines (a Cramér–Rao band, an error against a known true plant) go through
 ``FitQuality.with_line`` in the method function or in :func:`extra_quality_lines`.
@@ -24,6 +24,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ._constants import TWO_PI
+from .defaults import FIT_BAND_HZ
 
 
 class FitCommandError(ValueError):
@@ -178,18 +179,15 @@ def extra_quality_lines(quality, fitted: Fitted, data, a):
     )
 
 
-NLS_DEFAULT_F_MAX_HZ = 40.0
-"""Default upper band edge (Hz) of ``hapid fit --method nls`` on the haptic pair: the paper
-scene's NLS band and ``hapid posterior``'s default. A second-order fit over the whole 1–100 Hz
-FRF of a device with a delay and chain modes bends to the misfit above ~40 Hz (measured on
-cu5_soft: an Ẑ_H with right-half-plane roots, which the inverse-model controller cancels
-unstably)."""
+NLS_DEFAULT_F_MAX_HZ = FIT_BAND_HZ
+"""Default upper band edge (Hz) of the model fits (NLS, ML) on the haptic pair:
+:data:`hapid.defaults.FIT_BAND_HZ`, shared with ``hapid posterior`` and the scenes."""
 
 
 def _default_f_max(a, pair: bool) -> float | None:
-    """The band's upper edge when ``--f-max-hz`` is not given: 40 Hz for NLS on the haptic
-    pair (:data:`NLS_DEFAULT_F_MAX_HZ`), else every frequency."""
-    if a.f_max_hz is None and pair and a.method == "nls":
+    """The band's upper edge when ``--f-max-hz`` is not given: :data:`NLS_DEFAULT_F_MAX_HZ`
+    for NLS and ML on the haptic pair, else every frequency (the paper's WLS, single impedances)."""
+    if a.f_max_hz is None and pair and a.method in ("nls", "ml"):
         return NLS_DEFAULT_F_MAX_HZ
     return a.f_max_hz
 
@@ -256,8 +254,8 @@ def run_fit(a) -> None:
     if a.f_min_hz is None and f_max is None:
         how = "every frequency in the file; narrow it with --f-min-hz/--f-max-hz"
     elif a.f_max_hz is None and f_max is not None:
-        how = (f"default for nls on the haptic pair: up to {f_max:g} Hz, the paper's fit band "
-               "and hapid posterior's; --f-max-hz to change")  # fmt: skip
+        how = (f"default for nls and ml on the haptic pair: up to {f_max:g} Hz, the scenes' fit "
+               "band and hapid posterior's; --f-max-hz to change")  # fmt: skip
     else:
         how = f"--f-min-hz {lo:g} --f-max-hz {hi:g}"
     print(f"band: {f.min():g}–{f.max():g} Hz, {f.size} of {np.size(data.freq_hz)} frequencies "
@@ -393,8 +391,8 @@ def register_fit(sub, func) -> None:
     f.add_argument("--f-min-hz", type=float,
                    help="fit band lower edge (Hz), every method; default: the file's lowest")  # fmt: skip
     f.add_argument("--f-max-hz", type=float,
-                   help="fit band upper edge (Hz), every method; default: 40 for nls on the "
-                   "haptic pair (hapid posterior's band), else the file's highest")  # fmt: skip
+                   help=f"fit band upper edge (Hz), every method; default: {FIT_BAND_HZ:g} for nls and ml "
+                   "on the haptic pair (hapid posterior's band), else the file's highest")  # fmt: skip
     f.add_argument("--omega-c-hz", type=float, default=7.0, help="paper weight corner (Hz)")
     f.add_argument("--max-steps", type=int, default=500)
     f.add_argument("--band-hz", type=float, default=30.0,

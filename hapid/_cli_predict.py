@@ -7,6 +7,7 @@ import numpy as np
 
 from ._constants import TWO_PI
 from ._grids import log_grid_hz
+from .defaults import FIT_BAND_HZ
 
 
 class CommandError(ValueError):
@@ -84,7 +85,7 @@ def register(sub):
     pr.add_argument("--samples", required=True, help="posterior samples file (hapid posterior)")
     pr.add_argument("--f-min-hz", type=float, default=1.0, help="lowest frequency (Hz), default 1")
     pr.add_argument(
-        "--f-max-hz", type=float, default=40.0, help="highest frequency (Hz), default 40"
+        "--f-max-hz", type=float, default=FIT_BAND_HZ, help="highest frequency (Hz), default 40"
     )
     pr.add_argument("--n-freq", type=int, default=200, help="log-spaced frequencies, default 200")
     pr.add_argument(

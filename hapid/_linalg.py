@@ -13,6 +13,7 @@ singular value itself matters.
 from __future__ import annotations
 
 import jax.numpy as jnp
+from jaxtyping import Array, Float
 
 
 def svdvals(A):
@@ -21,3 +22,12 @@ def svdvals(A):
     G = Ah @ A if A.shape[-1] <= A.shape[-2] else A @ Ah
     ev = jnp.linalg.eigvalsh(G)
     return jnp.sqrt(jnp.clip(ev[..., ::-1], 0.0, None))
+
+
+def pinv_psd(F: Float[Array, "p p"]) -> Float[Array, "p p"]:
+    """Pseudo-inverse of a symmetric PSD matrix (an information ``JᵀJ``): eigenvalues below
+    ``1e-12`` × the largest (unidentified directions) get variance 0, not 1/0."""
+    lam, V = jnp.linalg.eigh(0.5 * (F + F.T))
+    keep = lam > 1e-12 * jnp.max(lam)
+    inv = jnp.where(keep, 1.0 / jnp.where(keep, lam, 1.0), 0.0)
+    return (V * inv) @ V.T

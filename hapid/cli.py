@@ -11,6 +11,7 @@ import warnings
 from pathlib import Path
 
 from ._cli_device import add_device_args, describe, device_from_args
+from .defaults import FIT_BAND_HZ, GM_DB, PM_DEG
 
 EXAMPLES = """examples:
   hapid simulate --device cu5 --out run.npz            # the paper's protocol on cu5
@@ -507,7 +508,7 @@ def _register_stages(sub):
     )
     po.add_argument("--steps", type=int, help="emcee steps (default: run to 50 τ)")
     po.add_argument("--samples", type=int, default=4000, help="Laplace draws")
-    po.add_argument("--f-max-hz", type=float, default=40.0)
+    po.add_argument("--f-max-hz", type=float, default=FIT_BAND_HZ)
     po.add_argument("--model-error", choices=["white", "gp", "gp_corr", "none"], default="gp_corr",
                     help="model-error term: gp_corr (default: the misfit of Z_H and Z_M as correlated "
                          "smooth random functions of frequency, marginalized; its 90 %% band of P "
@@ -549,8 +550,8 @@ def _register_stages(sub):
     ro.add_argument("--controller", default="mimo", choices=["mimo"], help="controller kind")
     add_device_args(ro, default=None, what=" whose true plant is also checked (poses, subjects)")
     ro.add_argument("--subjects", type=int, default=0, help="virtual subjects for --device")
-    ro.add_argument("--gm-db", type=float, default=6.0)
-    ro.add_argument("--pm-deg", type=float, default=30.0)
+    ro.add_argument("--gm-db", type=float, default=GM_DB)
+    ro.add_argument("--pm-deg", type=float, default=PM_DEG)
     ro.add_argument(
         "--max-samples",
         type=int,

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .control._compensator import FIELDS as COMPENSATOR_FIELDS
+from .control._compensator import POSITIVE_FIELDS, Compensator
 from .experiment import Run, validate_run
 from .frf import FRF, as_frf
 from .impedance import ImpedanceModel, SecondOrder
@@ -949,11 +951,38 @@ def save_design(path, g, **info) -> Path:
     (:class:`hapid.control.Compensator`: ``k``, ``lag_zeros``, ``lag_poles``, ``notch_omega``,
     ``notch_zeta_num``, ``notch_zeta_den``, ``lowpass``; rad/s and dimensionless) plus ``json``,
     the strict-JSON text of ``info``."""
-    from .tune._params import _FIELDS
-
-    arrays = {f: np.asarray(getattr(g, f), dtype=np.float64) for f in _FIELDS}
+    arrays = {f: np.asarray(getattr(g, f), dtype=np.float64) for f in COMPENSATOR_FIELDS}
     for f, v in arrays.items():
         if not np.all(np.isfinite(v)):
             raise ValueError(f"compensator field {f} contains NaN or inf; not writing {path}")
     arrays["json"] = np.asarray(to_json(info, indent=None))
     return _atomic_write(path, lambda fh: np.savez(fh, **arrays))
+
+
+def load_design(path) -> tuple[Compensator, dict]:
+    """``(g, info)`` from a design file (:func:`save_design`): the compensator and the
+    decoded ``json`` entry (``{}`` when absent). Raises ``FileNotFoundError`` or
+    ``ValueError`` naming the file and the field that is missing or out of range."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such design file")
+    z = _read_arrays(path, "a design file (hapid tune)")
+    missing = [f for f in COMPENSATOR_FIELDS if f not in z]
+    if missing:
+        raise ValueError(f"{path}: not a design file (missing {', '.join(missing)})")
+    arrays = {f: _numeric(z, f, path) for f in COMPENSATOR_FIELDS}
+    for f, a in arrays.items():
+        positive = f in POSITIVE_FIELDS
+        if not np.all(np.isfinite(a)) or np.any(a <= 0 if positive else a < 0):
+            raise ValueError(
+                f"{path}: {f} = {a.tolist()}; expected finite values {'> 0' if positive else '≥ 0'}"
+            )
+    try:
+        g = Compensator(**arrays)
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from None
+    try:
+        info = json.loads(str(z["json"])) if "json" in z else {}
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: its 'json' entry is not valid JSON ({e})") from None
+    return g, info

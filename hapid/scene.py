@@ -44,6 +44,7 @@ import numpy as np
 
 from ._grids import nyquist_grid
 from ._stages import Graph, Stage
+from .defaults import FIT_BAND_HZ
 
 DEFAULTS: dict = {
     "device": {"preset": "cu5", "move": [0.0] * 6, "subject_seed": None, "light_damping": False,
@@ -53,7 +54,7 @@ DEFAULTS: dict = {
                  "phases": "random", "amplitude": 0.3, "seed": 0, "noise": 5e-3,
                  "position_noise": 0.0, "encoder_res": 2e-6, "synthesis": "periodic",
                  "friction": False},
-    "fit": {"omega_c_hz": 7.0, "positize": True, "weight": "relative", "f_max_hz": 40.0,
+    "fit": {"omega_c_hz": 7.0, "positize": True, "weight": "relative", "f_max_hz": FIT_BAND_HZ,
             "solver": "lm", "max_steps": 500, "rtol": 1e-8, "atol": 1e-10, "ftol": 1e-8,
             "patience": 20, "blend_floor": 0.02, "p_weight": 1.0, "pd_eps": 0.0,
             "init_floor": 1e-6, "boundary_refit": True},

@@ -27,6 +27,20 @@ def _vec(x) -> Array:
     return jnp.atleast_1d(jnp.asarray(x, dtype=jnp.float64))
 
 
+FIELDS = (
+    "k",
+    "lag_zeros",
+    "lag_poles",
+    "notch_omega",
+    "notch_zeta_num",
+    "notch_zeta_den",
+    "lowpass",
+)
+"""The fields of :class:`Compensator`, in the order design files and the tuner use."""
+POSITIVE_FIELDS = ("k", "lag_zeros", "lag_poles", "notch_omega", "notch_zeta_den", "lowpass")
+"""Fields that must be > 0 (the others ≥ 0)."""
+
+
 class Compensator(eqx.Module):
     """Scalar compensator ``g(s)`` (see the module docstring for the formula).
 

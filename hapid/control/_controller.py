@@ -23,6 +23,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
+from ..defaults import GM_DB, PM_DEG
 from ..impedance import ImpedanceModel
 from ..lti import StateSpace, block_diag, series
 from ._compensator import Compensator
@@ -200,8 +201,8 @@ def max_siso_gain(
     P: Complex[Array, "N n n"],
     omega: Float[Array, " N"],
     g,
-    gm_db: float = 6.0,
-    pm_deg: float = 30.0,
+    gm_db: float = GM_DB,
+    pm_deg: float = PM_DEG,
     P_ol_rhp=0,
     n_scan: int = 241,
     decades: float = 8.0,

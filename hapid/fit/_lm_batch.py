@@ -42,6 +42,7 @@ import numpy as np
 from jax import lax
 from jaxtyping import Array, Float
 
+from .._linalg import pinv_psd
 from ._compress import CompressedProblem
 from ._result import CONVERGED, FAILED, MAX_STEPS
 
@@ -287,7 +288,6 @@ def covariance_batch(work: CompressedProblem, theta: Float[Array, "B p"]):
     :func:`inverse_information`. Only when some fit fails that test (a fitted matrix on the
     PSD boundary makes ``F`` singular) is ``pinv_psd`` (``eigh``) run, for the batch.
     """
-    from ._nls import pinv_psd
 
     tr, cost = jax.vmap(information_trace)(work, theta)
     inv = jax.vmap(inverse_information)(work, theta)

@@ -61,6 +61,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
 
+from ..defaults import FIT_BAND_HZ
 from ..experiment import Run, estimate_frf
 from ..experiment._estimate import _dft_bins
 from ..experiment._protocol import validate_run
@@ -132,7 +133,9 @@ def _quantization_step(L: np.ndarray) -> float:
     return 0.0
 
 
-def run_spectra(run: Run, f_max_hz: float | None = 40.0, f_min_hz: float = 0.0) -> RunSpectra:
+def run_spectra(
+    run: Run, f_max_hz: float | None = FIT_BAND_HZ, f_min_hz: float = 0.0
+) -> RunSpectra:
     """:class:`RunSpectra` of ``run`` at its excited frequencies in ``[f_min_hz, f_max_hz]``.
 
     Needs ``P ≥ 2`` periods (the covariance is estimated from their scatter).
@@ -369,7 +372,7 @@ def fit_ml(
     run: Run,
     init: ImpedanceModel | NLSResult | None = None,
     *,
-    f_max_hz: float | None = 40.0,
+    f_max_hz: float | None = FIT_BAND_HZ,
     f_min_hz: float = 0.0,
     model_floor: float = 0.0,
     solver: str = "lm",
@@ -452,13 +455,13 @@ def fit_ml(
     )
 
 
-def ml_cost(theta, run: Run, scale: Scale, *, f_max_hz: float | None = 40.0,
+def ml_cost(theta, run: Run, scale: Scale, *, f_max_hz: float | None = FIT_BAND_HZ,
             model_floor: float = 0.0) -> Array:  # fmt: skip
     """``V(θ)`` of :func:`fit_ml` for ``run`` (``theta`` in ``scale`` units)."""
     return make_ml_problem(run_spectra(run, f_max_hz), scale, model_floor=model_floor).cost(theta)
 
 
-def cramer_rao(run: Run, model: ImpedanceModel, *, f_max_hz: float | None = 40.0,
+def cramer_rao(run: Run, model: ImpedanceModel, *, f_max_hz: float | None = FIT_BAND_HZ,
                scale: Scale | None = None):  # fmt: skip
     """``(crb, scale)``: the Cramér–Rao bound (matrix coordinates, see :class:`MLResult`) of
     the second-order model at ``model`` for the noise of ``run`` — for any fit's model (WLS,

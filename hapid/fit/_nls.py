@@ -43,12 +43,15 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Complex, Float
 
+from .._linalg import pinv_psd
+from ..defaults import FIT_BAND_HZ
 from ..frf import FRF
 from ..impedance import ImpedanceModel, plant
 from ._checks import band_mask, check_fit_input
 from ._compress import compress
 from ._iterate import iterate
 from ._jaxopt_adapter import jaxopt_lm
+from ._lm_batch import covariance_batch, lm_compressed
 from ._pd import (
     Scale,
     boundary_report,
@@ -178,7 +181,7 @@ def make_problem(
     frf: FRF,
     *,
     weight: str = "relative",
-    f_max_hz: float | None = 40.0,
+    f_max_hz: float | None = FIT_BAND_HZ,
     omega_c: float = OMEGA_C_PAPER,
     use_P_residual: bool = False,
     blend_floor: float = 0.02,
@@ -289,15 +292,6 @@ def laplace_covariance(
     dof = jnp.maximum(m - p, 1)
     sigma2 = jnp.asarray(1.0) if noise_weights else 2.0 * cost / dof
     return sigma2 * pinv_psd(J.T @ J), sigma2, cost
-
-
-def pinv_psd(F: Float[Array, "p p"]) -> Float[Array, "p p"]:
-    """Pseudo-inverse of a symmetric PSD matrix (an information ``JᵀJ``): eigenvalues below
-    ``1e-12`` × the largest (unidentified directions) get variance 0, not 1/0."""
-    lam, V = jnp.linalg.eigh(0.5 * (F + F.T))
-    keep = lam > 1e-12 * jnp.max(lam)
-    inv = jnp.where(keep, 1.0 / jnp.where(keep, lam, 1.0), 0.0)
-    return (V * inv) @ V.T
 
 
 def final_status(theta, cost, code) -> Array:
@@ -442,7 +436,7 @@ def fit_nls(
     init: ImpedanceModel | NLSResult | None = None,
     *,
     weight: str = "relative",
-    f_max_hz: float | None = 40.0,
+    f_max_hz: float | None = FIT_BAND_HZ,
     omega_c: float = OMEGA_C_PAPER,
     solver: str = "lm",
     use_P_residual: bool = False,
@@ -559,7 +553,6 @@ def _fit_core_batch(frfs, init, dyn, static):
     Laplace covariance :func:`~hapid.fit._lm_batch.covariance_batch` (structured inverse, ``eigh``
     only for fits whose information matrix is near singular); the ``pd_eps`` branch is taken
     once for the batch."""
-    from ._lm_batch import covariance_batch, lm_compressed
 
     weight, solver, use_P, linear_solver, throw, _ = static
     d = dyn

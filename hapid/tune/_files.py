@@ -8,49 +8,8 @@ tuning history, constraint values, validation table).
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
-import numpy as np
-
-from ..control import Compensator
-from ._params import _FIELDS
-
-
-def save_design(path, g: Compensator, **info) -> Path:
-    """Write ``g`` and JSON-able ``info`` to ``path`` (.npz), atomically: :func:`hapid.io.save_design`."""
-    from ..io import save_design as _save
-
-    return _save(path, g, **info)
-
-
-def load_design(path) -> tuple[Compensator, dict]:
-    """``(g, info)`` from a design file."""
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such design file")
-    from ..io import _numeric, _read_arrays
-
-    z = _read_arrays(path, "a design file (hapid tune)")
-    missing = [f for f in _FIELDS if f not in z]
-    if missing:
-        raise ValueError(f"{path}: not a design file (missing {', '.join(missing)})")
-    arrays = {f: _numeric(z, f, path) for f in _FIELDS}
-    for f, a in arrays.items():
-        positive = f in ("k", "lag_zeros", "lag_poles", "notch_omega", "notch_zeta_den", "lowpass")
-        if not np.all(np.isfinite(a)) or np.any(a <= 0 if positive else a < 0):
-            raise ValueError(
-                f"{path}: {f} = {a.tolist()}; expected finite values {'> 0' if positive else '≥ 0'}"
-            )
-    try:
-        g = Compensator(**arrays)
-    except ValueError as e:
-        raise ValueError(f"{path}: {e}") from None
-    try:
-        info = json.loads(str(z["json"])) if "json" in z else {}
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: its 'json' entry is not valid JSON ({e})") from None
-    return g, info
+from ..io import load_design as load_design
+from ..io import save_design as save_design
 
 
 def design_info(out: dict) -> dict:

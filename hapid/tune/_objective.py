@@ -51,6 +51,7 @@ import numpy as np
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
 from ..control import ISO_THRESHOLD
+from ..defaults import GM_DB, PM_DEG
 from ._params import ParamMap
 from ._response import g_response, smooth_sigma_max
 from ._scenarios import Scenarios
@@ -67,8 +68,8 @@ class Requirements:
     small-gain condition ``|g(jω)| ≤ sg_g_max`` on those frequencies
     (:mod:`hapid.tune._evidence`)."""
 
-    gm_db: float = 6.0
-    pm_deg: float = 30.0
+    gm_db: float = GM_DB
+    pm_deg: float = PM_DEG
     threshold: float = float(ISO_THRESHOLD)
     disk_alpha: float | None = None
     min_dc_gain: float | None = None

@@ -17,16 +17,9 @@ import numpy as np
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
 from ..control import Compensator
+from ..control._compensator import FIELDS
 
-_FIELDS = (
-    "k",
-    "lag_zeros",
-    "lag_poles",
-    "notch_omega",
-    "notch_zeta_num",
-    "notch_zeta_den",
-    "lowpass",
-)
+_FIELDS = FIELDS
 _LABEL = {"k": "k", "lag_zeros": "lag zero", "lag_poles": "lag pole", "notch_omega": "notch",
           "notch_zeta_num": "notch ζ_num", "notch_zeta_den": "notch ζ_den", "lowpass": "low-pass"}  # fmt: skip
 _IS_FREQ = {"lag_zeros", "lag_poles", "notch_omega", "lowpass"}

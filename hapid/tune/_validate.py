@@ -23,6 +23,7 @@ from .. import (
 )
 from .._grids import nyquist_grid as device_grid
 from ..control import Compensator
+from ..defaults import GM_DB, PM_DEG
 
 _LOOP_KEYS = ("stable", "iso_bandwidth_hz", "gm_db", "pm_deg", "disk_margin", "disk_gm_db",
               "disk_pm_deg", "t_peak_db", "t_peak_hz", "nyquist_resolved")  # fmt: skip
@@ -108,8 +109,8 @@ def validate(
     variants=None,
     omega_c=None,
     omega_d=None,
-    gm_db: float = 6.0,
-    pm_deg: float = 30.0,
+    gm_db: float = GM_DB,
+    pm_deg: float = PM_DEG,
     p_required: float = 0.95,
     time_domain: bool = True,
 ) -> dict:

@@ -24,7 +24,6 @@ from ._likelihood import LogPosterior as LogPosterior
 from ._likelihood import batched_log_prob as batched_log_prob
 from ._likelihood import boundary_fixed as boundary_fixed
 from ._likelihood import fold_theta as fold_theta
-from ._likelihood import make_log_posterior as make_log_posterior
 from ._likelihood import matrix_to_theta as matrix_to_theta
 from ._likelihood import param_names as param_names
 from ._likelihood import theta_to_matrix as theta_to_matrix
@@ -33,9 +32,12 @@ from ._loopgp import fit_loop_gp as fit_loop_gp
 from ._loopgp import loop_gp_check as loop_gp_check
 from ._loopgp import loop_gp_plants as loop_gp_plants
 from ._loopgp import measured_data as measured_data
+from ._mode import check_initial_state as check_initial_state
+from ._mode import initial_point as initial_point
 from ._poses import identify as identify
 from ._poses import pose_grid as pose_grid
 from ._poses import pose_study as pose_study
+from ._posterior import make_log_posterior as make_log_posterior
 from ._predictive import QUANTITIES as QUANTITIES
 from ._predictive import band_calibration as band_calibration
 from ._predictive import credible_bands as credible_bands
@@ -49,8 +51,6 @@ from ._robust import robust_omega as robust_omega
 from ._sampler import MOVES as MOVES
 from ._sampler import PosteriorSamples as PosteriorSamples
 from ._sampler import ShortChainWarning as ShortChainWarning
-from ._sampler import check_initial_state as check_initial_state
-from ._sampler import initial_point as initial_point
 from ._sampler import laplace_posterior as laplace_posterior
 from ._sampler import laplace_samples as laplace_samples
 from ._sampler import load_samples as load_samples

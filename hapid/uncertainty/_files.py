@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from ..defaults import FIT_BAND_HZ, GM_DB, PM_DEG
 
 
 def posterior_from_files(
@@ -51,14 +52,15 @@ def posterior_from_files(
     Returns the :class:`PosteriorSamples`.
     """
     from ..io import load_frf
-    from ._likelihood import boundary_fixed, make_log_posterior
+    from ._likelihood import boundary_fixed
     from ._loopgp import measured_data
+    from ._posterior import make_log_posterior
     from ._sampler import posterior_laplace_samples, sample_posterior, save_samples
 
     if method not in ("emcee", "laplace"):
         raise ValueError(f"method must be 'emcee' or 'laplace', got {method!r}")
     frf = load_frf(frf_path)
-    fit_options = {"weight": "relative", "f_max_hz": 40.0} | dict(fit_options or {})
+    fit_options = {"weight": "relative", "f_max_hz": FIT_BAND_HZ} | dict(fit_options or {})
     nls, refit = posterior_fit(frf, boundary_refit=boundary_refit, **fit_options)
     popts = {"f_max_hz": fit_options["f_max_hz"]} | dict(posterior_options or {})
     if fix_boundary and nls.boundary and "fixed" not in popts:
@@ -79,7 +81,9 @@ def posterior_from_files(
     return ps
 
 
-def posterior_fit(frf, *, f_max_hz: float | None = 40.0, boundary_refit: bool = True, **options):
+def posterior_fit(
+    frf, *, f_max_hz: float | None = FIT_BAND_HZ, boundary_refit: bool = True, **options
+):
     """``(nls, refit_pd_eps)``: the fit :func:`posterior_from_files` builds the posterior
     around — ``hapid fit``'s NLS fit, by the same call: ``frf`` cut to ``0–f_max_hz`` (Hz)
     and :func:`hapid.pipeline.fit_for_control` (``options``: its NLS options; the
@@ -117,8 +121,8 @@ def robust_from_files(
     frf_path=None,
     draws: str = "auto",
     g=None,
-    gm_db: float = 6.0,
-    pm_deg: float = 30.0,
+    gm_db: float = GM_DB,
+    pm_deg: float = PM_DEG,
     max_samples: int = 1000,
     device=None,
     n_subjects: int = 0,

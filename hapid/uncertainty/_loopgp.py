@@ -45,6 +45,7 @@ import dataclasses
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from ..defaults import GM_DB, PM_DEG
 from ..impedance import plant
 
 ENVELOPE_WIDTH = 0.35  # ln-ω half-width of the amplitude envelope's Gaussian smoothing
@@ -245,8 +246,8 @@ def loop_gp_check(
     n_draws: int = 1000,
     n_freq: int = 1000,
     seed: int = 0,
-    gm_db: float = 6.0,
-    pm_deg: float = 30.0,
+    gm_db: float = GM_DB,
+    pm_deg: float = PM_DEG,
     p_stable_required: float = 0.95,
     metrics=(),
 ):

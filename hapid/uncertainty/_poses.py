@@ -19,6 +19,7 @@ import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
 from ..control import Compensator
+from ..defaults import FIT_BAND_HZ
 from ._robust import FIELDS, robust_check, robust_omega
 
 DEFAULT_OFFSETS = (
@@ -103,7 +104,7 @@ def pose_study(
 
     device = cu5() if device is None else device
     g = Compensator.paper() if g is None else g
-    fit_options = {"weight": "relative", "f_max_hz": 40.0} | dict(fit_options or {})
+    fit_options = {"weight": "relative", "f_max_hz": FIT_BAND_HZ} | dict(fit_options or {})
     omega = robust_omega() if omega is None else np.asarray(omega, dtype=float)
     offsets = [tuple(float(v) for v in o) for o in offsets]
     if any(len(o) != 3 or not np.all(np.isfinite(o)) for o in offsets):

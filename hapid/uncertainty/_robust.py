@@ -80,6 +80,7 @@ from .._grids import continuous_grid as posterior_omega
 from .._grids import sampled_grid as robust_omega
 from ..control import Compensator, MetricsSpec, analyze_loop
 from ..control._metrics import grid_pass, metrics_screened, refine_many
+from ..defaults import GM_DB, PM_DEG
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
 from ._sampler import PosteriorSamples
@@ -370,8 +371,8 @@ def robust_check(
     *,
     p_ol_rhp=None,
     controller_rhp: int | None = None,
-    gm_db: float = 6.0,
-    pm_deg: float = 30.0,
+    gm_db: float = GM_DB,
+    pm_deg: float = PM_DEG,
     p_stable_required: float = 0.95,
     chunk: int = 250,
     max_samples: int | None = 1000,
