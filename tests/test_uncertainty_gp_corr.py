@@ -14,7 +14,7 @@ from hapid.uncertainty import (
     predictive_plants,
     save_samples,
 )
-from hapid.uncertainty._likelihood import fix_gp_hyper, log_marginal_likelihood
+from hapid.uncertainty._hyper import fix_gp_hyper, log_marginal_likelihood
 
 FREQ_HZ = np.array([1.0, 2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0])
 H10 = np.array([np.log(0.05), np.log(0.02), np.log(0.4), np.log(0.8), 0.5, -0.3, 0.7, -0.4,
@@ -109,7 +109,7 @@ def test_gp_corr_likelihood_matches_scipy_reference_and_reduces_to_gp(case):
     the Box–Cox coordinate its likelihood is the independent gp likelihood exactly."""
     from scipy.stats import multivariate_normal
 
-    import hapid.uncertainty._likelihood as LK
+    import hapid.uncertainty._gp as LK
 
     _, frf, nls = case
     post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp_corr", reference=nls,
@@ -397,7 +397,7 @@ def test_gp_corr_fixed_hyper_quadratic_form_equals_full_likelihood(case):
     equals the direct likelihood (n² complex Cholesky factorizations) to 1e-10 at points far
     from its maximum, with a matrix held fixed; and the compact marginal likelihood the mode
     search uses equals the dense one."""
-    import hapid.uncertainty._likelihood as LK
+    import hapid.uncertainty._hyper as LK
 
     _, frf, nls = case
     ps = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp_corr", reference=nls,

@@ -16,6 +16,8 @@ from .. import _config  # noqa: F401  (float64)
 from ..fit._pd import MATRIX_NAMES, Scale, n_params
 from ..fit._result import NLSResult
 from ..frf import FRF
+from ._gp import N_GP_CORR_HYPER
+from ._hyper import GP_HYPER_MODES, fix_gp_hyper, marginal_hyper
 from ._likelihood import (
     DEFAULT_F_MAX_HZ,
     DEFAULT_LOG_ELL_MEAN,
@@ -24,17 +26,13 @@ from ._likelihood import (
     DEFAULT_LOG_TAU_SD,
     DEFAULT_PRIOR_SCALE,
     ERROR_SCALES,
-    GP_HYPER_MODES,
     GP_KINDS,
     N_CLASS_HYPER,
-    N_GP_CORR_HYPER,
     PARAMETERIZATIONS,
     LogPosterior,
     element_weights,
     error_kind,
-    fix_gp_hyper,
     fold_theta,
-    marginal_hyper,
 )
 from ._mode import initial_point, posterior_mode
 

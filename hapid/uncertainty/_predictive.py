@@ -153,7 +153,8 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
     "Z_T", "P": (S', N, n, n)}`` with at most ``max_samples`` draws (random subset, ``seed``).
     """
     from ..fit._pd import theta_to_model
-    from ._likelihood import gp_amplitudes, gp_covariance, kernel, split_hyper, warp
+    from ._gp import gp_covariance, kernel, split_hyper, warp
+    from ._likelihood import gp_amplitudes
 
     omega = np.asarray(omega, dtype=np.float64)
     if (
@@ -286,17 +287,15 @@ def _gp_corr_errors(ps: PosteriorSamples, idx, ms, omega, rng):
     in the complex circular form: a joint prior draw of the shared latent ``f₁`` and of ``f₂``
     on fit ∪ new frequencies, corrected by ``Cov(e_*, r) C⁻¹ (r − r̃)``;
     :func:`hapid.uncertainty._likelihood.gp_corr_blocks`)."""
-    from ._likelihood import (
+    from ._gp import (
         GP_CORR_KERNEL,
         KERNELS,
-        class_weights,
         corr_warp,
-        element_weights,
-        gp_amplitudes,
         gp_corr_covariance,
         hm_correlation,
         split_hyper,
     )
+    from ._likelihood import class_weights, element_weights, gp_amplitudes
 
     data = ps.predictive
     n, E = ps.n, ps.n * ps.n
