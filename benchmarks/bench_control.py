@@ -33,7 +33,9 @@ from _common import Section, fs, measure, standalone, table  # noqa: E402
 
 import hapid  # noqa: E402,F401
 from hapid.control import Compensator, analyze_loop, inverse_model_response  # noqa: E402
-from hapid.control._examples import example_model  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from oracles import example_model  # noqa: E402
 
 
 def run(

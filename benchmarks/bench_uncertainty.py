@@ -29,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from _common import Section, standalone, table, timeit  # noqa: E402
+from oracles import log_prob_numpy  # noqa: E402
 
 import hapid  # noqa: E402,F401
 from hapid.control import Compensator  # noqa: E402
@@ -48,7 +49,6 @@ from hapid.uncertainty import (  # noqa: E402
     robust_omega,
     sample_posterior,
 )
-from hapid.uncertainty._reference import log_prob_numpy  # noqa: E402
 
 QUICK = "--full-chain" not in sys.argv
 

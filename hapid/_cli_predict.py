@@ -21,7 +21,8 @@ def _grid(a):
 
 def cmd_predict(a):
     from . import io
-    from .uncertainty import load_samples, predictive_plants
+    from .io import load_samples
+    from .uncertainty import predictive_plants
 
     f = _grid(a)
     ps = load_samples(a.samples)

@@ -55,8 +55,7 @@ def design(
     from hapid import scene
     from hapid.control import Compensator
     from hapid.tune import robust_design, true_plant_loop
-    from hapid.uncertainty import laplace_samples, make_log_posterior
-    from hapid.uncertainty._sampler import posterior_laplace_samples
+    from hapid.uncertainty import laplace_samples, make_log_posterior, posterior_laplace_samples
 
     cache = str(ROOT / ".hapid_cache" / "stages") if cache is None else cache
     cfg = {"device": {"preset": device}} | ({"protocol": protocol} if protocol else {})

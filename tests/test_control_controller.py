@@ -3,6 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from oracles import example_model
 
 import hapid  # noqa: F401  (float64)
 from hapid import ImpedanceModel, SecondOrder
@@ -18,7 +19,6 @@ from hapid.control import (
     max_siso_gain,
     siso_response,
 )
-from hapid.control._examples import example_model
 
 W = np.logspace(-1, 3.5, 1200)
 

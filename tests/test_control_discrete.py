@@ -4,6 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from oracles import example_model
 
 import hapid  # noqa: F401  (float64)
 from hapid.control import (
@@ -13,7 +14,6 @@ from hapid.control import (
     impedance_ratio_state_space,
     inverse_model_response,
 )
-from hapid.control._examples import example_model
 
 TS = 1e-3
 W = np.logspace(-1, np.log10(np.pi / TS), 800)

@@ -3,6 +3,7 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+from oracles import example_model
 
 import hapid  # noqa: F401  (float64)
 from hapid.control import (
@@ -13,7 +14,6 @@ from hapid.control import (
     isotropic_bandwidth,
     loop_matrices,
 )
-from hapid.control._examples import example_model
 
 W = np.logspace(-2, 4, 2000)
 

@@ -3,6 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from oracles import example_model
 
 import hapid  # noqa: F401  (float64)
 from hapid.control import (
@@ -12,7 +13,6 @@ from hapid.control import (
     inverse_model_response,
     loop_metrics,
 )
-from hapid.control._examples import example_model
 from hapid.impedance import ImpedanceModel, SecondOrder
 
 SPEC = MetricsSpec(disk=True)

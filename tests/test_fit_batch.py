@@ -18,7 +18,8 @@ from hapid.fit._lm_batch import (
     jvp,
     tril_inverse,
 )
-from hapid.fit._nls import median_nonneg, pinv_psd
+from hapid.fit._nls import pinv_psd
+from hapid.fit._problem import median_nonneg
 from hapid.frf import as_frf
 from hapid.impedance import ImpedanceModel, SecondOrder
 

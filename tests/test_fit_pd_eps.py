@@ -7,7 +7,7 @@ from helpers_fit import random_truth, synthetic_frf
 
 import hapid  # noqa: F401
 from hapid.fit import crhp_report, fit_nls, nls_cost, theta_to_model
-from hapid.fit._nls import PD_EPS
+from hapid.fit._problem import PD_EPS
 from hapid.impedance import ImpedanceModel, SecondOrder, plant
 
 

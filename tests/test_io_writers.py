@@ -11,8 +11,9 @@ import pytest
 from hapid import io
 from hapid.control import Compensator, analyze_loop
 from hapid.fit._pd import Scale, n_params
+from hapid.io import load_samples
 from hapid.tune import load_design
-from hapid.uncertainty import PosteriorSamples, load_samples
+from hapid.uncertainty import PosteriorSamples
 from hapid.uncertainty._likelihood import param_names
 
 

@@ -16,7 +16,7 @@ from test_fit_pd_eps import _subspace_hand_truth
 import hapid  # noqa: F401  (float64)
 from hapid import io, pipeline
 from hapid.fit import fit_nls, theta_to_model
-from hapid.fit._nls import PD_EPS
+from hapid.fit._problem import PD_EPS
 
 MATS = (("hand", "M"), ("hand", "B"), ("hand", "K"), ("mechanism", "M"), ("mechanism", "B"),
         ("mechanism", "K"))  # fmt: skip
@@ -44,7 +44,7 @@ def test_posterior_is_built_around_the_model_hapid_fit_writes(tmp_path, boundary
     """``hapid posterior`` fits what ``hapid fit`` writes (refit included, said in its output
     and file) and holds the refit's strictly PD matrices where the fit's L Lᵀ part is on the
     boundary, in every draw."""
-    from hapid.uncertainty import load_samples
+    from hapid.io import load_samples
 
     io.save_frf(tmp_path / "frf.npz", boundary_frf)
     bare = fit_nls(boundary_frf.band(0.0, 40.0), f_max_hz=None).model
@@ -137,7 +137,7 @@ def test_hexapod6_sweep_and_posterior_use_the_control_fit(tmp_path):
     ``hapid fit`` writes for the same FRF."""
     from hapid import scene, sweep
     from hapid.fit import pphat_band_db
-    from hapid.uncertainty import load_samples
+    from hapid.io import load_samples
 
     cfg = scene.merge({"device": {"preset": "hexapod6"}})
     vary = {"protocol.seed": [0.0, 1.0]}

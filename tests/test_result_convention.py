@@ -5,10 +5,10 @@ import json
 
 import numpy as np
 import pytest
+from oracles import example_model
 
 from hapid import io
 from hapid.control import Compensator, analyze_loop, check_controller
-from hapid.control._examples import example_model
 from hapid.fit import crhp_report
 from hapid.impedance import ImpedanceModel, SecondOrder
 from hapid.tune._tune import TuneResult

@@ -12,13 +12,12 @@ from hapid._constants import TWO_PI
 from hapid._grids import continuous_grid
 from hapid.control import Compensator
 from hapid.fit import Scale
+from hapid.io import load_samples, save_samples
 from hapid.tune._tune import scale_gain
 from hapid.uncertainty import (
     PosteriorSamples,
-    load_samples,
     loop_gp_check,
     robust_check,
-    save_samples,
 )
 from hapid.uncertainty._likelihood import param_names
 from tests.helpers import random_model

@@ -138,10 +138,10 @@ def test_large_n_wls_exact_and_nls_size_warning():
     frf = cases.model_frf(truth, np.geomspace(0.5, 500.0, N))
     assert cases.model_err(wls(frf), truth) < 1e-8
     with pytest.warns(UserWarning, match="GB"):  # the P residual's dense Jacobian: 6.5 GB
-        hapid.fit._nls._warn_jacobian_size(frf, True)
+        hapid.fit._problem._warn_jacobian_size(frf, True)
     with warnings.catch_warnings():  # compressed Z residual: ~0.2 GB, no warning
         warnings.simplefilter("error")
-        hapid.fit._nls._warn_jacobian_size(frf, False)
+        hapid.fit._problem._warn_jacobian_size(frf, False)
 
 
 @pytest.mark.slow

@@ -6,6 +6,7 @@ import jax
 import numpy as np
 import pytest
 from helpers_fit import batch_frfs, random_truth, synthetic_frf
+from oracles import log_prob_numpy
 
 import hapid
 from hapid.control import (
@@ -35,7 +36,6 @@ from hapid.uncertainty import (
     sample_posterior,
     save_samples,
 )
-from hapid.uncertainty._reference import log_prob_numpy
 
 N_RODS = 2
 NOISE = 1e-3
@@ -156,7 +156,7 @@ def test_laplace_samples_hold_boundary_matrices():
     Held: K_M stays at the fit, the other entries scatter around the truth, and the held
     draws' covariance is the Gaussian conditioned on the held entries (the precision's block,
     inverted, equals the Schur complement used)."""
-    from hapid.uncertainty._sampler import _held_boundary
+    from hapid.uncertainty._laplace import _held_boundary
 
     truth, _, nls = _stiffness_free_fit()
     fit_KM = np.asarray(nls.model.mechanism.K)

@@ -10,6 +10,7 @@ from scipy.stats import multivariate_normal
 
 from hapid.cli import main
 from hapid.fit import fit_nls
+from hapid.io import load_samples, save_samples
 from hapid.uncertainty import (
     PosteriorSamples,
     RobustReport,
@@ -17,13 +18,11 @@ from hapid.uncertainty import (
     band_calibration,
     fold_theta,
     initial_point,
-    load_samples,
     make_log_posterior,
     param_names,
     posterior_laplace_samples,
     predictive_plants,
     sample_posterior,
-    save_samples,
 )
 
 FREQ_HZ = np.array([1.0, 2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0])

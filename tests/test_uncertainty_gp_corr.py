@@ -6,13 +6,12 @@ import pytest
 from helpers_fit import random_truth, synthetic_frf
 
 from hapid.fit import fit_nls
+from hapid.io import load_samples, save_samples
 from hapid.uncertainty import (
     initial_point,
-    load_samples,
     make_log_posterior,
     posterior_laplace_samples,
     predictive_plants,
-    save_samples,
 )
 from hapid.uncertainty._hyper import fix_gp_hyper, log_marginal_likelihood
 

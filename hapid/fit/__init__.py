@@ -14,6 +14,8 @@
 from .. import _config  # noqa: F401  (float64)
 from ._compare import ESTIMATORS as ESTIMATORS
 from ._compare import fit_estimators as fit_estimators
+from ._crb import cramer_rao as cramer_rao
+from ._crb import crb_band_db as crb_band_db
 from ._diagnostics import ImpedanceSV as ImpedanceSV
 from ._diagnostics import anisotropy_reduction as anisotropy_reduction
 from ._diagnostics import impedance_singular_values as impedance_singular_values
@@ -22,19 +24,12 @@ from ._diagnostics import pphat as pphat
 from ._diagnostics import pphat_band_db as pphat_band_db
 from ._diagnostics import pphat_singular_values as pphat_singular_values
 from ._ml import MLResult as MLResult
-from ._ml import cramer_rao as cramer_rao
-from ._ml import crb_band_db as crb_band_db
 from ._ml import fit_ml as fit_ml
 from ._ml import ml_cost as ml_cost
 from ._ml import run_spectra as run_spectra
-from ._nls import SOLVERS as SOLVERS
-from ._nls import WEIGHTS as WEIGHTS
-from ._nls import Problem as Problem
-from ._nls import data_scale as data_scale
 from ._nls import fit_nls as fit_nls
 from ._nls import fit_nls_batch as fit_nls_batch
 from ._nls import laplace_covariance as laplace_covariance
-from ._nls import make_problem as make_problem
 from ._nls import nls_cost as nls_cost
 from ._pd import MATRIX_NAMES as MATRIX_NAMES
 from ._pd import Scale as Scale
@@ -49,6 +44,11 @@ from ._positize import CRHPReport as CRHPReport
 from ._positize import crhp_report as crhp_report
 from ._positize import positize as positize
 from ._positize import positize_matrix as positize_matrix
+from ._problem import SOLVERS as SOLVERS
+from ._problem import WEIGHTS as WEIGHTS
+from ._problem import Problem as Problem
+from ._problem import data_scale as data_scale
+from ._problem import make_problem as make_problem
 from ._quality import FitQuality as FitQuality
 from ._quality import fit_quality as fit_quality
 from ._quality import impedance_quality as impedance_quality

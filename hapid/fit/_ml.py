@@ -68,17 +68,7 @@ from ..experiment._protocol import validate_run
 from ..frf import FRF
 from ..impedance import ImpedanceModel
 from ._checks import TWO_PI
-from ._nls import (
-    LEAST_SQUARES_SOLVERS,
-    MINIMISERS,
-    PD_EPS,
-    _run_solver,
-    data_scale,
-    final_status,
-    fit_nls,
-    init_model,
-    pinv_psd,
-)
+from ._nls import _run_solver, final_status, fit_nls, init_model, pinv_psd
 from ._pd import (
     Scale,
     boundary_report,
@@ -87,7 +77,8 @@ from ._pd import (
     theta_to_model,
     theta_to_scaled,
 )
-from ._result import CONVERGED, NLSResult
+from ._problem import LEAST_SQUARES_SOLVERS, MINIMISERS, PD_EPS, data_scale
+from ._result import NLSResult
 
 ML_SOLVERS = LEAST_SQUARES_SOLVERS + MINIMISERS
 
@@ -459,74 +450,3 @@ def ml_cost(theta, run: Run, scale: Scale, *, f_max_hz: float | None = FIT_BAND_
             model_floor: float = 0.0) -> Array:  # fmt: skip
     """``V(θ)`` of :func:`fit_ml` for ``run`` (``theta`` in ``scale`` units)."""
     return make_ml_problem(run_spectra(run, f_max_hz), scale, model_floor=model_floor).cost(theta)
-
-
-def cramer_rao(run: Run, model: ImpedanceModel, *, f_max_hz: float | None = FIT_BAND_HZ,
-               scale: Scale | None = None):  # fmt: skip
-    """``(crb, scale)``: the Cramér–Rao bound (matrix coordinates, see :class:`MLResult`) of
-    the second-order model at ``model`` for the noise of ``run`` — for any fit's model (WLS,
-    NLS, ML); ``scale`` defaults to the NLS data scale of the run's FRF."""
-    spectra = run_spectra(run, f_max_hz)
-    if scale is None:
-        scale = data_scale(estimate_frf(run), f_max_hz)
-    theta = model_to_theta(model, scale)
-    problem = make_ml_problem(spectra, scale, model_floor=0.0)
-    return pinv_psd(problem.fisher_matrices(theta)), scale
-
-
-def _band_draws(model, cov, scale, omega, n_draws, seed):
-    """Draws of the (min, max) dB of σ(P(θ̂)·P̂⁻¹) with ``P̂⁻¹`` linearized at the model."""
-    from ..impedance import singular_values
-    from ._pd import model_to_scaled, scaled_to_model
-
-    n = model.n
-    s = 1j * jnp.asarray(omega)
-    v0 = _sym_to_vec(model_to_scaled(model, scale))
-    P0 = model.P(s)
-
-    def pinv_flat(v):
-        Pi = scaled_to_model(_vec_to_sym(v, n), scale).P_inv(s)
-        return jnp.concatenate([jnp.real(Pi).ravel(), jnp.imag(Pi).ravel()])
-
-    G = jax.jacfwd(pinv_flat)(v0)  # (2·N·n², p)
-    cov = np.asarray(cov)
-    lam, V = np.linalg.eigh(0.5 * (cov + cov.T))
-    root = jnp.asarray(V * np.sqrt(np.maximum(lam, 0.0)))
-    z = jnp.asarray(np.random.default_rng(seed).standard_normal((n_draws, root.shape[0])))
-    d = (G @ root @ z.T).T  # (draws, 2·N·n²)
-    half = d.shape[1] // 2
-    dPi = (d[:, :half] + 1j * d[:, half:]).reshape((n_draws,) + P0.shape)
-    db = 20.0 * jnp.log10(singular_values(jnp.eye(n) + P0 @ dPi))
-    return np.asarray(jnp.min(db, axis=(1, 2))), np.asarray(jnp.max(db, axis=(1, 2)))
-
-
-def crb_band_db(
-    model: ImpedanceModel,
-    crb,
-    scale: Scale,
-    omega,
-    *,
-    f_max_hz: float = 30.0,
-    n_draws: int = 200,
-    seed: int = 0,
-    quantile: float = 0.5,
-) -> tuple[float, float]:
-    """The P·P̂⁻¹ band an efficient estimator reaches at this noise level.
-
-    ``crb``: the Cramér–Rao bound in matrix coordinates at ``model`` (``MLResult.crb`` or
-    :func:`cramer_rao`), in ``scale`` units. Draws ``δv ~ N(0, crb)`` and, with ``P̂⁻¹``
-    linearized at ``model``, the singular values of ``P(v̂)(P̂⁻¹(v̂) + ∂P̂⁻¹ δv)`` (dB) over
-    ``omega`` ≤ ``f_max_hz`` (rad/s grid, Hz limit). Returns the ``quantile`` (default
-    median) over draws of the lower band edge taken from below and of the upper edge from
-    above: ``(lo dB ≤ 0, hi dB ≥ 0)``.
-    """
-    omega = np.asarray(omega)
-    keep = omega <= TWO_PI * f_max_hz * (1 + 1e-12)
-    if not keep.any():
-        raise ValueError(f"crb_band_db: no frequencies ≤ {f_max_hz} Hz")
-    lo, hi = _band_draws(model, crb, scale, omega[keep], n_draws, seed)
-    return float(np.quantile(lo, 1 - quantile)), float(np.quantile(hi, quantile))
-
-
-__all__ = ["fit_ml", "MLResult", "RunSpectra", "run_spectra", "make_ml_problem", "MLProblem",
-           "ml_cost", "cramer_rao", "crb_band_db", "CONVERGED"]  # fmt: skip

@@ -189,7 +189,7 @@ def control_fit(frf, *, boundary_refit: bool = True, **options) -> tuple[Fit, Bo
     no refit is needed the second fit repeats the first, discarded: a warm start from the
     bare optimum was measured 8× slower, its L Lᵀ boundary crawl running to the patience
     stop)."""
-    from ..fit._nls import PD_EPS
+    from ..fit._problem import PD_EPS
 
     f = fit(frf, "nls", **options)
     if not boundary_refit:
@@ -209,7 +209,7 @@ def fit_for_control(frf, *, boundary_refit: bool = True, **options) -> tuple[Fit
     ``PD_EPS`` when the boundary fit was refitted, else ``None``. What ``hapid fit``,
     ``hapid posterior`` and a scene's ``nls`` stage fit (a sweep's ``nls`` calls
     :func:`control_fit` under ``vmap``). ``boundary_refit=False`` keeps the boundary fit."""
-    from ..fit._nls import PD_EPS
+    from ..fit._problem import PD_EPS
 
     f, refitted = control_fit(frf, boundary_refit=boundary_refit, **options)
     return f, (float(PD_EPS) if bool(refitted) else None)

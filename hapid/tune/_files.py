@@ -43,7 +43,7 @@ def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf
         options["frf"] = io.load_frf(frf)
     samples = None
     if samples_path is not None:
-        from ..uncertainty import load_samples
+        from ..io import load_samples
 
         samples = load_samples(samples_path, n=model.n)
         if frf is None and samples.measured is not None:

@@ -4,8 +4,8 @@
   relative model-error floor and proper priors on the PD parameterization (``log_prob``
   jitted and vmapped over walkers).
 - :func:`sample_posterior` (emcee), :func:`laplace_samples` (fast path),
-  :func:`laplace_posterior` → :class:`PosteriorSamples`; :func:`save_samples`,
-  :func:`load_samples`; :func:`posterior_from_files` for the CLI.
+  :func:`laplace_posterior` → :class:`PosteriorSamples` (files: :func:`hapid.io.save_samples`,
+  :func:`hapid.io.load_samples`); :func:`posterior_from_files` for the CLI.
 - :func:`credible_bands` — posterior-predictive bands of |Z|, σ(Z), σ(P), σ(P P̂⁻¹).
 - :func:`predictive_plants` — draws of the true Z_H, Z_T, P on any grid *including* the
   model-error term (GP conditional on the fit residuals); :func:`band_calibration`.
@@ -20,6 +20,9 @@
 from .. import _config  # noqa: F401  (float64)
 from ._files import posterior_from_files as posterior_from_files
 from ._files import robust_from_files as robust_from_files
+from ._laplace import laplace_posterior as laplace_posterior
+from ._laplace import laplace_samples as laplace_samples
+from ._laplace import posterior_laplace_samples as posterior_laplace_samples
 from ._likelihood import LogPosterior as LogPosterior
 from ._likelihood import batched_log_prob as batched_log_prob
 from ._likelihood import boundary_fixed as boundary_fixed
@@ -49,11 +52,6 @@ from ._robust import posterior_omega as posterior_omega
 from ._robust import robust_check as robust_check
 from ._robust import robust_omega as robust_omega
 from ._sampler import MOVES as MOVES
-from ._sampler import PosteriorSamples as PosteriorSamples
 from ._sampler import ShortChainWarning as ShortChainWarning
-from ._sampler import laplace_posterior as laplace_posterior
-from ._sampler import laplace_samples as laplace_samples
-from ._sampler import load_samples as load_samples
-from ._sampler import posterior_laplace_samples as posterior_laplace_samples
 from ._sampler import sample_posterior as sample_posterior
-from ._sampler import save_samples as save_samples
+from ._samples import PosteriorSamples as PosteriorSamples

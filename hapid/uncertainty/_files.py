@@ -51,11 +51,12 @@ def posterior_from_files(
     ``sampler_options`` (``n_walkers``, ``moves``, ``max_steps``…) to ``sample_posterior``.
     Returns the :class:`PosteriorSamples`.
     """
-    from ..io import load_frf
+    from ..io import load_frf, save_samples
+    from ._laplace import posterior_laplace_samples
     from ._likelihood import boundary_fixed
     from ._loopgp import measured_data
     from ._posterior import make_log_posterior
-    from ._sampler import posterior_laplace_samples, sample_posterior, save_samples
+    from ._sampler import sample_posterior
 
     if method not in ("emcee", "laplace"):
         raise ValueError(f"method must be 'emcee' or 'laplace', got {method!r}")
@@ -152,10 +153,9 @@ def robust_from_files(
     and whether the loop gain above it is small enough for the draws to cover it).
     """
     from ..control import Compensator
-    from ..io import load_frf, load_model, save_json
+    from ..io import load_frf, load_model, load_samples, save_json
     from ._loopgp import loop_gp_check
     from ._robust import device_plants, posterior_omega, robust_check
-    from ._sampler import load_samples
 
     if draws not in DRAWS:  # before any file is read
         raise ValueError(f"draws must be one of {DRAWS}, got {draws!r}")

@@ -118,7 +118,7 @@ def make_log_posterior(
     Raises ``ValueError`` for a missing std, non-finite data, fewer than 3 band frequencies,
     zero std without ``model_error``, or bad options.
     """
-    from ..fit._nls import data_scale
+    from ..fit._problem import data_scale
 
     if not isinstance(frf, FRF):
         raise ValueError(f"make_log_posterior: expected an FRF, got {type(frf).__name__}")

@@ -26,7 +26,7 @@ from .. import _config  # noqa: F401  (float64)
 from .._linalg import svdvals
 from ..fit._pd import theta_to_model
 from ..impedance import plant
-from ._sampler import PosteriorSamples
+from ._samples import PosteriorSamples
 
 QUANTITIES = ("abs_Z_H", "abs_Z_T", "sv_Z_H", "sv_Z_T", "sv_P", "sv_P_Phatinv")
 

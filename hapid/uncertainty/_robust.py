@@ -83,7 +83,7 @@ from ..control._metrics import grid_pass, metrics_screened, refine_many
 from ..defaults import GM_DB, PM_DEG
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
-from ._sampler import PosteriorSamples
+from ._samples import PosteriorSamples
 
 FIELDS = (
     "gm_db",
