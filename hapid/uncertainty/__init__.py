@@ -18,6 +18,9 @@
 """
 
 from .. import _config  # noqa: F401  (float64)
+from ._coords import fold_theta as fold_theta
+from ._coords import matrix_to_theta as matrix_to_theta
+from ._coords import theta_to_matrix as theta_to_matrix
 from ._files import posterior_from_files as posterior_from_files
 from ._files import robust_from_files as robust_from_files
 from ._laplace import laplace_posterior as laplace_posterior
@@ -26,10 +29,7 @@ from ._laplace import posterior_laplace_samples as posterior_laplace_samples
 from ._likelihood import LogPosterior as LogPosterior
 from ._likelihood import batched_log_prob as batched_log_prob
 from ._likelihood import boundary_fixed as boundary_fixed
-from ._likelihood import fold_theta as fold_theta
-from ._likelihood import matrix_to_theta as matrix_to_theta
 from ._likelihood import param_names as param_names
-from ._likelihood import theta_to_matrix as theta_to_matrix
 from ._loopgp import LoopGP as LoopGP
 from ._loopgp import fit_loop_gp as fit_loop_gp
 from ._loopgp import loop_gp_check as loop_gp_check

@@ -15,7 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._gp import N_GP_CORR_HYPER, N_GP_HYPER, gp_corr_covariance
-from ._likelihood import DEFAULT_GAMMA_SD, GP_KINDS, N_CLASS_HYPER, LogPosterior, class_weights
+from ._likelihood import GP_KINDS, LogPosterior
+from ._weights import DEFAULT_GAMMA_SD, N_CLASS_HYPER, class_weights
 
 GP_HYPER_MODES = ("map", "marginal", "sample")
 

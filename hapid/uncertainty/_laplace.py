@@ -18,11 +18,8 @@ import numpy as np
 from .. import _config  # noqa: F401  (float64)
 from ..fit._pd import MATRIX_NAMES, n_from_params
 from ..fit._result import NLSResult
-from ._likelihood import (
-    LogPosterior,
-    fold_theta,
-    param_names,
-)
+from ._coords import fold_theta
+from ._likelihood import LogPosterior, param_names
 from ._mode import (
     _canonical_with_cov,
     _map_hessian,

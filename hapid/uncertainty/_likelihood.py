@@ -79,7 +79,16 @@ from jaxtyping import Array, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
 from ..defaults import FIT_BAND_HZ
-from ..fit._pd import MATRIX_NAMES, Scale, n_from_params, n_params
+from ..fit._pd import MATRIX_NAMES, Scale, n_params
+from ._coords import (
+    _positive_definite,
+    _psd_clip,
+    _unvech,
+    _vech,
+    _vech_jnp,
+    fold_theta,
+    matrix_to_theta,
+)
 from ._gp import (
     _JITTER,
     N_GP_CORR_HYPER,
@@ -89,6 +98,7 @@ from ._gp import (
     gp_covariance,
     gp_log_likelihood,
 )
+from ._weights import N_CLASS_HYPER, class_weights
 
 DEFAULT_F_MAX_HZ = FIT_BAND_HZ
 DEFAULT_PRIOR_SCALE = 10.0
@@ -106,92 +116,6 @@ MODEL_ERRORS = ("none", "white", "gp", "gp_corr")
 GP_KINDS = ("gp", "gp_corr")
 DEFAULT_LOG_ELL_MEAN = float(np.log(0.5))  # length scale in natural-log frequency units
 DEFAULT_LOG_ELL_SD = 1.0
-
-
-def diag_positions(n: int) -> np.ndarray:
-    """Indices in θ (length ``p``) of the diagonal entries of the six factors."""
-    rows, cols = np.tril_indices(n)
-    t = n * (n + 1) // 2
-    d = np.flatnonzero(rows == cols)
-    return np.concatenate([k * t + d for k in range(6)])
-
-
-def fold_theta(theta: Float[Array, "... p"]) -> Float[Array, "... p"]:
-    """Canonical θ of the folded parameterization: diagonal entries replaced by ``|·|``.
-
-    Same model as :func:`LogPosterior.model_matrices` uses; works on any leading batch
-    axes (numpy or jax arrays)."""
-    n = n_from_params(int(np.shape(theta)[-1]))
-    idx = diag_positions(n)
-    if isinstance(theta, np.ndarray):
-        out = theta.copy()
-        out[..., idx] = np.abs(out[..., idx])
-        return out
-    return theta.at[..., idx].set(jnp.abs(theta[..., idx]))
-
-
-def _positive_definite(A: Float[Array, "b n n"]) -> Array:
-    """True iff every matrix of the batch is positive definite: all pivots of an unrolled
-    Gaussian elimination (Sylvester's criterion) are > 0. Elementwise arithmetic only — about
-    3× cheaper under ``vmap`` than ``eigvalsh`` at n = 5. The PSD boundary has measure zero
-    for the sampler, so PD and PSD tests are the same density."""
-    n = A.shape[-1]
-    ok = jnp.ones(A.shape[:-2], dtype=bool)
-    for _ in range(n):
-        d = A[..., 0, 0]
-        ok = ok & (d > 0)
-        if A.shape[-1] > 1:
-            safe = jnp.where(d > 0, d, 1.0)[..., None, None]
-            A = A[..., 1:, 1:] - A[..., 1:, :1] * A[..., :1, 1:] / safe
-    return jnp.all(ok)
-
-
-def _unvech(v: np.ndarray, n: int) -> np.ndarray:
-    """``(…, p)`` lower-triangular entries of six symmetric matrices → ``(…, 6, n, n)``."""
-    rows, cols = np.tril_indices(n)
-    t = len(rows)
-    v = np.asarray(v, dtype=np.float64).reshape(v.shape[:-1] + (6, t))
-    A = np.zeros(v.shape[:-1] + (n, n))
-    A[..., rows, cols] = v
-    A[..., cols, rows] = v
-    return A
-
-
-def _vech(A: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`_unvech` (``(…, 6, n, n)`` → ``(…, p)``)."""
-    n = A.shape[-1]
-    rows, cols = np.tril_indices(n)
-    return A[..., rows, cols].reshape(A.shape[:-3] + (-1,))
-
-
-def _vech_jnp(A: Float[Array, "6 n n"]) -> Float[Array, " q"]:
-    """The six matrices' lower-triangular entries ``(6·n(n+1)/2,)`` (jax)."""
-    rows, cols = np.tril_indices(A.shape[-1])
-    return A[:, rows, cols].reshape(-1)
-
-
-def _psd_clip(A: np.ndarray, floor: float) -> np.ndarray:
-    A = 0.5 * (A + np.swapaxes(A, -1, -2))
-    lam, V = np.linalg.eigh(A)
-    top = np.max(np.abs(lam), axis=-1, keepdims=True)
-    lam = np.maximum(lam, np.maximum(floor * top, 1e-300))
-    return (V * lam[..., None, :]) @ np.swapaxes(V, -1, -2)
-
-
-def matrix_to_theta(v: np.ndarray, n: int, floor: float = 1e-12) -> np.ndarray:
-    """Matrix-entry coordinates ``(…, p)`` → canonical Cholesky θ ``(…, p)`` (numpy)."""
-    L = np.linalg.cholesky(_psd_clip(_unvech(v, n), floor))
-    rows, cols = np.tril_indices(n)
-    return L[..., rows, cols].reshape(L.shape[:-3] + (-1,))
-
-
-def theta_to_matrix(theta: np.ndarray, n: int) -> np.ndarray:
-    """Cholesky θ ``(…, p)`` → matrix-entry coordinates ``(…, p)`` (``L Lᵀ``, numpy)."""
-    rows, cols = np.tril_indices(n)
-    th = np.asarray(theta, dtype=np.float64)
-    L = np.zeros(th.shape[:-1] + (6, n, n))
-    L[..., rows, cols] = th.reshape(th.shape[:-1] + (6, -1))
-    return _vech(L @ np.swapaxes(L, -1, -2))
 
 
 PARAMETERIZATIONS = ("matrix", "cholesky")
@@ -545,91 +469,6 @@ def _batched_log_prob(post: LogPosterior, xs):
     if xs.ndim != 2 or xs.shape[-1] != post.dim:
         raise ValueError(f"log_prob: expected (W, {post.dim}) parameters, got shape {xs.shape}")
     return jax.vmap(post)(xs)
-
-
-def gp_amplitudes(
-    omega, omega_fit, a_fit, ref_theta, scale: Scale
-) -> tuple[np.ndarray, np.ndarray]:
-    """``(a_H, a_M)`` (N,) N/m on any ``omega`` (rad/s): the data's RMS element sizes
-    ``a_fit = (a_H, a_M)`` on the fit band ``omega_fit``, log-log interpolated inside it;
-    outside, the reference model's sizes scaled to meet the data at the nearest band end."""
-    omega = np.asarray(omega, dtype=np.float64)
-    om_f = np.asarray(omega_fit, dtype=np.float64)
-    ref_new = reference_amplitudes(ref_theta, scale, omega)
-    ref_fit = reference_amplitudes(ref_theta, scale, om_f[[0, -1]])
-    out = []
-    for a, rn, rf in zip(a_fit, ref_new, ref_fit, strict=True):
-        a = np.maximum(np.asarray(a, dtype=np.float64), 1e-300)
-        rn, rf = np.maximum(np.asarray(rn), 1e-300), np.maximum(np.asarray(rf), 1e-300)
-        v = np.exp(np.interp(np.log(omega), np.log(om_f), np.log(a)))
-        v = np.where(omega < om_f[0], rn * a[0] / rf[0], v)
-        out.append(np.where(omega > om_f[-1], rn * a[-1] / rf[1], v))
-    return out[0], out[1]
-
-
-def reference_amplitudes(ref_theta, scale: Scale, omega) -> tuple[np.ndarray, np.ndarray]:
-    """``(a_H, a_M)`` (N,) in N/m: RMS element sizes ``‖Z(jω)‖_F / n`` of the reference
-    model's hand and mechanism impedances on ``omega`` (rad/s) — the GP amplitude scale."""
-    from ..fit._pd import theta_to_model
-
-    m = theta_to_model(jnp.asarray(ref_theta), scale)
-    s = 1j * jnp.asarray(omega, dtype=jnp.float64)
-    n = m.n
-    aH = jnp.linalg.norm(m.hand(s), axis=(-2, -1)) / n
-    aM = jnp.linalg.norm(m.mechanism(s), axis=(-2, -1)) / n
-    return aH, aM
-
-
-ERROR_SCALES = ("shared", "element", "class")
-CLASS_NAMES = ("gamma_H", "gamma_M")  # error_scale="class": log off-diagonal / diagonal amplitude
-DEFAULT_GAMMA_SD = 2.0  # prior sd of each γ (mean 0: the shared scale)
-N_CLASS_HYPER = N_GP_CORR_HYPER + 2
-ELEMENT_FLOOR = 0.01  # element sizes floored at this × √(e_ii e_jj) (a model zero stays > 0)
-
-
-def element_weights(ref_theta, scale: Scale, omega) -> tuple[np.ndarray, np.ndarray]:
-    """Per-element weights ``(w_H, w_M)``, each ``(E, N)`` (``E = n²`` row-major, unitless),
-    of the gp_corr model-error amplitude with ``error_scale="element"``, on ``omega`` (N,)
-    rad/s: ``w_ij(ω) = e_ij(ω) / RMS_kl e_kl(ω)`` with ``e_ij = |K_ij| + ω |B_ij| + ω² |M_ij|``
-    the size of element ``(i, j)`` of the reference model's hand (``w_H``) or mechanism
-    (``w_M``) impedance — the sum of its three terms' magnitudes, so it has no dip where they
-    cancel (a resonance) and is smooth in ω — floored at :data:`ELEMENT_FLOOR` ``× √(e_ii
-    e_jj)`` so that an element the model leaves at zero keeps a (small) error. The model
-    error is then *relative per element*: ``τ`` is the relative size of the misfit in every
-    element, large and small. The RMS weight over the elements is 1, so the total error size
-    ``τ a(ω)`` is that of ``error_scale="shared"``. Fixed by the fit: no hyperparameter."""
-    from ..fit._pd import theta_to_model
-
-    m = theta_to_model(jnp.asarray(ref_theta), scale)
-    om = np.asarray(omega, dtype=np.float64)
-    out = []
-    for part in (m.hand, m.mechanism):
-        e = sum(
-            np.abs(np.asarray(A))[None] * om[:, None, None] ** k
-            for k, A in enumerate((part.K, part.B, part.M))
-        )  # fmt: skip  (N, n, n)
-        d = np.diagonal(e, axis1=-2, axis2=-1)
-        e = np.maximum(e, ELEMENT_FLOOR * np.sqrt(d[:, :, None] * d[:, None, :]))
-        e = np.maximum(e, 1e-300)
-        w = e / np.sqrt(np.mean(e**2, axis=(1, 2)))[:, None, None]
-        out.append(w.reshape(om.shape[0], -1).T)
-    return out[0], out[1]
-
-
-def class_weights(gamma, n: int):
-    """Per-element weights ``(w_H, w_M)``, each ``(E,)`` (``E = n²`` row-major, unitless), of
-    the gp_corr model-error amplitude with ``error_scale="class"``: ``1`` on the diagonal and
-    ``e^γ`` off it (``γ = (γ_H, γ_M)``, learned with the other hyperparameters at the mode of
-    their marginal posterior, prior ``γ ~ N(0, DEFAULT_GAMMA_SD²)``), divided by their RMS over
-    the elements — so ``τ a(ω)`` stays the RMS error size and ``γ = 0`` is the shared scale.
-    Four amplitudes (diagonal and off-diagonal of the hand and of the mechanism) instead of
-    two."""
-    off = jnp.asarray(1.0 - np.eye(n).reshape(-1))
-    out = []
-    for g in (gamma[0], gamma[1]):
-        w = jnp.exp(g * off)
-        out.append(w / jnp.sqrt(jnp.mean(w**2)))
-    return out[0], out[1]
 
 
 def boundary_fixed(nls_result) -> dict:

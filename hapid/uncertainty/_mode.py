@@ -17,7 +17,8 @@ import optimistix as optx
 from .. import _config  # noqa: F401  (float64)
 from ..fit._pd import n_from_params
 from ..fit._result import NLSResult
-from ._likelihood import LogPosterior, diag_positions, theta_to_matrix
+from ._coords import diag_positions, theta_to_matrix
+from ._likelihood import LogPosterior
 
 
 def _canonical_with_cov(theta, cov):

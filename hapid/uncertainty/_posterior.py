@@ -16,6 +16,7 @@ from .. import _config  # noqa: F401  (float64)
 from ..fit._pd import MATRIX_NAMES, Scale, n_params
 from ..fit._result import NLSResult
 from ..frf import FRF
+from ._coords import fold_theta
 from ._gp import N_GP_CORR_HYPER
 from ._hyper import GP_HYPER_MODES, fix_gp_hyper, marginal_hyper
 from ._likelihood import (
@@ -25,16 +26,13 @@ from ._likelihood import (
     DEFAULT_LOG_TAU_MEAN,
     DEFAULT_LOG_TAU_SD,
     DEFAULT_PRIOR_SCALE,
-    ERROR_SCALES,
     GP_KINDS,
-    N_CLASS_HYPER,
     PARAMETERIZATIONS,
     LogPosterior,
-    element_weights,
     error_kind,
-    fold_theta,
 )
 from ._mode import initial_point, posterior_mode
+from ._weights import ERROR_SCALES, N_CLASS_HYPER, element_weights
 
 
 def make_log_posterior(

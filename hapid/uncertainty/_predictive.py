@@ -154,7 +154,7 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
     """
     from ..fit._pd import theta_to_model
     from ._gp import gp_covariance, kernel, split_hyper, warp
-    from ._likelihood import gp_amplitudes
+    from ._weights import gp_amplitudes
 
     omega = np.asarray(omega, dtype=np.float64)
     if (
@@ -295,7 +295,7 @@ def _gp_corr_errors(ps: PosteriorSamples, idx, ms, omega, rng):
         hm_correlation,
         split_hyper,
     )
-    from ._likelihood import class_weights, element_weights, gp_amplitudes
+    from ._weights import class_weights, element_weights, gp_amplitudes
 
     data = ps.predictive
     n, E = ps.n, ps.n * ps.n
