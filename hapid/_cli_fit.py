@@ -310,63 +310,6 @@ def run_fit(a) -> None:
     print(f"model → {out}")
 
 
-def run_frf_lab(a) -> None:
-    """``hapid frf`` on lab records: H1 over Welch segments → impedance FRF file."""
-    from . import io
-    from .experiment import estimate_impedance_h1
-
-    ts = io.load_timeseries([a.run, *(a.add or [])], fs_hz=a.fs_hz, force_key=a.force_key,
-                            response_key=a.response_key, force_unit=a.force_unit,
-                            length_unit=a.length_unit)  # fmt: skip
-    if a.nperseg > ts.force.shape[1]:
-        raise FitCommandError(
-            f"--nperseg {a.nperseg} is longer than the records ({ts.force.shape[1]} samples)"
-        )
-    z = estimate_impedance_h1(ts, nperseg=a.nperseg, response=a.response,
-                              sign=-1.0 if a.sign == "-" else 1.0,
-                              f_min_hz=a.f_min_hz, f_max_hz=a.f_max_hz,
-                              window=a.window)  # fmt: skip
-    out = io.save_impedance_frf(a.out, z)
-    E, T, n = ts.force.shape
-    seg = E * ((T - a.nperseg) // (a.nperseg if a.window == "boxcar" else a.nperseg // 2) + 1)
-    rel = np.asarray(z.Z_std) / np.maximum(np.abs(np.asarray(z.Z)), 1e-300)
-    conv = {"displacement": "Z = F/x", "velocity": "Z = jω·F/v", "acceleration": "Z = (jω)²·F/a"}
-    f = np.asarray(z.freq_hz)
-    print(f"impedance FRF (single impedance, {'+' if a.sign != '-' else '−'}{conv[a.response]}, "
-          f"unit {z.unit}): H1 over {seg} Welch segments of {a.nperseg} samples "
-          f"({E} experiment{'s' if E > 1 else ''} × {T} samples at {ts.fs_hz:g} Hz, n = {n}); "
-          f"{f.size} frequencies {f.min():g}–{f.max():g} Hz; median relative std of Z "
-          f"{np.median(rel):.2e} → {out}")  # fmt: skip
-
-
-def register_lab_frf_args(f) -> None:
-    """``hapid frf`` options for non-periodic records and lab time series."""
-    lab = f.add_argument_group("non-periodic records and lab time series (H1 over Welch segments)")
-    lab.add_argument("--h1", action="store_true",
-                     help="H1 estimate over Welch segments (implied for a time series)")  # fmt: skip
-    lab.add_argument("--nperseg", type=int, default=2048,
-                     help="samples per Welch segment (default 2048)")  # fmt: skip
-    lab.add_argument("--window", choices=["hann", "boxcar"], default="hann",
-                     help="segment window: hann (default) or boxcar (periodic excitation whose "
-                     "period divides --nperseg: leakage-free)")  # fmt: skip
-    lab.add_argument("--response", choices=["displacement", "velocity", "acceleration"],
-                     default="displacement", help="what the response channels measure; Z = F/x "
-                     "is formed in the frequency domain (default displacement)")  # fmt: skip
-    lab.add_argument("--sign", choices=["+", "-"], default="+", help="+: Z = +F/x (force on the "
-                     "structure, displacement the same way; default); -: reaction force, Z = -F/x")  # fmt: skip
-    lab.add_argument("--fs-hz", type=float, help="sampling rate in Hz, if the file has no fs_hz")
-    lab.add_argument("--force-key", default="force",
-                     help="array holding the forces (default force)")  # fmt: skip
-    lab.add_argument("--response-key", default="response",
-                     help="array holding the responses (default response)")  # fmt: skip
-    lab.add_argument("--add", action="append", metavar="FILE", help="another record file: more "
-                     "experiments (same length and channels); repeat as needed")  # fmt: skip
-    lab.add_argument("--force-unit", help="unit of the forces (default: the file's, else N)")
-    lab.add_argument("--length-unit", help="unit of the displacement (default: the file's, else m)")
-    lab.add_argument("--f-min-hz", type=float, help="lowest frequency kept (Hz; default above DC)")
-    lab.add_argument("--f-max-hz", type=float, help="highest frequency kept (Hz; default fs/2)")
-
-
 def register_fit(sub, func) -> None:
     """The ``hapid fit`` parser (method choices from :data:`METHODS`)."""
     f = sub.add_parser("fit", help="fit M, B, K to an FRF: the haptic pair or a single impedance",

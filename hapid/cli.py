@@ -100,15 +100,22 @@ def cmd_frf(a):
         else io.file_kind(a.run, "a run file or a time-series file")
     )
     if kind in ("timeseries", "unknown"):  # unknown: the reader names the arrays it found
-        from ._cli_fit import run_frf_lab
+        from ._cli_lab import run_frf_lab
 
         return run_frf_lab(a)  # lab records → single impedance Z = F/x
     if kind != "run":
         raise CLIError(f"{a.run}: holds a {kind} file; hapid frf takes a run file (R_A, R_I, L) "
                        "or a time series (fs_hz, force, response)")  # fmt: skip
     run = io.load_run(a.run)
+    for opt, v in (
+        ("--estimate", a.estimate != "auto"),
+        ("--force-window", a.force_window),
+        ("--exp-tau", a.exp_tau),
+    ):
+        if v:
+            raise CLIError(f"{opt} is for lab time series (force, response); {a.run} is a run file")
     if a.h1:
-        frf = estimate_frf_h1(run.fs_hz, run.R_A, run.R_I, run.L, nperseg=a.nperseg,
+        frf = estimate_frf_h1(run.fs_hz, run.R_A, run.R_I, run.L, nperseg=a.nperseg or 2048,
                               f_band_hz=(a.f_min_hz or 0.0, a.f_max_hz or run.fs_hz / 2),
                               window=a.window)  # fmt: skip
     else:
@@ -152,7 +159,7 @@ def cmd_demo(a):
 
 
 def _register_lab_frf_args(f):
-    from ._cli_fit import register_lab_frf_args
+    from ._cli_lab import register_lab_frf_args
 
     register_lab_frf_args(f)
 
