@@ -19,10 +19,12 @@ report lines (a Cramér–Rao band, an error against a known true plant) go thro
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Callable
 
 import numpy as np
 
+from ._cli_lab import matrices_report
 from ._constants import TWO_PI
 
 
@@ -42,6 +44,7 @@ class Fitted:
     quality: object = None
     before: object = None
     notes: tuple[str, ...] = ()
+    std: object = None
 
 
 def _nls_refuse(res, a):
@@ -137,7 +140,16 @@ def _single(method: str):
         if method == "nls":
             status += f" after {res.n_steps} steps, cost {res.cost:.4g}"
         notes = (f"at the PSD boundary: {', '.join(res.boundary)}",) if res.boundary else ()
-        return Fitted(res.model, res.metadata(), status, quality=res.quality, notes=notes)
+        if method == "nls":
+            chi = res.reduced_chi2
+            notes += ((f"reduced χ² {chi:.3g}: std of M, B, K scaled by it (relative weights)"
+                       if a.weight == "relative" else
+                       f"reduced χ² {chi:.3g}: std of M, B, K scaled by it (noise weights; the "
+                       "FRF's std under-state the misfit)" if res.sigma2 != 1.0 else
+                       f"reduced χ² {chi:.3g} (noise weights): std of M, B, K from the FRF's std, "
+                       "not scaled"),)  # fmt: skip
+        return Fitted(res.model, res.metadata(), status, quality=res.quality, notes=notes,
+                      std=res.model_std)  # fmt: skip
 
     return run
 
@@ -283,15 +295,18 @@ def run_fit(a) -> None:
     if single:
         m = fitted.model
         n_crhp = int(m.n_crhp_roots())
-        print(f"model M [{units['M']}], B [{units['B']}], K [{units['K']}]; closed-RHP roots "
-              f"of det Ẑ: {n_crhp} of {2 * m.n}")  # fmt: skip
+        for line in matrices_report(m, fitted.std, units):
+            print(line)
+        print(f"closed-RHP roots of det Ẑ: {n_crhp} of {2 * m.n}")
+        if n_crhp:
+            warnings.warn(f"det Ẑ has {n_crhp} closed-right-half-plane root(s): the model is not "
+                          "a stable passive structure (negative damping or stiffness)",
+                          stacklevel=1)  # fmt: skip
     else:
         after = crhp_report(fitted.model)
         print(f"CRHP roots of det Ẑ_H, det Ẑ_T: {int(after.hand)}, {int(after.total)} (of "
               f"{2 * data.n} each)")  # fmt: skip
         if int(after.hand) > 0:
-            import warnings
-
             warnings.warn(f"Ẑ_H has {int(after.hand)} closed-right-half-plane root(s): the "
                           "inverse-model controller g Ẑ_T Ẑ_H⁻¹ cancels them unstably, so no g "
                           "makes its loop stable (hapid tune will not certify it); "

@@ -99,3 +99,38 @@ def register_lab_frf_args(f) -> None:
     lab.add_argument("--length-unit", help="unit of the displacement (default: the file's, else m)")
     lab.add_argument("--f-min-hz", type=float, help="lowest frequency kept (Hz; default above DC)")
     lab.add_argument("--f-max-hz", type=float, help="highest frequency kept (Hz; default fs/2)")
+
+
+def _cell(x: float, sd: float | None) -> str:
+    return f"{x:+.4g}" if sd is None else f"{x:+.4g} ± {sd:.2g}"
+
+
+def matrices_report(model, std, units: dict) -> list[str]:
+    """Lines showing the fitted ``M, B, K`` with their std (``std``: a ``SecondOrder`` or
+    ``None``): every entry for n ≤ 3; for larger n the eigenvalues of the symmetric part and
+    the diagonal ± std. For n = 1 also the natural frequency and damping ratio."""
+    out = []
+    n = int(np.shape(model.M)[0])
+    for k in "MBK":
+        A = np.asarray(getattr(model, k), dtype=np.float64)
+        S = None if std is None else np.asarray(getattr(std, k), dtype=np.float64)
+        head = f"{k} [{units[k]}]"
+        if n <= 3:
+            rows = ["  ".join(_cell(A[i, j], None if S is None else S[i, j]) for j in range(n))
+                    for i in range(n)]  # fmt: skip
+            out.append(f"{head}: {rows[0]}")
+            pad = " " * (len(head) + 2)
+            out += [pad + r for r in rows[1:]]
+        else:
+            lam = np.linalg.eigvalsh(0.5 * (A + A.T))
+            diag = ", ".join(_cell(A[i, i], None if S is None else S[i, i]) for i in range(n))
+            out.append(f"{head}: eigenvalues {', '.join(f'{x:.4g}' for x in lam)}; diagonal {diag}")
+    if n == 1:
+        m, b, k = (float(np.asarray(getattr(model, x))[0, 0]) for x in "MBK")
+        if m > 0 and k > 0:
+            fn = np.sqrt(k / m) / (2 * np.pi)
+            out.append(f"one mode: f_n = √(K/M)/2π = {fn:.5g} Hz, ζ = B/(2√(KM)) = "
+                       f"{b / (2 * np.sqrt(k * m)):.3g}")  # fmt: skip
+    if std is None:
+        out.append("std: not available for this method (--method nls gives them)")
+    return out

@@ -17,7 +17,7 @@ unwindowed segment per impact, every segment starting just before its impact.
   after the segment start, zero after) and exponential window ``e^{−t/τ}`` on force and
   response. The exponential window turns the measured system ``h(t)`` into ``h(t) e^{−t/τ}``:
   the estimate is ``Z(jω + 1/τ)`` (every pole moved left by ``1/τ``: modal damping
-  ``ζ_meas = ζ_true + 1/(τ ω_n)``). :func:`correct_exponential` undoes it exactly on a fitted
+  ``ζ_meas = ζ_true + 1/(τ ω_n)``). :func:`hapid.fit.correct_exponential` undoes it exactly on a fitted
   ``M s² + B s + K``; the FRF itself is stored as measured (windowed).
 - :func:`decay_db`: how far the response has decayed at the segment end (dB below its peak).
 - :func:`coherence`: multiple coherence ``γ²_i = (S_xF S_FF⁻¹ S_Fx)_ii / S_xx,ii`` of every
@@ -179,23 +179,6 @@ def low_coherence_bands(freq_hz: np.ndarray, gamma2: np.ndarray, level=COHERENCE
     return [b[:3] for b in out[:5]]
 
 
-def correct_exponential(M, B, K, tau_s: float, M_std=None, B_std=None, K_std=None):
-    """Undo the exponential window on a fitted ``M s² + B s + K`` of ``Z(s + a)``, ``a = 1/τ``:
-    ``B = B_w − 2aM``, ``K = K_w − aB − a²M`` (exact). Returns ``(M, B, K, M_std, B_std,
-    K_std)``; the std are propagated ignoring correlations between M, B, K (``None`` stays
-    ``None``)."""
-    a = 1.0 / float(tau_s)
-    M, Bw, Kw = (np.asarray(x, dtype=np.float64) for x in (M, B, K))
-    B_t = Bw - 2 * a * M
-    K_t = Kw - a * B_t - a * a * M
-    if M_std is None:
-        return M, B_t, K_t, None, None, None
-    ms, bs, ks = (np.asarray(x, dtype=np.float64) for x in (M_std, B_std, K_std))
-    bs_t = np.sqrt(bs**2 + (2 * a * ms) ** 2)
-    ks_t = np.sqrt(ks**2 + (a * bs_t) ** 2 + (a * a * ms) ** 2)
-    return M, B_t, K_t, ms, bs_t, ks_t
-
-
 __all__ = [
     "classify_records",
     "impact_segments",
@@ -203,6 +186,5 @@ __all__ = [
     "decay_db",
     "coherence",
     "low_coherence_bands",
-    "correct_exponential",
     "energy_share",
 ]
