@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from ._cli_checks_io import check_model_matches_device, check_out_not_input
 from ._cli_device import PRESETS_TEXT, variant_flags
 
 # ---- value tests ----------------------------------------------------------------------------
@@ -62,6 +63,9 @@ FLAG = (lambda v: isinstance(v, bool)), "true or false"
 SEED = int_between(0, 2**32 - 1)
 MOVE_LIMIT_M = 0.2  # the base hexagon's radius: the stylus stays inside the rods' reach
 ROT_LIMIT_RAD = 0.5
+
+#: largest --n-freq of predict/plant: their files hold S draws × N frequencies × n × n
+N_FREQ_DRAWS_MAX = 100_000
 
 RUN_EXT = (".npz", ".csv", ".mat")
 ARRAY_EXT = (".npz", ".mat")
@@ -159,7 +163,7 @@ def _walkers(v):
 # options that mean the same thing in every subcommand that has them
 COMMON: dict[str, tuple] = {
     "device": (lambda v: v in _presets(), f"a preset device ({PRESETS_TEXT})"),
-    "rod_compliance": gt(0),  # the --device options: hapid._cli_device
+    "rod_compliance": between(1e-3, 1e3),  # the --device options: hapid._cli_device
     "fs": gt(0, " Hz"),
     "freqs": (_freqs, "'paper' or a comma list of frequencies > 0 Hz (e.g. 1,2,5)"),
     "period": int_ge(2),
@@ -267,8 +271,9 @@ PER_COMMAND: dict[str, dict] = {
              "out": _Out("a design file", (".npz",)), "report": _Out("a JSON report", (".json",))},
     "paper": {"out": _Out("an output folder"), "scene": _In("a scene TOML", (".toml",))},
     "predict": {"samples": _In("a posterior-samples file", (".npz",)), "out": _Out("a draws file", (".npz",)),
-                "f_min_hz": gt(0, " Hz"), "n_freq": int_ge(2), "no_model_error": FLAG},
-    "plant": {"out": _Out("an FRF file", (".npz",)), "n_freq": int_ge(2), "f_min_hz": gt(0, " Hz")},
+                "f_min_hz": gt(0, " Hz"), "n_freq": int_between(2, N_FREQ_DRAWS_MAX), "no_model_error": FLAG},
+    "plant": {"out": _Out("an FRF file", (".npz",)), "n_freq": int_between(2, N_FREQ_DRAWS_MAX),
+              "f_min_hz": gt(0, " Hz")},
     "run": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder")},
 }  # fmt: skip
 
@@ -332,8 +337,15 @@ def check_args(parser, a) -> None:
     rules); raise ``ValueError`` naming the first problem. Does no work beyond reading small
     text files (scenes)."""
     cmd = a.command
+    outs, ins = {}, {}
     for dest, flag in options(parser, cmd):
         check_option(cmd, flag, dest, getattr(a, dest, None))
+        rule = PER_COMMAND.get(cmd, {}).get(dest) or COMMON.get(dest)
+        if isinstance(rule, _Out) and rule.ext is not None:
+            outs[flag] = getattr(a, dest, None)
+        elif isinstance(rule, _In):
+            ins[flag] = getattr(a, dest, None)
+    check_out_not_input(outs, ins)
     extra = _CROSS.get(cmd)
     if extra is not None:
         extra(a)
@@ -393,6 +405,7 @@ def _robust_cross(a):
         raise ValueError("--draws params checks the samples' own plants: give --samples")
     if len(a.model) > 1 and a.out is not None and Path(a.out).suffix.lower() != ".json":
         raise ValueError(f"--out must be a .json file, got {a.out}")
+    check_model_matches_device(a.model, a.device)
 
 
 def _run_cross(a):
@@ -567,8 +580,8 @@ def _scene_rules() -> dict:
         "device.encoder": one_of(["motor", "rod"]),
         "device.delay_samples": (lambda v: v is None or COMMON["delay"][0](v),
                                  "an integer in [0, 1000] (samples; unset: the preset's)"),
-        "device.rod_compliance": (lambda v: v is None or (_num(v) and v > 0),
-                                  "a number > 0 (unset: the preset's)"),
+        "device.rod_compliance": (lambda v: v is None or COMMON["rod_compliance"][0](v),
+                                  "a number in [0.001, 1000] (unset: the preset's)"),
         "protocol.freqs": (_scene_freqs, "'paper' or a non-empty list of frequencies > 0 Hz"),
         "protocol.periods": int_ge(1), "protocol.transient": int_ge(0),
         "protocol.pattern": COMMON["pattern"], "protocol.phases": COMMON["phases"],

@@ -26,6 +26,7 @@ import numpy as np
 
 from ._cli_lab import matrices_report
 from ._constants import TWO_PI
+from ._grids import band_mask
 
 
 class FitCommandError(ValueError):
@@ -210,7 +211,7 @@ def _band(a, f_all_hz: np.ndarray, f_max_hz: float | None = None) -> tuple[float
     f_max_hz = a.f_max_hz if f_max_hz is None else f_max_hz
     lo = 0.0 if a.f_min_hz is None else float(a.f_min_hz)
     hi = np.inf if f_max_hz is None else float(f_max_hz)
-    n_in = int(np.sum((f_all_hz >= lo) & (f_all_hz <= hi)))
+    n_in = int(np.sum(band_mask(f_all_hz, lo, hi)))
     if n_in < 3:
         raise FitCommandError(
             f"only {n_in} of the file's {f_all_hz.size} frequencies "

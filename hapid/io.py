@@ -562,6 +562,8 @@ def file_kind(path, what: str = "a hapid .npz or .mat file") -> str:
             raise FileNotFoundError(f"{path}: no such file")
         with _open_text(path) as fh:
             head = fh.readline() + fh.readline()
+        if not head.strip():
+            raise FileFormatError(f"{path}: the file is empty")
         if "R_A_" in head:
             return "run"
         if "Z_H_re_" in head:
@@ -674,6 +676,8 @@ def _csv_table(path, layout: str) -> tuple[dict, list[str], list[str]]:
     if lines and lines[0].startswith("#"):
         meta = dict(p.strip().split("=", 1) for p in lines[0][1:].split(";") if "=" in p)
         lines = lines[1:]
+    if not any(ln.strip() for ln in lines):
+        raise FileFormatError(f"{path}: the file is empty; {layout}")
     if not lines:
         raise FileFormatError(f"{path}: no header row; {layout}")
     return meta, [h.strip() for h in lines[0].split(",")], lines[1:]
@@ -923,13 +927,26 @@ def save_text(path, text: str) -> Path:
     return _atomic_write(path, lambda fh: fh.write(data))
 
 
+def _no_negative_zero(cell):
+    """A cell with negative zero (``-0.0`` or text such as ``-0``, ``-0.000``) written as 0."""
+    if isinstance(cell, float | np.floating) and cell == 0:
+        return 0.0
+    if isinstance(cell, str) and cell.startswith("-"):
+        try:
+            if float(cell) == 0:
+                return cell[1:]
+        except ValueError:
+            pass
+    return cell
+
+
 def save_csv(path, header, rows) -> Path:
     """Write a CSV table (``header``: column names; ``rows``: sequences of cells), atomically."""
     buf = _io.StringIO(newline="")
     w = csv.writer(buf)
     w.writerow(list(header))
     for r in rows:
-        w.writerow(list(r))
+        w.writerow([_no_negative_zero(c) for c in r])
     data = buf.getvalue().encode()
     return _atomic_write(path, lambda fh: fh.write(data))
 

@@ -36,6 +36,17 @@ def _dft_bins(x: np.ndarray, bins: np.ndarray, Tp: int) -> np.ndarray:
     return np.fft.rfft(x, axis=-2)[..., bins, :] * (2.0 / Tp)
 
 
+def _nonzero_positions(L: np.ndarray) -> None:
+    """Raise ``ValueError`` when a position record is zero everywhere (no FRF exists)."""
+    L = np.asarray(L)
+    for e in range(L.shape[0]):
+        if not np.any(L[e]):
+            raise ValueError(
+                f"the position record L of experiment {e} is zero everywhere: the encoders "
+                "recorded nothing, so no impedance can be estimated"
+            )
+
+
 def _solve_frf(R: np.ndarray, Lm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``Z = −R 𝓛⁺`` and ``𝓛⁺`` per frequency. R, Lm: ``(K, n, E)``."""
     Lpinv = np.linalg.pinv(Lm)  # (K, E, n)
@@ -49,6 +60,7 @@ def estimate_frf(run: Run, *, cond_warn: float = 1e3) -> FRF:
     one-rod-at-a-time failure) and raises ``ValueError`` where 𝓛 is rank deficient.
     """
     validate_run(run)
+    _nonzero_positions(run.L)
     Tp, E, n = run.period_samples, run.R_A.shape[0], run.n
     P = run.n_periods
     bins = np.round(np.asarray(run.freq_hz) * Tp / run.fs_hz).astype(int)
@@ -171,6 +183,8 @@ def estimate_frf_h1(
         if not np.all(np.isfinite(a)):
             raise ValueError(f"{name} contains NaN or inf")
     E, T, n = R_A.shape
+    if reference == "L":
+        _nonzero_positions(L)
     if nperseg > T or nperseg < 8:
         raise ValueError(f"nperseg = {nperseg} must be between 8 and the record length {T}")
     if window not in ("hann", "boxcar"):
