@@ -5,7 +5,8 @@ damping ratio ``ζ_k``, modal mass ``m_k`` kg): receptance
 ``x/F = Σ_k 1/(m_k (ω_k² − ω² + 2jζ_k ω_k ω))``, dynamic stiffness ``Z = F/x`` its inverse
 (:func:`modal_impedance`). :func:`hammer_records` strikes it with short half-sine force pulses
 and returns the force and the acceleration, computed in the frequency domain over a
-zero-padded record (so each hit's response is the structure's exact response at the DFT bins),
+record zero-padded past the slowest mode's decay (the response from rest of the structure
+sampled at ``fs_hz``: its DFT-bin transfer function is the closed form),
 with white noise added on both channels.
 """
 
@@ -51,27 +52,31 @@ def hammer_records(
     Each hit is a half-sine pulse of ``pulse_s`` seconds and a random amplitude in 0.7–1.3 kN
     (starting 5 % into its span, at a random sub-sample offset). ``force_noise`` and
     ``response_noise`` are white-noise std relative to the largest force and acceleration.
-    ``separate``: one record per hit (``(hits, T, 1)``) instead of one record ``(1, hits·T, 1)``
-    (the records are the same samples either way). Returns a :class:`TimeSeries` (``force_unit``
+    ``separate``: one record per hit (``(hits, T, 1)``, each starting with the structure at
+    rest, as a hammer test records each hit) instead of one record ``(1, hits·T, 1)`` (each hit
+    adds to the previous hits' decay). Returns a :class:`TimeSeries` (``force_unit``
     N, ``length_unit`` m; the response is an acceleration).
     """
     rng = np.random.default_rng(seed)
     span = int(round(hit_spacing_s * fs_hz))
-    T = hits * span
-    t = np.arange(T) / fs_hz
-    F = np.zeros(T)
+    t = np.arange(span) / fs_hz
+    pulses = np.zeros((hits, span))
     for h in range(hits):
-        t0 = (h * span + 0.05 * span + rng.uniform(0, 1)) / fs_hz
+        t0 = (0.05 * span + rng.uniform(0, 1)) / fs_hz
         on = (t >= t0) & (t <= t0 + pulse_s)
-        F[on] += rng.uniform(700, 1300) * np.sin(np.pi * (t[on] - t0) / pulse_s)
-    P = 2 * T  # zero padding: the last hit's decay does not wrap onto the first
+        pulses[h, on] = rng.uniform(700, 1300) * np.sin(np.pi * (t[on] - t0) / pulse_s)
+    F = pulses if separate else pulses.reshape(1, -1)
+    T = F.shape[1]
+    # zero padding past 12 decay times of the slowest mode: the DFT's periodic response is the
+    # response from rest (no wrap-around onto the record's start)
+    decay = max(1.0 / (zeta * 2 * np.pi * fk) for fk, zeta, _ in modes)
+    P = int(2 ** np.ceil(np.log2(T + 12 * decay * fs_hz)))
     f = np.fft.rfftfreq(P, 1 / fs_hz)
     A = np.fft.irfft(np.fft.rfft(F, P) * (2j * np.pi * f) ** 2 * modal_receptance(f, modes), P)
-    A = A[:T]
-    F = F + force_noise * np.abs(F).max() * rng.standard_normal(T)
-    A = A + response_noise * np.abs(A).max() * rng.standard_normal(T)
-    shape = (hits, span, 1) if separate else (1, T, 1)
-    return TimeSeries(fs_hz=fs_hz, force=F.reshape(shape), response=A.reshape(shape))
+    A = A[:, :T]
+    F = F + force_noise * np.abs(F).max() * rng.standard_normal(F.shape)
+    A = A + response_noise * np.abs(A).max() * rng.standard_normal(A.shape)
+    return TimeSeries(fs_hz=fs_hz, force=F[..., None], response=A[..., None])
 
 
 __all__ = ["hammer_records", "modal_impedance", "modal_receptance", "EXAMPLE_MODES"]

@@ -254,8 +254,11 @@ def estimate_impedance(
         raise ValueError(f"no frequency bin in {lo:g}–{hi:g} Hz (spacing {ts.fs_hz / L:g} Hz)")
     k = RESPONSE_KINDS[response]
     w = np.asarray(frf.omega)
-    Z = np.asarray(frf.Z_T) * (1j * w)[:, None, None] ** k
-    std = np.asarray(frf.Z_T_std) * (w[:, None, None] ** k)
+    # the windowed response is the windowed system's: a velocity or acceleration response
+    # converts with (jω + 1/τ)^k, so that Z is exactly Z(jω + 1/τ)
+    s = 1j * w + (0.0 if exp_tau_s is None else 1.0 / exp_tau_s)
+    Z = np.asarray(frf.Z_T) * s[:, None, None] ** k
+    std = np.asarray(frf.Z_T_std) * (np.abs(s)[:, None, None] ** k)
     coh = None
     if n_seg <= ts.n:
         std = None
