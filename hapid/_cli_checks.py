@@ -64,6 +64,9 @@ SEED = int_between(0, 2**32 - 1)
 MOVE_LIMIT_M = 0.2  # the base hexagon's radius: the stylus stays inside the rods' reach
 ROT_LIMIT_RAD = 0.5
 
+#: no numeric option is larger in size than this (a value such as 1e300 is a typo, and would
+#: overflow the simulation or the fit)
+MAGNITUDE_MAX = 1e12
 #: largest --n-freq of predict/plant: their files hold S draws × N frequencies × n × n
 N_FREQ_DRAWS_MAX = 100_000
 
@@ -157,7 +160,7 @@ def _pos_list(v):
 
 
 def _walkers(v):
-    return _int(v) and (v == 0 or v >= 2)
+    return _int(v) and (v == 0 or 2 <= v <= 100_000)
 
 
 # options that mean the same thing in every subcommand that has them
@@ -166,9 +169,9 @@ COMMON: dict[str, tuple] = {
     "rod_compliance": between(1e-3, 1e3),  # the --device options: hapid._cli_device
     "fs": gt(0, " Hz"),
     "freqs": (_freqs, "'paper' or a comma list of frequencies > 0 Hz (e.g. 1,2,5)"),
-    "period": int_ge(2),
-    "periods": int_ge(1),
-    "transient": int_ge(0),
+    "period": int_between(2, 10**6),
+    "periods": int_between(1, 10**4),
+    "transient": int_between(0, 10**6),
     "pattern": one_of(["paper", "one_at_a_time", "hadamard"]),
     "phases": one_of(["random", "schroeder", "min_crest"]),
     "amplitude": gt(0, " N"),
@@ -190,7 +193,7 @@ COMMON: dict[str, tuple] = {
     "f_max_hz": gt(0, " Hz"),
     "f_min_hz": ge(0, " Hz"),
     "h1": FLAG,
-    "nperseg": int_ge(8),
+    "nperseg": int_between(8, 10**8),
     "response": one_of(["displacement", "velocity", "acceleration"]),
     "sign": one_of(["+", "-"]),
     "window": one_of(["hann", "boxcar"]),
@@ -212,26 +215,26 @@ COMMON: dict[str, tuple] = {
     "no_model_error": FLAG,
     "delay": int_between(0, 1000),
     "omega_c_hz": gt(0, " Hz"),
-    "max_steps": int_ge(1),
+    "max_steps": int_between(1, 10**6),
     "band_hz": gt(0, " Hz"),
     "allow_unconverged": FLAG,
     "keep_boundary": FLAG,
     "controller": ANY,
     "k": gt(0),
     "siso_gain": gt(0),
-    "walkers": (_walkers, "0 (= 2·dim + 2) or an integer ≥ 2·dim"),
+    "walkers": (_walkers, "0 (= 2·dim + 2) or an integer in [2·dim, 100000]"),
     "free_boundary": FLAG,
     "moves": one_of(["de", "laplace_de", "de_mix", "stretch"]),
-    "steps": int_ge(1),
+    "steps": int_between(1, 10**7),
     "subjects": int_between(0, 10_000),
     "gm_db": between(0, 60, " dB"),
     "pm_deg": between(0, 180, "°", hi_open=True),
-    "max_samples": int_ge(1),
+    "max_samples": int_between(1, 10**7),
     "all_metrics": FLAG,  # robust: also the disk margin and T peak
-    "chunk": int_ge(1),
+    "chunk": int_between(1, 10**5),
     "processes": int_between(1, 4096),  # sweep, robust: local jax.distributed processes
-    "n_train": int_ge(1),
-    "n_holdout": int_ge(1),
+    "n_train": int_between(1, 10**6),
+    "n_holdout": int_between(1, 10**6),
     "quantile": between(0, 1, lo_open=True),
     "free_dc": FLAG,
     "predictive": FLAG,
@@ -258,7 +261,7 @@ PER_COMMAND: dict[str, dict] = {
                 "out": _Out("a JSON report", (".json",)),
                 "design": _In("a design file from hapid tune", (".npz",))},
     "posterior": {"frf": _In("an FRF file", RUN_EXT), "out": _Out("a samples file", (".npz",)),
-                  "model": _In("a model file", ARRAY_EXT), "samples": int_ge(1),
+                  "model": _In("a model file", ARRAY_EXT), "samples": int_between(1, 10**7),
                   "model_error": one_of(["white", "gp", "gp_corr", "none"]),
                   "hdf5": _Out("an emcee HDF5 backend file", (".h5", ".hdf5"))},
     "robust": {"samples": _In("a posterior-samples file", (".npz",)), "frf": _In("an FRF file", RUN_EXT),
@@ -318,6 +321,12 @@ def check_option(command: str, opt: str, dest: str, value) -> None:
     test, allowed = rule
     if not test(value):
         raise ValueError(f"{opt} must be {allowed}, got {_show(value)}")
+    for v in value if isinstance(value, list | tuple) else [value]:
+        if _num(v) and abs(v) > MAGNITUDE_MAX:
+            raise ValueError(
+                f"{opt} must be at most {MAGNITUDE_MAX:g} in size (no physical value is larger), "
+                f"got {_show(value)}"
+            )
 
 
 def options(parser, command: str):
@@ -604,7 +613,7 @@ def _scene_rules() -> dict:
         "controller.siso_pm_deg": between(0, 180, "°", True, True),
         "analysis.f_min_hz": between(0, nyq, " Hz", True, True),
         "analysis.n_freq": int_between(16, 1_000_000), "analysis.band_hz": gt(0, " Hz"),
-        "posterior.walkers": (_walkers, "0 (= 2·dim + 2) or an integer ≥ 2"),
+        "posterior.walkers": (_walkers, "0 (= 2·dim + 2) or an integer in [2, 100000]"),
         "posterior.steps": int_ge(1), "posterior.seed": SEED, "posterior.samples": int_ge(1),
         "outputs.want": (lambda v: isinstance(v, list) and all(x in OUTPUTS for x in v),
                          f"a list of {', '.join(OUTPUTS)}"),

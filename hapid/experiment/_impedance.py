@@ -42,6 +42,8 @@ from ._transient import (
 RESPONSE_KINDS = {"displacement": 0, "velocity": 1, "acceleration": 2}
 #: Welch segment length (samples) when none is given
 NPERSEG = 2048
+#: the force and exponential windows span at least this many samples
+WINDOW_MIN_SAMPLES = 4
 #: impact responses that decay less than this (dB) by the segment end leak (auto refuses)
 DECAY_MIN_DB = 20.0
 
@@ -201,6 +203,11 @@ def estimate_impedance(
     hi = ts.fs_hz / 2 if f_max_hz is None else min(float(f_max_hz), ts.fs_hz / 2)
     if not lo < hi:
         raise ValueError(f"empty band {lo:g}–{hi:g} Hz")
+    for name, v in (("force_window_s", force_window_s), ("exp_tau_s", exp_tau_s)):
+        if v is not None and v * ts.fs_hz < WINDOW_MIN_SAMPLES:
+            raise ValueError(
+                f"{name} {v:g} s is shorter than {WINDOW_MIN_SAMPLES} samples at {ts.fs_hz:g} Hz"
+            )
     method, frac = _choose(ts, estimate)
     notes: list[str] = []
     if f_max_hz is not None and f_max_hz > ts.fs_hz / 2:
@@ -247,6 +254,9 @@ def estimate_impedance(
         win = {"hann": "scipy periodic Hann, 50 % overlap", "boxcar": "rectangular, no overlap"}[
             window
         ]
+    fgrid = np.fft.rfftfreq(L, 1.0 / ts.fs_hz)
+    if not np.any(band_mask(fgrid, lo, hi) & (fgrid > 0)):
+        raise ValueError(f"no frequency bin in {lo:g}–{hi:g} Hz (spacing {ts.fs_hz / L:g} Hz)")
     R = -float(sign) * seg_F
     frf = estimate_frf_h1(ts.fs_hz, R, R, seg_Y, nperseg=L, f_band_hz=(lo, hi),
                           reference="R_A", window=wname)  # fmt: skip
@@ -267,7 +277,6 @@ def estimate_impedance(
     else:
         XF = segment_spectra(seg_F, L, wname).reshape(-1, L // 2 + 1, ts.n)
         XY = segment_spectra(seg_Y, L, wname).reshape(-1, L // 2 + 1, ts.n)
-        fgrid = np.fft.rfftfreq(L, 1.0 / ts.fs_hz)
         idx = np.nonzero(band_mask(fgrid, lo, hi) & (fgrid > 0))[0]
         coh = coherence(XF[:, idx], XY[:, idx])
     z = as_impedance_frf(w / (2 * np.pi), Z, std, unit=ts.z_unit, coherence=coh,
