@@ -304,6 +304,9 @@ def run_fit(a) -> None:
                           "a stable passive structure (negative damping or stiffness)",
                           stacklevel=1)  # fmt: skip
     else:
+        for which, so in (("hand", fitted.model.hand), ("total", fitted.model.total)):
+            for line in matrices_report(so, None, units, label=f"{which} ", std_note=False):
+                print(line)
         after = crhp_report(fitted.model)
         print(f"CRHP roots of det Ẑ_H, det Ẑ_T: {int(after.hand)}, {int(after.total)} (of "
               f"{2 * data.n} each)")  # fmt: skip

@@ -105,19 +105,24 @@ def _cell(x: float, sd: float | None) -> str:
     return f"{x:+.4g}" if sd is None else f"{x:+.4g} ± {sd:.2g}"
 
 
-def matrices_report(model, std, units: dict) -> list[str]:
+def matrices_report(
+    model, std, units: dict, *, label: str = "", std_note: bool = True
+) -> list[str]:
     """Lines showing the fitted ``M, B, K`` with their std (``std``: a ``SecondOrder`` or
     ``None``): every entry for n ≤ 3; for larger n the eigenvalues of the symmetric part and
-    the diagonal ± std. For n = 1 also the natural frequency and damping ratio."""
+    the diagonal ± std. For n = 1 also the natural frequency and damping ratio. ``label``
+    prefixes each matrix name (e.g. ``"hand "``); ``std_note``: say when std are missing."""
     out = []
     n = int(np.shape(model.M)[0])
     for k in "MBK":
         A = np.asarray(getattr(model, k), dtype=np.float64)
         S = None if std is None else np.asarray(getattr(std, k), dtype=np.float64)
-        head = f"{k} [{units[k]}]"
+        head = f"{label}{k} [{units[k]}]"
         if n <= 3:
-            rows = ["  ".join(_cell(A[i, j], None if S is None else S[i, j]) for j in range(n))
-                    for i in range(n)]  # fmt: skip
+            cells = [[_cell(A[i, j], None if S is None else S[i, j]) for j in range(n)]
+                     for i in range(n)]  # fmt: skip
+            w = max(len(c) for row in cells for c in row)
+            rows = ["  ".join(c.ljust(w) for c in row).rstrip() for row in cells]
             out.append(f"{head}: {rows[0]}")
             pad = " " * (len(head) + 2)
             out += [pad + r for r in rows[1:]]
@@ -131,6 +136,6 @@ def matrices_report(model, std, units: dict) -> list[str]:
             fn = np.sqrt(k / m) / (2 * np.pi)
             out.append(f"one mode: f_n = √(K/M)/2π = {fn:.5g} Hz, ζ = B/(2√(KM)) = "
                        f"{b / (2 * np.sqrt(k * m)):.3g}")  # fmt: skip
-    if std is None:
+    if std is None and std_note:
         out.append("std: not available for this method (--method nls gives them)")
     return out
