@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from ._cli_checks_io import check_model_matches_device, check_out_not_input
 from ._cli_device import PRESETS_TEXT, variant_flags
 
 # ---- value tests ----------------------------------------------------------------------------
@@ -62,6 +63,12 @@ FLAG = (lambda v: isinstance(v, bool)), "true or false"
 SEED = int_between(0, 2**32 - 1)
 MOVE_LIMIT_M = 0.2  # the base hexagon's radius: the stylus stays inside the rods' reach
 ROT_LIMIT_RAD = 0.5
+
+#: no numeric option is larger in size than this (a value such as 1e300 is a typo, and would
+#: overflow the simulation or the fit)
+MAGNITUDE_MAX = 1e12
+#: largest --n-freq of predict/plant: their files hold S draws × N frequencies × n × n
+N_FREQ_DRAWS_MAX = 100_000
 
 RUN_EXT = (".npz", ".csv", ".mat")
 ARRAY_EXT = (".npz", ".mat")
@@ -153,18 +160,18 @@ def _pos_list(v):
 
 
 def _walkers(v):
-    return _int(v) and (v == 0 or v >= 2)
+    return _int(v) and (v == 0 or 2 <= v <= 100_000)
 
 
 # options that mean the same thing in every subcommand that has them
 COMMON: dict[str, tuple] = {
     "device": (lambda v: v in _presets(), f"a preset device ({PRESETS_TEXT})"),
-    "rod_compliance": gt(0),  # the --device options: hapid._cli_device
+    "rod_compliance": between(1e-3, 1e3),  # the --device options: hapid._cli_device
     "fs": gt(0, " Hz"),
     "freqs": (_freqs, "'paper' or a comma list of frequencies > 0 Hz (e.g. 1,2,5)"),
-    "period": int_ge(2),
-    "periods": int_ge(1),
-    "transient": int_ge(0),
+    "period": int_between(2, 10**6),
+    "periods": int_between(1, 10**4),
+    "transient": int_between(0, 10**6),
     "pattern": one_of(["paper", "one_at_a_time", "hadamard"]),
     "phases": one_of(["random", "schroeder", "min_crest"]),
     "amplitude": gt(0, " N"),
@@ -186,10 +193,13 @@ COMMON: dict[str, tuple] = {
     "f_max_hz": gt(0, " Hz"),
     "f_min_hz": ge(0, " Hz"),
     "h1": FLAG,
-    "nperseg": int_ge(8),
+    "nperseg": int_between(8, 10**8),
     "response": one_of(["displacement", "velocity", "acceleration"]),
     "sign": one_of(["+", "-"]),
     "window": one_of(["hann", "boxcar"]),
+    "estimate": one_of(["auto", "impact", "welch"]),
+    "force_window": gt(0, " s"),
+    "exp_tau": gt(0, " s"),
     "fs_hz": gt(0, " Hz"),
     "force_key": ANY,
     "response_key": ANY,
@@ -205,26 +215,26 @@ COMMON: dict[str, tuple] = {
     "no_model_error": FLAG,
     "delay": int_between(0, 1000),
     "omega_c_hz": gt(0, " Hz"),
-    "max_steps": int_ge(1),
+    "max_steps": int_between(1, 10**6),
     "band_hz": gt(0, " Hz"),
     "allow_unconverged": FLAG,
     "keep_boundary": FLAG,
     "controller": ANY,
     "k": gt(0),
     "siso_gain": gt(0),
-    "walkers": (_walkers, "0 (= 2·dim + 2) or an integer ≥ 2·dim"),
+    "walkers": (_walkers, "0 (= 2·dim + 2) or an integer in [2·dim, 100000]"),
     "free_boundary": FLAG,
     "moves": one_of(["de", "laplace_de", "de_mix", "stretch"]),
-    "steps": int_ge(1),
+    "steps": int_between(1, 10**7),
     "subjects": int_between(0, 10_000),
     "gm_db": between(0, 60, " dB"),
     "pm_deg": between(0, 180, "°", hi_open=True),
-    "max_samples": int_ge(1),
+    "max_samples": int_between(1, 10**7),
     "all_metrics": FLAG,  # robust: also the disk margin and T peak
-    "chunk": int_ge(1),
+    "chunk": int_between(1, 10**5),
     "processes": int_between(1, 4096),  # sweep, robust: local jax.distributed processes
-    "n_train": int_ge(1),
-    "n_holdout": int_ge(1),
+    "n_train": int_between(1, 10**6),
+    "n_holdout": int_between(1, 10**6),
     "quantile": between(0, 1, lo_open=True),
     "free_dc": FLAG,
     "predictive": FLAG,
@@ -251,7 +261,7 @@ PER_COMMAND: dict[str, dict] = {
                 "out": _Out("a JSON report", (".json",)),
                 "design": _In("a design file from hapid tune", (".npz",))},
     "posterior": {"frf": _In("an FRF file", RUN_EXT), "out": _Out("a samples file", (".npz",)),
-                  "model": _In("a model file", ARRAY_EXT), "samples": int_ge(1),
+                  "model": _In("a model file", ARRAY_EXT), "samples": int_between(1, 10**7),
                   "model_error": one_of(["white", "gp", "gp_corr", "none"]),
                   "hdf5": _Out("an emcee HDF5 backend file", (".h5", ".hdf5"))},
     "robust": {"samples": _In("a posterior-samples file", (".npz",)), "frf": _In("an FRF file", RUN_EXT),
@@ -264,8 +274,9 @@ PER_COMMAND: dict[str, dict] = {
              "out": _Out("a design file", (".npz",)), "report": _Out("a JSON report", (".json",))},
     "paper": {"out": _Out("an output folder"), "scene": _In("a scene TOML", (".toml",))},
     "predict": {"samples": _In("a posterior-samples file", (".npz",)), "out": _Out("a draws file", (".npz",)),
-                "f_min_hz": gt(0, " Hz"), "n_freq": int_ge(2), "no_model_error": FLAG},
-    "plant": {"out": _Out("an FRF file", (".npz",)), "n_freq": int_ge(2), "f_min_hz": gt(0, " Hz")},
+                "f_min_hz": gt(0, " Hz"), "n_freq": int_between(2, N_FREQ_DRAWS_MAX), "no_model_error": FLAG},
+    "plant": {"out": _Out("an FRF file", (".npz",)), "n_freq": int_between(2, N_FREQ_DRAWS_MAX),
+              "f_min_hz": gt(0, " Hz")},
     "run": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder")},
 }  # fmt: skip
 
@@ -310,6 +321,12 @@ def check_option(command: str, opt: str, dest: str, value) -> None:
     test, allowed = rule
     if not test(value):
         raise ValueError(f"{opt} must be {allowed}, got {_show(value)}")
+    for v in value if isinstance(value, list | tuple) else [value]:
+        if _num(v) and abs(v) > MAGNITUDE_MAX:
+            raise ValueError(
+                f"{opt} must be at most {MAGNITUDE_MAX:g} in size (no physical value is larger), "
+                f"got {_show(value)}"
+            )
 
 
 def options(parser, command: str):
@@ -329,8 +346,15 @@ def check_args(parser, a) -> None:
     rules); raise ``ValueError`` naming the first problem. Does no work beyond reading small
     text files (scenes)."""
     cmd = a.command
+    outs, ins = {}, {}
     for dest, flag in options(parser, cmd):
         check_option(cmd, flag, dest, getattr(a, dest, None))
+        rule = PER_COMMAND.get(cmd, {}).get(dest) or COMMON.get(dest)
+        if isinstance(rule, _Out) and rule.ext is not None:
+            outs[flag] = getattr(a, dest, None)
+        elif isinstance(rule, _In):
+            ins[flag] = getattr(a, dest, None)
+    check_out_not_input(outs, ins)
     extra = _CROSS.get(cmd)
     if extra is not None:
         extra(a)
@@ -390,6 +414,7 @@ def _robust_cross(a):
         raise ValueError("--draws params checks the samples' own plants: give --samples")
     if len(a.model) > 1 and a.out is not None and Path(a.out).suffix.lower() != ".json":
         raise ValueError(f"--out must be a .json file, got {a.out}")
+    check_model_matches_device(a.model, a.device)
 
 
 def _run_cross(a):
@@ -564,8 +589,8 @@ def _scene_rules() -> dict:
         "device.encoder": one_of(["motor", "rod"]),
         "device.delay_samples": (lambda v: v is None or COMMON["delay"][0](v),
                                  "an integer in [0, 1000] (samples; unset: the preset's)"),
-        "device.rod_compliance": (lambda v: v is None or (_num(v) and v > 0),
-                                  "a number > 0 (unset: the preset's)"),
+        "device.rod_compliance": (lambda v: v is None or COMMON["rod_compliance"][0](v),
+                                  "a number in [0.001, 1000] (unset: the preset's)"),
         "protocol.freqs": (_scene_freqs, "'paper' or a non-empty list of frequencies > 0 Hz"),
         "protocol.periods": int_ge(1), "protocol.transient": int_ge(0),
         "protocol.pattern": COMMON["pattern"], "protocol.phases": COMMON["phases"],
@@ -588,7 +613,7 @@ def _scene_rules() -> dict:
         "controller.siso_pm_deg": between(0, 180, "°", True, True),
         "analysis.f_min_hz": between(0, nyq, " Hz", True, True),
         "analysis.n_freq": int_between(16, 1_000_000), "analysis.band_hz": gt(0, " Hz"),
-        "posterior.walkers": (_walkers, "0 (= 2·dim + 2) or an integer ≥ 2"),
+        "posterior.walkers": (_walkers, "0 (= 2·dim + 2) or an integer in [2, 100000]"),
         "posterior.steps": int_ge(1), "posterior.seed": SEED, "posterior.samples": int_ge(1),
         "outputs.want": (lambda v: isinstance(v, list) and all(x in OUTPUTS for x in v),
                          f"a list of {', '.join(OUTPUTS)}"),

@@ -19,11 +19,14 @@ report lines (a Cramér–Rao band, an error against a known true plant) go thro
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Callable
 
 import numpy as np
 
+from ._cli_lab import matrices_report
 from ._constants import TWO_PI
+from ._grids import band_mask
 from .defaults import FIT_BAND_HZ
 
 
@@ -43,6 +46,7 @@ class Fitted:
     quality: object = None
     before: object = None
     notes: tuple[str, ...] = ()
+    std: object = None
 
 
 def _nls_refuse(res, a):
@@ -138,7 +142,16 @@ def _single(method: str):
         if method == "nls":
             status += f" after {res.n_steps} steps, cost {res.cost:.4g}"
         notes = (f"at the PSD boundary: {', '.join(res.boundary)}",) if res.boundary else ()
-        return Fitted(res.model, res.metadata(), status, quality=res.quality, notes=notes)
+        if method == "nls":
+            chi = res.reduced_chi2
+            notes += ((f"reduced χ² {chi:.3g}: std of M, B, K scaled by it (relative weights)"
+                       if a.weight == "relative" else
+                       f"reduced χ² {chi:.3g}: std of M, B, K scaled by it (noise weights; the "
+                       "FRF's std under-state the misfit)" if res.sigma2 != 1.0 else
+                       f"reduced χ² {chi:.3g} (noise weights): std of M, B, K from the FRF's std, "
+                       "not scaled"),)  # fmt: skip
+        return Fitted(res.model, res.metadata(), status, quality=res.quality, notes=notes,
+                      std=res.model_std)  # fmt: skip
 
     return run
 
@@ -196,7 +209,7 @@ def _band(a, f_all_hz: np.ndarray, f_max_hz: float | None = None) -> tuple[float
     f_max_hz = a.f_max_hz if f_max_hz is None else f_max_hz
     lo = 0.0 if a.f_min_hz is None else float(a.f_min_hz)
     hi = np.inf if f_max_hz is None else float(f_max_hz)
-    n_in = int(np.sum((f_all_hz >= lo) & (f_all_hz <= hi)))
+    n_in = int(np.sum(band_mask(f_all_hz, lo, hi)))
     if n_in < 3:
         raise FitCommandError(
             f"only {n_in} of the file's {f_all_hz.size} frequencies "
@@ -281,15 +294,21 @@ def run_fit(a) -> None:
     if single:
         m = fitted.model
         n_crhp = int(m.n_crhp_roots())
-        print(f"model M [{units['M']}], B [{units['B']}], K [{units['K']}]; closed-RHP roots "
-              f"of det Ẑ: {n_crhp} of {2 * m.n}")  # fmt: skip
+        for line in matrices_report(m, fitted.std, units):
+            print(line)
+        print(f"closed-RHP roots of det Ẑ: {n_crhp} of {2 * m.n}")
+        if n_crhp:
+            warnings.warn(f"det Ẑ has {n_crhp} closed-right-half-plane root(s): the model is not "
+                          "a stable passive structure (negative damping or stiffness)",
+                          stacklevel=1)  # fmt: skip
     else:
+        for which, so in (("hand", fitted.model.hand), ("total", fitted.model.total)):
+            for line in matrices_report(so, None, units, label=f"{which} ", std_note=False):
+                print(line)
         after = crhp_report(fitted.model)
         print(f"CRHP roots of det Ẑ_H, det Ẑ_T: {int(after.hand)}, {int(after.total)} (of "
               f"{2 * data.n} each)")  # fmt: skip
         if int(after.hand) > 0:
-            import warnings
-
             warnings.warn(f"Ẑ_H has {int(after.hand)} closed-right-half-plane root(s): the "
                           "inverse-model controller g Ẑ_T Ẑ_H⁻¹ cancels them unstably, so no g "
                           "makes its loop stable (hapid tune will not certify it); "
@@ -306,63 +325,6 @@ def run_fit(a) -> None:
     for line in q.report():
         print(line)
     print(f"model → {out}")
-
-
-def run_frf_lab(a) -> None:
-    """``hapid frf`` on lab records: H1 over Welch segments → impedance FRF file."""
-    from . import io
-    from .experiment import estimate_impedance_h1
-
-    ts = io.load_timeseries([a.run, *(a.add or [])], fs_hz=a.fs_hz, force_key=a.force_key,
-                            response_key=a.response_key, force_unit=a.force_unit,
-                            length_unit=a.length_unit)  # fmt: skip
-    if a.nperseg > ts.force.shape[1]:
-        raise FitCommandError(
-            f"--nperseg {a.nperseg} is longer than the records ({ts.force.shape[1]} samples)"
-        )
-    z = estimate_impedance_h1(ts, nperseg=a.nperseg, response=a.response,
-                              sign=-1.0 if a.sign == "-" else 1.0,
-                              f_min_hz=a.f_min_hz, f_max_hz=a.f_max_hz,
-                              window=a.window)  # fmt: skip
-    out = io.save_impedance_frf(a.out, z)
-    E, T, n = ts.force.shape
-    seg = E * ((T - a.nperseg) // (a.nperseg if a.window == "boxcar" else a.nperseg // 2) + 1)
-    rel = np.asarray(z.Z_std) / np.maximum(np.abs(np.asarray(z.Z)), 1e-300)
-    conv = {"displacement": "Z = F/x", "velocity": "Z = jω·F/v", "acceleration": "Z = (jω)²·F/a"}
-    f = np.asarray(z.freq_hz)
-    print(f"impedance FRF (single impedance, {'+' if a.sign != '-' else '−'}{conv[a.response]}, "
-          f"unit {z.unit}): H1 over {seg} Welch segments of {a.nperseg} samples "
-          f"({E} experiment{'s' if E > 1 else ''} × {T} samples at {ts.fs_hz:g} Hz, n = {n}); "
-          f"{f.size} frequencies {f.min():g}–{f.max():g} Hz; median relative std of Z "
-          f"{np.median(rel):.2e} → {out}")  # fmt: skip
-
-
-def register_lab_frf_args(f) -> None:
-    """``hapid frf`` options for non-periodic records and lab time series."""
-    lab = f.add_argument_group("non-periodic records and lab time series (H1 over Welch segments)")
-    lab.add_argument("--h1", action="store_true",
-                     help="H1 estimate over Welch segments (implied for a time series)")  # fmt: skip
-    lab.add_argument("--nperseg", type=int, default=2048,
-                     help="samples per Welch segment (default 2048)")  # fmt: skip
-    lab.add_argument("--window", choices=["hann", "boxcar"], default="hann",
-                     help="segment window: hann (default) or boxcar (periodic excitation whose "
-                     "period divides --nperseg: leakage-free)")  # fmt: skip
-    lab.add_argument("--response", choices=["displacement", "velocity", "acceleration"],
-                     default="displacement", help="what the response channels measure; Z = F/x "
-                     "is formed in the frequency domain (default displacement)")  # fmt: skip
-    lab.add_argument("--sign", choices=["+", "-"], default="+", help="+: Z = +F/x (force on the "
-                     "structure, displacement the same way; default); -: reaction force, Z = -F/x")  # fmt: skip
-    lab.add_argument("--fs-hz", type=float, help="sampling rate in Hz, if the file has no fs_hz")
-    lab.add_argument("--force-key", default="force",
-                     help="array holding the forces (default force)")  # fmt: skip
-    lab.add_argument("--response-key", default="response",
-                     help="array holding the responses (default response)")  # fmt: skip
-    lab.add_argument("--add", action="append", metavar="FILE", help="another record file: more "
-                     "experiments (same length and channels); repeat as needed")  # fmt: skip
-    lab.add_argument("--force-unit", help="unit of the forces (default: the file's, else N)")
-    lab.add_argument("--length-unit", help="unit of the displacement (default: the file's, else m)")
-    lab.add_argument("--f-min-hz", type=float, help="lowest frequency kept (Hz; default above DC)")
-    lab.add_argument("--f-max-hz", type=float, help="highest frequency kept (Hz; default fs/2)")
 
 
 def register_fit(sub, func) -> None:

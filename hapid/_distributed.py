@@ -33,6 +33,7 @@ import os
 import socket
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
@@ -208,10 +209,21 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def _relay_stdout(stream) -> None:
+    """Copy process 0's stdout to ours, without the collective library's connection lines
+    (``[Gloo] Rank 0 is connected to …``), which are not hapid's output."""
+    for raw in iter(stream.readline, b""):
+        if not raw.startswith(b"[Gloo]"):
+            sys.stdout.write(raw.decode(errors="replace"))
+            sys.stdout.flush()
+    stream.close()
+
+
 def launch_local(argv: list[str], n: int, *, timeout: float | None = None) -> int:
     """Run ``python -m hapid.cli argv`` as ``n`` local processes joined by ``jax.distributed``
     (coordinator 127.0.0.1 on a free port); process 0's output is shown, the others' stdout
-    is discarded (their errors are shown). If one fails, the others are stopped. Returns the
+    is discarded (their errors are shown); the collective library's ``[Gloo]`` connection lines are dropped
+    from process 0's output. If one fails, the others are stopped. Returns the
     largest exit code."""
     if n < 1:
         raise ValueError(f"--processes must be ≥ 1, got {n}")
@@ -224,9 +236,11 @@ def launch_local(argv: list[str], n: int, *, timeout: float | None = None) -> in
             subprocess.Popen(
                 [sys.executable, "-m", "hapid.cli", *argv],
                 env=env,
-                stdout=None if i == 0 else subprocess.DEVNULL,
+                stdout=subprocess.PIPE if i == 0 else subprocess.DEVNULL,
             )  # fmt: skip
         )
+    relay = threading.Thread(target=_relay_stdout, args=(procs[0].stdout,), daemon=True)
+    relay.start()
     t0 = time.monotonic()
     rcs: list[int | None] = [None] * n
     while any(rc is None for rc in rcs):
@@ -240,5 +254,6 @@ def launch_local(argv: list[str], n: int, *, timeout: float | None = None) -> in
                     rcs[k] = p.wait()
             break
         time.sleep(0.05)
+    relay.join(timeout=5.0)
     failed = [int(rc) for rc in rcs if rc and rc > 0]  # a worker's own exit code first
     return failed[0] if failed else max(abs(int(rc)) for rc in rcs)

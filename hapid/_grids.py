@@ -31,6 +31,13 @@ NYQUIST_F_MIN_HZ = 1e-3
 NYQUIST_N = 1500
 
 
+def band_mask(f: np.ndarray, lo: float, hi: float, rtol: float = 1e-9) -> np.ndarray:
+    """``lo ≤ f ≤ hi`` with a relative tolerance on both edges (a bin stored as
+    920.0000000000001 Hz is inside a band edge given as 920)."""
+    f = np.asarray(f, dtype=np.float64)
+    return (f >= lo - rtol * abs(lo)) & (f <= hi + rtol * abs(hi))
+
+
 def _traced(*xs) -> bool:
     return any(isinstance(x, jax.core.Tracer) for x in xs)
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from ._cli_device import add_device_args, describe, device_from_args
 from .defaults import FIT_BAND_HZ, GM_DB, PM_DEG
+from .experiment._impedance import NPERSEG
 
 EXAMPLES = """examples:
   hapid simulate --device cu5 --out run.npz            # the paper's protocol on cu5
@@ -89,6 +90,17 @@ def cmd_simulate(a):
           f"{len(run.freq_hz)} frequencies {run.freq_hz.min():g}–{run.freq_hz.max():g} Hz → {out}")  # fmt: skip
 
 
+def _run_frf(a, run, estimate_frf, estimate_frf_h1):
+    """The haptic pair from a run file: periodic estimate, or H1 with ``--h1``."""
+    if a.h1:
+        frf = estimate_frf_h1(run.fs_hz, run.R_A, run.R_I, run.L, nperseg=a.nperseg or NPERSEG,
+                              f_band_hz=(a.f_min_hz or 0.0, a.f_max_hz or run.fs_hz / 2),
+                              window=a.window)  # fmt: skip
+    else:
+        frf = estimate_frf(run, cond_warn=a.cond_warn)
+    return frf
+
+
 def cmd_frf(a):
     import numpy as np
 
@@ -101,19 +113,27 @@ def cmd_frf(a):
         else io.file_kind(a.run, "a run file or a time-series file")
     )
     if kind in ("timeseries", "unknown"):  # unknown: the reader names the arrays it found
-        from ._cli_fit import run_frf_lab
+        from ._cli_lab import run_frf_lab
 
         return run_frf_lab(a)  # lab records → single impedance Z = F/x
     if kind != "run":
         raise CLIError(f"{a.run}: holds a {kind} file; hapid frf takes a run file (R_A, R_I, L) "
                        "or a time series (fs_hz, force, response)")  # fmt: skip
     run = io.load_run(a.run)
-    if a.h1:
-        frf = estimate_frf_h1(run.fs_hz, run.R_A, run.R_I, run.L, nperseg=a.nperseg,
-                              f_band_hz=(a.f_min_hz or 0.0, a.f_max_hz or run.fs_hz / 2),
-                              window=a.window)  # fmt: skip
-    else:
-        frf = estimate_frf(run, cond_warn=a.cond_warn)
+    if a.h1 and a.f_max_hz is not None and a.f_max_hz > run.fs_hz / 2:
+        print(f"note: --f-max-hz {a.f_max_hz:g} is above the Nyquist frequency: the FRF ends at "
+              f"fs/2 = {run.fs_hz / 2:g} Hz")  # fmt: skip
+    for opt, v in (
+        ("--estimate", a.estimate != "auto"),
+        ("--force-window", a.force_window),
+        ("--exp-tau", a.exp_tau),
+    ):
+        if v:
+            raise CLIError(f"{opt} is for lab time series (force, response); {a.run} is a run file")
+    try:
+        frf = _run_frf(a, run, estimate_frf, estimate_frf_h1)
+    except ValueError as e:
+        raise CLIError(f"{a.run}: {e}") from None
     out = io.save_frf(a.out, frf)
     rel = np.asarray(frf.Z_H_std) / np.abs(np.asarray(frf.Z_H)) if frf.Z_H_std is not None else None
     print(f"FRF (haptic pair Z_H, Z_T in N/m{', H1' if a.h1 else ''}): {frf.Z_H.shape[0]} "
@@ -153,7 +173,7 @@ def cmd_demo(a):
 
 
 def _register_lab_frf_args(f):
-    from ._cli_fit import register_lab_frf_args
+    from ._cli_lab import register_lab_frf_args
 
     register_lab_frf_args(f)
 
@@ -756,12 +776,13 @@ _EXTRA: list = [
 
 
 def _one_line_errors(parser) -> None:
-    """argparse's own errors (bad type, missing option) as one ``hapid: error:`` line too."""
+    """argparse's own errors (bad type, bad choice, missing option, unknown subcommand) as one
+    ``hapid: error:`` line with a hint, instead of the usage dump."""
 
     def error(p, message):
-        p.print_usage(sys.stderr)
         cmd = p.prog.removeprefix("hapid").strip()
-        print(f"hapid: error: {cmd + ': ' if cmd else ''}{message}", file=sys.stderr)
+        hint = f"hapid {cmd} -h lists its options" if cmd else "hapid -h lists the commands"
+        print(f"hapid: error: {cmd + ': ' if cmd else ''}{message} ({hint})", file=sys.stderr)
         sys.exit(2)
 
     parser.error = error.__get__(parser)

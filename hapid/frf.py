@@ -23,6 +23,7 @@ from jaxtyping import Array, Complex, Float
 
 from . import _config  # noqa: F401
 from ._constants import TWO_PI
+from ._grids import band_mask
 from .impedance import plant
 
 
@@ -84,7 +85,7 @@ class FRF(eqx.Module):
     def band(self, f_min_hz: float = 0.0, f_max_hz: float = np.inf) -> FRF:
         """A new FRF restricted to ``f_min_hz ≤ f ≤ f_max_hz``."""
         f = np.asarray(self.freq_hz)
-        return self.select((f >= f_min_hz) & (f <= f_max_hz))
+        return self.select(band_mask(f, f_min_hz, f_max_hz))
 
 
 class PrecisionWarning(UserWarning):

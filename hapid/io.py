@@ -359,7 +359,10 @@ def load_frf(path) -> FRF:
     what = "an FRF file (freq_hz, Z_H, Z_T)"
     d = _read_frf_csv(path) if _fmt(path) == "csv" else _read_lab_arrays(path, what)
     if "Z" in d and "Z_H" not in d:
-        raise FileFormatError(f"{path}: holds a single impedance Z; use load_impedance_frf")
+        raise FileFormatError(
+            f"{path}: holds a single impedance Z (from hapid frf on lab records), not the "
+            "haptic pair Z_H, Z_T; fit it with hapid fit (hapid.io.load_impedance_frf in Python)"
+        )
     _need(d, ("freq_hz", "Z_H", "Z_T"), path)
     for k in ("Z_H", "Z_T", "Z_H_std", "Z_T_std"):  # layout hint for MATLAB's (n, n, N)
         if k in d:
@@ -482,7 +485,8 @@ def load_model_metadata(path) -> dict:
 # - time series: fs_hz (scalar), force and response (T, n) or (E, T, n); optional strings
 #   force_unit, length_unit. CSV: first line "# fs_hz=…" (or a time_s column), then columns
 #   [experiment,] force_0 … force_{n-1}, response_0 … response_{n-1}.
-# - impedance FRF: freq_hz (N,), Z (N, n, n) complex, optional Z_std (N, n, n), unit (text).
+# - impedance FRF: freq_hz (N,), Z (N, n, n) complex, optional Z_std (N, n, n), coherence
+#   (N, n), exp_tau_s (s), unit (text).
 # - impedance model: M, B, K (n, n) plus metadata (method, status, quality_*, …).
 
 TIMESERIES_CSV_LAYOUT = (
@@ -563,6 +567,8 @@ def file_kind(path, what: str = "a hapid .npz or .mat file") -> str:
             raise FileNotFoundError(f"{path}: no such file")
         with _open_text(path) as fh:
             head = fh.readline() + fh.readline()
+        if not head.strip():
+            raise FileFormatError(f"{path}: the file is empty")
         if "R_A_" in head:
             return "run"
         if "Z_H_re_" in head:
@@ -675,6 +681,8 @@ def _csv_table(path, layout: str) -> tuple[dict, list[str], list[str]]:
     if lines and lines[0].startswith("#"):
         meta = dict(p.strip().split("=", 1) for p in lines[0][1:].split(";") if "=" in p)
         lines = lines[1:]
+    if not any(ln.strip() for ln in lines):
+        raise FileFormatError(f"{path}: the file is empty; {layout}")
     if not lines:
         raise FileFormatError(f"{path}: no header row; {layout}")
     return meta, [h.strip() for h in lines[0].split(",")], lines[1:]
@@ -765,15 +773,20 @@ def load_impedance_frf(path):
 
     d = _read_impedance_csv(path) if _fmt(path) == "csv" else _read_lab_arrays(path)
     if "Z_H" in d and "Z" not in d:
-        raise FileFormatError(f"{path}: holds the haptic pair Z_H, Z_T; use load_frf")
+        raise FileFormatError(
+            f"{path}: holds the haptic pair Z_H, Z_T, not a single impedance Z; fit it with "
+            "hapid fit (hapid.io.load_frf in Python)"
+        )
     _need(d, ("freq_hz", "Z"), path)
     f = np.asarray(d["freq_hz"], dtype=np.float64).ravel()
     Z = _frequency_first(d["Z"], f.size, "Z", path)
     std = None if "Z_std" not in d else _frequency_first(d["Z_std"], f.size, "Z_std", path)
+    coh = None if "coherence" not in d else np.asarray(d["coherence"], dtype=np.float64)
+    tau = float(np.asarray(d.get("exp_tau_s", 0.0), dtype=np.float64).reshape(-1)[0])
     try:
         return as_impedance_frf(f, Z.astype(np.complex128),
                                 None if std is None else std.astype(np.float64),
-                                unit=_text(d, "unit", "N/m"))  # fmt: skip
+                                unit=_text(d, "unit", "N/m"), coherence=coh, exp_tau_s=tau)  # fmt: skip
     except (ValueError, TypeError) as e:
         raise FileFormatError(f"{path}: {e}") from None
 
@@ -784,6 +797,10 @@ def save_impedance_frf(path, zfrf) -> Path:
               "Z": np.asarray(zfrf.Z, dtype=np.complex128), "unit": np.asarray(zfrf.unit)}  # fmt: skip
     if zfrf.Z_std is not None:
         arrays["Z_std"] = np.asarray(zfrf.Z_std, dtype=np.float64)
+    if getattr(zfrf, "coherence", None) is not None:
+        arrays["coherence"] = np.asarray(zfrf.coherence, dtype=np.float64)
+    if getattr(zfrf, "exp_tau_s", 0.0):
+        arrays["exp_tau_s"] = np.float64(zfrf.exp_tau_s)
     if _fmt(path) == "csv":
         return _atomic_write(path, lambda fh: fh.write(_impedance_csv(arrays).encode()))
     return _write_arrays(path, arrays)
@@ -798,8 +815,12 @@ def _impedance_csv(arrays: dict) -> str:
     if "Z_std" in arrays:
         cols.append(arrays["Z_std"].reshape(N, n * n))
         names += [f"Z_std_{s}" for s in idx]
+    if "coherence" in arrays:
+        cols.append(arrays["coherence"])
+        names += [f"coherence_{i}" for i in range(n)]
     buf = _io.StringIO()
-    buf.write(f"# unit={arrays['unit']}\n")
+    tau = f"; exp_tau_s={float(arrays['exp_tau_s'])!r}" if "exp_tau_s" in arrays else ""
+    buf.write(f"# unit={arrays['unit']}{tau}\n")
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(names)
     for row in np.concatenate(cols, axis=1):
@@ -825,6 +846,10 @@ def _read_impedance_csv(path) -> dict:
            "Z": _complex(pick([f"Z_re_{s}" for s in idx]), pick([f"Z_im_{s}" for s in idx]))}  # fmt: skip
     if f"Z_std_{idx[0]}" in col:
         out["Z_std"] = pick([f"Z_std_{s}" for s in idx])
+    if "coherence_0" in col:
+        out["coherence"] = data[:, [col[f"coherence_{i}"] for i in range(n)]]
+    if "exp_tau_s" in meta:
+        out["exp_tau_s"] = float(meta["exp_tau_s"])
     if "unit" in meta:
         out["unit"] = np.asarray(meta["unit"])
     return out
@@ -907,13 +932,26 @@ def save_text(path, text: str) -> Path:
     return _atomic_write(path, lambda fh: fh.write(data))
 
 
+def _no_negative_zero(cell):
+    """A cell with negative zero (``-0.0`` or text such as ``-0``, ``-0.000``) written as 0."""
+    if isinstance(cell, float | np.floating) and cell == 0:
+        return 0.0
+    if isinstance(cell, str) and cell.startswith("-"):
+        try:
+            if float(cell) == 0:
+                return cell[1:]
+        except ValueError:
+            pass
+    return cell
+
+
 def save_csv(path, header, rows) -> Path:
     """Write a CSV table (``header``: column names; ``rows``: sequences of cells), atomically."""
     buf = _io.StringIO(newline="")
     w = csv.writer(buf)
     w.writerow(list(header))
     for r in rows:
-        w.writerow(list(r))
+        w.writerow([_no_negative_zero(c) for c in r])
     data = buf.getvalue().encode()
     return _atomic_write(path, lambda fh: fh.write(data))
 

@@ -154,6 +154,31 @@ def impedance_fit(f, Z, f_model, models: dict, *, title: str = "", name: str = "
     return fig, ax
 
 
+def impedance_h1(f, Z, coherence=None, *, title: str = "", unit: str = "N/m"):
+    """An H1 impedance estimate: singular values of ``Z`` ``(N, n, n)`` in dB re 1 ``unit``
+    and, below, the coherence γ² ``(N, n)`` of every response channel (``None``: not shown)."""
+    rows = 1 if coherence is None else 2
+    fig, axes = plt.subplots(rows, 1, figsize=(7.0, 2.6 + 2.0 * rows), sharex=True, squeeze=False)
+    ax = axes[0, 0]
+    sv = _sv(Z)
+    for k in range(sv.shape[1]):
+        ax.semilogx(f, 20 * np.log10(np.maximum(sv[:, k], 1e-300)), "-", color=f"C{k}", lw=1.0)
+    ax.set_ylabel(f"σ(Z) (dB re 1 {unit})")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    if coherence is not None:
+        cx = axes[1, 0]
+        for i in range(np.shape(coherence)[1]):
+            cx.semilogx(f, np.asarray(coherence)[:, i], "-", lw=1.0, label=f"response {i}")
+        cx.set_ylim(0, 1.05)
+        cx.set_ylabel("coherence γ²")
+        cx.grid(True, which="both", alpha=0.3)
+        cx.legend(fontsize=8)
+    axes[-1, 0].set_xlabel("frequency (Hz)")
+    fig.tight_layout()
+    return fig, axes
+
+
 def pphat(f, curves: dict, *, title: str = "", band_db: float = 7.0, f_band_hz: float = 30.0):
     """Singular values of P·P̂⁻¹ (ideally 0 dB) with the paper's ±7 dB band to 30 Hz shaded
     — the paper's Fig. 8."""

@@ -102,9 +102,10 @@ def test_tune_robust_analyze_validate_on_the_varied_device(files, monkeypatch):
     dev = _capture(monkeypatch, hapid.tune, "tune_from_files",
                    ["tune", "--model", "model.npz", *var, "--out", "d.npz"], d)  # fmt: skip
     _same_device(dev, ref)
+    var3 = ["--device", "tripod3", "--delay", "2", "--rod-compliance", "2.0"]  # model.npz: n = 3
     dev = _capture(monkeypatch, hapid.uncertainty, "robust_from_files",
-                   ["robust", "--samples", "samples.npz", "--model", "model.npz", *var], d)  # fmt: skip
-    _same_device(dev, ref)
+                   ["robust", "--samples", "samples.npz", "--model", "model.npz", *var3], d)  # fmt: skip
+    _same_device(dev, preset("tripod3", delay_samples=2, rod_compliance=2.0))
     got = {}
 
     def plant_stub(device, *a, **k):
@@ -148,10 +149,10 @@ def test_scene_file_keys_are_read(tmp_path):
     "argv, message",
     [(["plant", "--delay", "-1", "--out", "p.npz"], "--delay must be an integer in [0, 1000], got -1"),
      (["simulate", "--delay", "0.5", "--out", "r.npz"], "invalid int value: '0.5'"),
-     (["simulate", "--rod-compliance", "0", "--out", "r.npz"], "--rod-compliance must be > 0, got 0"),
-     (["demo", "--rod-compliance", "-2", "--out", "o"], "--rod-compliance must be > 0, got -2"),
+     (["simulate", "--rod-compliance", "0", "--out", "r.npz"], "--rod-compliance must be in [0.001, 1000], got 0"),
+     (["demo", "--rod-compliance", "-2", "--out", "o"], "--rod-compliance must be in [0.001, 1000], got -2"),
      (["analyze", "--model", "model.npz", "--device", "cu5", "--rod-compliance", "nan"],
-      "--rod-compliance must be > 0, got nan"),
+      "--rod-compliance must be in [0.001, 1000], got nan"),
      (["analyze", "--model", "model.npz", "--frf", "frf.npz", "--delay", "2"],
       "--delay: a variant of the --device preset; give --device too"),
      (["robust", "--samples", "samples.npz", "--model", "model.npz", "--rod-compliance", "2.0"],
@@ -163,11 +164,11 @@ def test_scene_file_keys_are_read(tmp_path):
       "device.delay_samples must be an integer in [0, 1000]"),
      (["run", "scene.toml", "--set", "device.delay_samples=1.5"], "device.delay_samples must be"),
      (["run", "scene.toml", "--set", "device.rod_compliance=0"],
-      "device.rod_compliance must be a number > 0"),
+      "device.rod_compliance must be a number in [0.001, 1000]"),
      (["sweep", "scene.toml", "--vary", "device.delay_samples=1.5", "--out", "sw"],
       "--vary device.delay_samples must be an integer, got 1.5"),
      (["sweep", "scene.toml", "--vary", "device.rod_compliance=0", "--out", "sw"],
-      "device.rod_compliance must be a number > 0")],
+      "device.rod_compliance must be a number in [0.001, 1000]")],
 )  # fmt: skip
 def test_bad_device_options_are_one_line_errors(files, argv, message):
     assert_clean_error(argv, files[0], message)

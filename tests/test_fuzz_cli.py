@@ -5,12 +5,15 @@ traceback, no warning and no output file (``helpers_cli.assert_clean_error``).
 
 Every generated case is bad by construction (a required array dropped or corrupted, bytes that
 are no file of the kind, a value outside the option's range), so a case the CLI accepts is a
-bug. A fast profile runs in the default suite; the long one is ``slow`` and prints how many
+bug. The extremes of every numeric option (huge, tiny, negative, NaN, infinite) are either
+refused in one clean line or accepted by the checks (the slow profile then runs those to exit
+0 or a clean exit 2). A fast profile runs in the default suite; the long one is ``slow`` and prints how many
 cases it tried (``pytest -m slow -s tests/test_fuzz_cli.py``).
 """
 
 from __future__ import annotations
 
+import functools
 import shutil
 import tempfile
 import zipfile
@@ -18,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers_cli import assert_clean_error, write_valid_files
+from helpers_cli import assert_clean_error, run_cli, write_valid_files
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -359,6 +362,56 @@ def bad_option(draw):
     return argv + [f"{flag}={draw(OPTION_BAD[flag])}"]
 
 
+# extremes of every numeric option: huge, tiny, negative, not-a-number, infinite
+EXTREMES = st.sampled_from(["1e300", "-1e300", "1e13", "1e-300", "-1e-300", "5e-324", "nan", "inf",
+                            "-inf", "-1", "0", "-0", "100000000", "9223372036854775808"])  # fmt: skip
+
+
+@functools.cache
+def _numeric_options(cmd) -> tuple[str, ...]:
+    from hapid._cli_checks import options
+    from hapid.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices[cmd]
+    flags = {flag for dest, flag in options(parser, cmd)}
+    return tuple(sorted(max(a.option_strings, key=len) for a in sub._actions
+                  if a.option_strings and a.type in (int, float)
+                  and max(a.option_strings, key=len) in flags))  # fmt: skip
+
+
+@st.composite
+def extreme_option(draw):
+    cmd = draw(st.sampled_from([c for c in sorted(BASES) if _numeric_options(c)]))
+    flag = draw(st.sampled_from(_numeric_options(cmd)))
+    v = draw(EXTREMES)
+    if flag == "--move":
+        return cmd, list(BASES[cmd]) + ["--move", v, "0", "0"]
+    return cmd, list(BASES[cmd]) + [f"{flag}={v}"]
+
+
+def _checks_accept(argv, cwd: Path) -> bool:
+    """True when parsing and hapid._cli_checks accept ``argv`` in ``cwd`` (no work done)."""
+    import contextlib
+    import io
+    import os
+
+    from hapid._cli_checks import check_args
+    from hapid.cli import build_parser
+
+    parser = build_parser()
+    old = os.getcwd()
+    os.chdir(cwd)
+    try:
+        with contextlib.redirect_stderr(io.StringIO()):
+            check_args(parser, parser.parse_args([str(a) for a in argv]))
+    except (SystemExit, ValueError):
+        return False
+    finally:
+        os.chdir(old)
+    return True
+
+
 # ---- the properties -----------------------------------------------------------------------------
 def _file_property(base, data):
     kind = data.draw(st.sampled_from(sorted(READERS)))
@@ -384,6 +437,24 @@ def _option_property(base, data):
     try:
         COUNT["options"] = COUNT.get("options", 0) + 1
         assert_clean_error(argv, d)
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
+
+
+def _extreme_property(base, data, run_accepted: bool):
+    """An extreme value of a numeric option: refused in one clean line before any work, or
+    accepted by the checks — then (``run_accepted``, the slow profile) the command runs to exit
+    0 or a clean exit 2, never a traceback, an internal error or an abort."""
+    cmd, argv = data.draw(extreme_option())
+    d = _workdir(base)
+    try:
+        COUNT["option extremes"] = COUNT.get("option extremes", 0) + 1
+        if not _checks_accept(argv, d):
+            assert_clean_error(argv, d)
+        elif run_accepted:
+            rc, out, err, _, _ = run_cli(argv, d)
+            assert rc in (0, 2), f"{argv}: exit {rc}\n{err}"
+            assert "Traceback" not in out + err and "internal error" not in err, f"{argv}: {err}"
     finally:
         shutil.rmtree(d, ignore_errors=True)
 
@@ -435,6 +506,19 @@ def test_fuzz_files_fast(base, data):
 @given(data=st.data())
 def test_fuzz_options_fast(base, data):
     _option_property(base, data)
+
+
+@settings(FAST, max_examples=40)
+@given(data=st.data())
+def test_fuzz_option_extremes_fast(base, data):
+    _extreme_property(base, data, run_accepted=False)
+
+
+@pytest.mark.slow
+@settings(LONG, max_examples=300)
+@given(data=st.data())
+def test_fuzz_option_extremes_long(base, data):
+    _extreme_property(base, data, run_accepted=True)
 
 
 @FAST

@@ -18,6 +18,7 @@ from hapid.control import (
 )
 from hapid.fit import fit_nls, fit_nls_batch
 from hapid.fit._pd import canonical_theta
+from hapid.io import load_samples, save_samples
 from hapid.uncertainty import (
     PosteriorSamples,
     RobustReport,
@@ -28,13 +29,11 @@ from hapid.uncertainty import (
     initial_point,
     laplace_posterior,
     laplace_samples,
-    load_samples,
     make_log_posterior,
     pose_study,
     robust_check,
     robust_omega,
     sample_posterior,
-    save_samples,
 )
 
 N_RODS = 2

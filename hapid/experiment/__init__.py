@@ -11,7 +11,10 @@ from ._excitation import patterns as patterns
 from ._excitation import schroeder_phases as schroeder_phases
 from ._fast import simulate_frf as simulate_frf
 from ._impedance import RESPONSE_KINDS as RESPONSE_KINDS
+from ._impedance import EstimateUndecided as EstimateUndecided
+from ._impedance import ImpedanceEstimate as ImpedanceEstimate
 from ._impedance import TimeSeries as TimeSeries
+from ._impedance import estimate_impedance as estimate_impedance
 from ._impedance import estimate_impedance_h1 as estimate_impedance_h1
 from ._protocol import Protocol as Protocol
 from ._protocol import Run as Run

@@ -20,7 +20,9 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+import scipy.signal
 
+from .._grids import band_mask
 from ..frf import FRF, as_frf
 from ._protocol import Run, validate_run
 
@@ -32,6 +34,17 @@ def _dft_bins(x: np.ndarray, bins: np.ndarray, Tp: int) -> np.ndarray:
     """Complex amplitudes at ``bins`` of ``x`` (``(..., Tp, n)``) scaled so a cosine of
     amplitude ``a`` and phase ``α`` gives ``a e^{jα}``."""
     return np.fft.rfft(x, axis=-2)[..., bins, :] * (2.0 / Tp)
+
+
+def _nonzero_positions(L: np.ndarray) -> None:
+    """Raise ``ValueError`` when a position record is zero everywhere (no FRF exists)."""
+    L = np.asarray(L)
+    for e in range(L.shape[0]):
+        if not np.any(L[e]):
+            raise ValueError(
+                f"the position record L of experiment {e} is zero everywhere: the encoders "
+                "recorded nothing, so no impedance can be estimated"
+            )
 
 
 def _solve_frf(R: np.ndarray, Lm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -47,6 +60,7 @@ def estimate_frf(run: Run, *, cond_warn: float = 1e3) -> FRF:
     one-rod-at-a-time failure) and raises ``ValueError`` where 𝓛 is rank deficient.
     """
     validate_run(run)
+    _nonzero_positions(run.L)
     Tp, E, n = run.period_samples, run.R_A.shape[0], run.n
     P = run.n_periods
     bins = np.round(np.asarray(run.freq_hz) * Tp / run.fs_hz).astype(int)
@@ -110,6 +124,33 @@ def _std(SR, SL, Z, Lpinv):
     return np.sqrt(var)
 
 
+def window_array(window: str, nperseg: int) -> np.ndarray:
+    """The segment window: ``"hann"`` is scipy's periodic Hann
+    (``scipy.signal.get_window("hann", nperseg)``, scipy's default for Welch), ``"boxcar"``
+    ones."""
+    if window == "hann":
+        return scipy.signal.get_window("hann", nperseg)
+    if window == "boxcar":
+        return np.ones(nperseg)
+    raise ValueError(f"window must be 'hann' or 'boxcar', got {window!r}")
+
+
+def segment_starts(T: int, nperseg: int, window: str) -> np.ndarray:
+    """Segment starts: 50 % overlap for Hann; none for boxcar (overlapping rectangular segments
+    share half their noise, which the segment-scatter std, segments independent, would not
+    see)."""
+    step = nperseg if window == "boxcar" else nperseg // 2
+    return np.arange(0, T - nperseg + 1, step)
+
+
+def segment_spectra(x: np.ndarray, nperseg: int, window: str) -> np.ndarray:
+    """rFFT of the windowed Welch segments of ``x`` ``(E, T, n)`` → ``(E, S, F, n)``."""
+    starts = segment_starts(x.shape[1], nperseg, window)
+    win = window_array(window, nperseg)
+    seg = np.stack([x[:, s : s + nperseg] for s in starts], 1) * win[:, None]
+    return np.fft.rfft(seg, axis=2)
+
+
 def estimate_frf_h1(
     fs_hz: float,
     R_A: np.ndarray,
@@ -124,7 +165,7 @@ def estimate_frf_h1(
 ) -> FRF:
     """Averaged cross-spectral estimate for non-periodic records (chirp, noise, lab data).
 
-    Signals ``(E, T, n)``; Welch segments of ``nperseg`` samples (Hann window with 50 % overlap,
+    Signals ``(E, T, n)``; Welch segments of ``nperseg`` samples (scipy's periodic Hann window, 50 % overlap,
     or ``window="boxcar"`` without overlap: leakage-free for periodic excitation)
     over all experiments. ``reference="L"`` is the classic H1 estimator
     ``Z = −S_{R L} S_{L L}⁻¹`` (assumes noise-free ``L``); ``reference="R_A"`` uses the
@@ -142,27 +183,23 @@ def estimate_frf_h1(
         if not np.all(np.isfinite(a)):
             raise ValueError(f"{name} contains NaN or inf")
     E, T, n = R_A.shape
+    if reference == "L":
+        _nonzero_positions(L)
     if nperseg > T or nperseg < 8:
         raise ValueError(f"nperseg = {nperseg} must be between 8 and the record length {T}")
     if window not in ("hann", "boxcar"):
         raise ValueError(f"window must be 'hann' or 'boxcar', got {window!r}")
-    # boxcar segments do not overlap: overlapping rectangular segments share half their noise,
-    # which the segment-scatter std below (segments independent) would not see
-    step = nperseg if window == "boxcar" else nperseg // 2
-    starts = np.arange(0, T - nperseg + 1, step)
-    if len(starts) * E < n:
-        raise ValueError(f"only {len(starts) * E} segments for n = {n} rods: record too short")
-    # boxcar: leakage-free for periodic excitation whose period divides nperseg
-    win = np.hanning(nperseg) if window == "hann" else np.ones(nperseg)
-    seg = lambda x: np.stack([x[:, s : s + nperseg] for s in starts], 1) * win[:, None]  # noqa: E731
-    fft = lambda x: np.fft.rfft(seg(x), axis=2)  # noqa: E731  (E, S, F, n)
+    n_seg = len(segment_starts(T, nperseg, window))
+    if n_seg * E < n:
+        raise ValueError(f"only {n_seg * E} segments for n = {n} rods: record too short")
+    fft = lambda x: segment_spectra(x, nperseg, window)  # noqa: E731  (E, S, F, n)
     XL, XI, XA = fft(L), fft(R_I), fft(R_A)
     fgrid = np.fft.rfftfreq(nperseg, 1.0 / fs_hz)
     if freq_hz is not None:
         idx = np.unique(np.argmin(np.abs(fgrid[None, :] - np.asarray(freq_hz)[:, None]), axis=1))
     else:
         lo, hi = f_band_hz if f_band_hz is not None else (fgrid[1], fgrid[-1])
-        idx = np.nonzero((fgrid >= lo) & (fgrid <= hi) & (fgrid > 0))[0]
+        idx = np.nonzero(band_mask(fgrid, lo, hi) & (fgrid > 0))[0]
     if reference == "L":
         X = XL
     elif reference == "R_A":

@@ -40,6 +40,8 @@ from ._pd import model_to_theta as model_to_theta
 from ._pd import n_params as n_params
 from ._pd import project_pd as project_pd
 from ._pd import theta_to_model as theta_to_model
+from ._physics import correct_exponential as correct_exponential
+from ._physics import physics_warnings as physics_warnings
 from ._positize import CRHPReport as CRHPReport
 from ._positize import crhp_report as crhp_report
 from ._positize import positize as positize

@@ -29,6 +29,7 @@ from ..impedance import SecondOrder
 from ..impedance_frf import ImpedanceFRF
 from ._nls import _run_solver, laplace_covariance
 from ._pd import Scale, _project_matrix
+from ._physics import CHI2_SCALE_ABOVE, chi2_note, correct_exponential, physics_warnings
 from ._positize import positize_matrix
 from ._quality import FitQuality, impedance_quality
 from ._result import STATUS_NAMES
@@ -161,12 +162,14 @@ def _nls(zfrf: ImpedanceFRF, weight: str, max_steps: int, rtol, atol, ftol):
         jnp.asarray(ftol),
     )  # fmt: skip
     model, sd, theta, code, steps, cost, cov, _ = out
-    # σ̂² = 1 for noise weights, else 2·cost/(m − p) with m the real (unpadded) residuals
+    # σ̂² = 2·cost/(m − p) (m the real, unpadded residuals) for relative weights; for noise
+    # weights 1, or the reduced χ² when the misfit is well above what the std explain
     m, p = 2 * N * zfrf.n**2, int(theta.shape[0])
-    sigma2 = 1.0 if weight == "noise" else 2.0 * float(cost) / max(m - p, 1)
+    chi2_red = 2.0 * float(cost) / max(m - p, 1)
+    sigma2 = chi2_red if weight != "noise" or chi2_red > CHI2_SCALE_ABOVE else 1.0
     cov = cov * sigma2
     sd = SecondOrder(*(a * np.sqrt(sigma2) for a in (sd.M, sd.B, sd.K)))
-    return model, sd, theta, scale, code, steps, cost, cov, sigma2
+    return model, sd, theta, scale, code, steps, cost, cov, sigma2, chi2_red
 
 
 def _flat(m: SecondOrder):
@@ -180,8 +183,12 @@ class ImpedanceFit:
     ``model`` (M, B, K in ``model_units(unit)``); ``method`` text; ``status`` ("closed form",
     "converged", "max_steps", "failed"); ``ok``; ``n_steps``; ``cost`` (½‖r‖², NaN for WLS);
     ``model_std`` Laplace std of every entry (NLS; ``None`` for WLS); ``theta``, ``scale``,
-    ``covariance``, ``sigma2`` (NLS); ``quality`` (:class:`FitQuality` over the band used);
-    ``boundary`` names of M, B, K with an eigenvalue at the PSD boundary.
+    ``covariance``, ``sigma2`` (NLS: the variance scale of the std — the reduced χ² for relative
+    weights, 1 for noise weights unless the reduced χ² exceeds ``CHI2_SCALE_ABOVE``);
+    ``reduced_chi2`` (NLS); ``quality`` (:class:`FitQuality` over the band used, with the
+    physics warnings: negative-definite M or K, negative damping, a collapse toward 0);
+    ``boundary`` names of M, B, K with an eigenvalue at the PSD boundary; ``exp_tau_s`` > 0: the
+    data were exponentially windowed and ``model``/``model_std`` are corrected for it.
     """
 
     model: SecondOrder
@@ -197,6 +204,8 @@ class ImpedanceFit:
     covariance: np.ndarray | None = None
     sigma2: float = float("nan")
     boundary: tuple[str, ...] = ()
+    reduced_chi2: float = float("nan")
+    exp_tau_s: float = 0.0
 
     @property
     def ok(self) -> bool:
@@ -210,6 +219,9 @@ class ImpedanceFit:
         if self.model_std is not None:
             d.update(M_std=self.model_std.M, B_std=self.model_std.B, K_std=self.model_std.K)
             d.update(covariance=self.covariance, theta=self.theta, sigma2=np.float64(self.sigma2))
+            d.update(reduced_chi2=np.float64(self.reduced_chi2))
+        if self.exp_tau_s:
+            d.update(exp_tau_s=np.float64(self.exp_tau_s))
         return {k: np.asarray(v) for k, v in d.items()} | self.quality.to_arrays()
 
 
@@ -271,15 +283,22 @@ def fit_impedance(
         raw = wls_single(sel)
         q_raw = impedance_quality(sel, raw, method="wls", band_hz=band)
         if not positize:
-            return ImpedanceFit(raw, "wls", "closed form", sel.unit, q_raw)
+            q_raw = _with_physics(q_raw, sel, raw)
+            return _exp_corrected(ImpedanceFit(raw, "wls", "closed form", sel.unit, q_raw), sel)
         pos = SecondOrder(*(positize_matrix(a) for a in (raw.M, raw.B, raw.K)))
         q = impedance_quality(sel, pos, method="wls+positize", band_hz=band, before=q_raw)
-        return ImpedanceFit(pos, "wls+positize", "closed form", sel.unit, q)
-    model, sd, theta, scale, code, steps, cost, cov, sigma2 = _nls(
+        q = _with_physics(q, sel, raw, pos)
+        return _exp_corrected(ImpedanceFit(pos, "wls+positize", "closed form", sel.unit, q), sel)
+    model, sd, theta, scale, code, steps, cost, cov, sigma2, chi2_red = _nls(
         sel, weight, int(max_steps), rtol, atol, ftol
     )
     q = impedance_quality(sel, model, method=f"nls ({weight} weights)", band_hz=band)
-    return ImpedanceFit(
+    # the unconstrained fit shows what the PSD fit cannot: negative-definite M or K
+    q = _with_physics(q, sel, model)
+    q = _with_physics(q, sel, wls_single(sel), what="the unconstrained (WLS) fit of this band: ")
+    if weight == "noise" and chi2_note(chi2_red):
+        q = q.with_warning(chi2_note(chi2_red))
+    fit = ImpedanceFit(
         model=model,
         method="nls",
         status=str(STATUS_NAMES[int(code)]),
@@ -293,6 +312,43 @@ def fit_impedance(
         covariance=np.asarray(cov),
         sigma2=float(sigma2),
         boundary=_boundary(model),
+        reduced_chi2=float(chi2_red),
+    )
+    return _exp_corrected(fit, sel)
+
+
+def _with_physics(q: FitQuality, sel: ImpedanceFRF, *models, what: str = "") -> FitQuality:
+    """``q`` with the physics warnings of ``models`` (duplicates once)."""
+    for m in models:
+        for w in physics_warnings(m, np.asarray(sel.Z), np.asarray(sel.omega), what):
+            if w not in q.warnings:
+                q = q.with_warning(w)
+    return q
+
+
+def _exp_corrected(fit: ImpedanceFit, sel: ImpedanceFRF) -> ImpedanceFit:
+    """The fit of exponentially windowed data (``sel.exp_tau_s`` > 0) with M, B, K (and std)
+    corrected to the structure's (:func:`correct_exponential`); unchanged otherwise."""
+    tau = float(sel.exp_tau_s)
+    if not tau:
+        return fit
+    m = fit.model
+    sd = fit.model_std
+    M, B, K, ms, bs, ks = correct_exponential(
+        m.M, m.B, m.K, tau, *((sd.M, sd.B, sd.K) if sd is not None else ())
+    )
+    q = fit.quality.with_line(
+        "exp_window",
+        f"exponential window τ = {tau:g} s: the data are Z(jω + 1/τ); M, B, K are corrected to "
+        f"the structure's (B − 2M/τ, K − B/τ − M/τ²; modal ζ lowered by 1/(τ ω_n)); the quality "
+        "figures compare the windowed fit with the windowed data",
+    )
+    return dataclasses.replace(
+        fit,
+        model=SecondOrder(jnp.asarray(M), jnp.asarray(B), jnp.asarray(K)),
+        model_std=None if sd is None else SecondOrder(*(jnp.asarray(x) for x in (ms, bs, ks))),
+        quality=q,
+        exp_tau_s=tau,
     )
 
 
