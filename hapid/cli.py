@@ -105,7 +105,7 @@ def cmd_frf(a):
     import numpy as np
 
     from . import io
-    from .experiment import estimate_frf, estimate_frf_h1
+    from .experiment import estimate_frf, estimate_frf_h1, low_coherence_note
 
     kind = (
         "timeseries"
@@ -141,6 +141,18 @@ def cmd_frf(a):
           f"{float(np.min(frf.cond_L)):.3g}–{float(np.max(frf.cond_L)):.3g}" +
           (f"; median relative std of Z_H {np.median(rel):.2e}" if rel is not None else "") +
           f" → {out}")  # fmt: skip
+    if a.h1 and frf.coherence_H is None:
+        print("note: no coherence: no more Welch segments (over all experiments) than rods, "
+              "where γ² is identically 1; give longer records or a smaller --nperseg")  # fmt: skip
+    elif a.h1:
+        f = np.asarray(frf.freq_hz)
+        for name, g, sig in (("Z_H", frf.coherence_H, "R_I"), ("Z_T", frf.coherence_T, "R_A")):
+            g = np.asarray(g)
+            print(f"coherence γ² of {name} ({sig} on L): median {np.median(g):.3f}, "
+                  f"min {g.min():.3f}")  # fmt: skip
+            if low := low_coherence_note(f, g):
+                warnings.warn(f"{name}: {low} (noise, leakage or nonlinearity there)",
+                              stacklevel=1)  # fmt: skip
     if a.plot:
         from . import plot
 

@@ -4,7 +4,10 @@
 excited angular frequencies ``omega`` (rad/s); ``Z_H_std``, ``Z_T_std`` are the standard
 deviations of each element estimate, ``sqrt(E|Ẑ − Z|²)`` (real and imaginary parts together),
 or ``None`` when unknown. ``cond_L`` is the condition number of the stacked displacement
-matrix 𝓛(jω) per frequency (``None`` when not measured).
+matrix 𝓛(jω) per frequency (``None`` when not measured). ``coherence_H``, ``coherence_T``
+``(N, n)`` in ``[0, 1]`` are the multiple coherences γ² of each output channel of an H1 estimate
+(row ``i`` of ``Z_H`` resp. ``Z_T``; see :func:`hapid.experiment.estimate_frf_h1`), or ``None``
+(periodic estimates, too few segments, or not measured).
 
 Precision: hapid computes in float64. float32/complex64 arrays given to ``FRF``/``as_frf``
 are upcast (a :class:`PrecisionWarning` says so: the data keep their ~1e-7 relative
@@ -34,6 +37,8 @@ class FRF(eqx.Module):
     Z_H_std: Float[Array, "N n n"] | None = None
     Z_T_std: Float[Array, "N n n"] | None = None
     cond_L: Float[Array, " N"] | None = None
+    coherence_H: Float[Array, "N n"] | None = None
+    coherence_T: Float[Array, "N n"] | None = None
 
     def __post_init__(self):
         # hapid computes in float64 (docs/conventions.md): lower-precision input is upcast, with a
@@ -55,6 +60,7 @@ class FRF(eqx.Module):
 
     def __check_init__(self):
         check_frf_arrays(self.omega, self.Z_H, self.Z_T, self.Z_H_std, self.Z_T_std)
+        check_coherence(self.Z_H, coherence_H=self.coherence_H, coherence_T=self.coherence_T)
 
     @property
     def n(self) -> int:
@@ -80,6 +86,8 @@ class FRF(eqx.Module):
             Z_H_std=pick(self.Z_H_std),
             Z_T_std=pick(self.Z_T_std),
             cond_L=None if self.cond_L is None else self.cond_L[..., mask],
+            coherence_H=None if self.coherence_H is None else self.coherence_H[..., mask, :],
+            coherence_T=None if self.coherence_T is None else self.coherence_T[..., mask, :],
         )
 
     def band(self, f_min_hz: float = 0.0, f_max_hz: float = np.inf) -> FRF:
@@ -99,6 +107,8 @@ _DTYPES = {
     "Z_H_std": np.float64,
     "Z_T_std": np.float64,
     "cond_L": np.float64,
+    "coherence_H": np.float64,
+    "coherence_T": np.float64,
 }
 
 
@@ -150,13 +160,30 @@ def check_frf_arrays(omega, Z_H, Z_T, Z_H_std=None, Z_T_std=None) -> None:
                 raise ValueError(f"FRF: {name} contains NaN or inf (first at index {bad})")
 
 
+def check_coherence(Z_H, **coherences) -> None:
+    """Validate coherence arrays: shape ``(..., N, n)`` matching ``Z_H`` ``(..., N, n, n)``;
+    values (checked only when concrete) finite and in ``[0, 1]``. ``None`` entries pass."""
+    want = np.shape(Z_H)[:-1]
+    for name, g in coherences.items():
+        if g is None:
+            continue
+        if np.shape(g) != want:
+            raise ValueError(f"FRF: {name} has shape {np.shape(g)}, expected (N, n) = {want}")
+        if _is_concrete(g):
+            a = np.asarray(g)
+            if not np.all((a >= 0) & (a <= 1)):
+                raise ValueError(f"FRF: {name} must lie in [0, 1] (coherence γ²)")
+
+
 def _is_concrete(x) -> bool:
     import jax
 
     return x is not None and not isinstance(x, jax.core.Tracer)
 
 
-def as_frf(freq_hz, Z_H, Z_T, Z_H_std=None, Z_T_std=None, cond_L=None) -> FRF:
+def as_frf(
+    freq_hz, Z_H, Z_T, Z_H_std=None, Z_T_std=None, cond_L=None, coherence_H=None, coherence_T=None
+) -> FRF:
     """Build an FRF from Hz frequencies and arrays (the file contract's units).
 
     float32/complex64 input is upcast to float64/complex128 with a :class:`PrecisionWarning`;
@@ -172,4 +199,6 @@ def as_frf(freq_hz, Z_H, Z_T, Z_H_std=None, Z_T_std=None, cond_L=None) -> FRF:
         Z_H_std=opt(Z_H_std),
         Z_T_std=opt(Z_T_std),
         cond_L=opt(cond_L),
+        coherence_H=opt(coherence_H),
+        coherence_T=opt(coherence_T),
     )

@@ -327,6 +327,10 @@ def _read_run_csv(path) -> dict:
 
 
 # ---- FRF files ------------------------------------------------------------------------------
+#: optional per-output coherence arrays of an H1 FRF, (N, n) each
+COHERENCE_KEYS = ("coherence_H", "coherence_T")
+
+
 def save_frf(path, frf: FRF) -> Path:
     """Write an FRF file (``.npz``, ``.mat`` or ``.csv``); frequencies in Hz."""
     arrays = {
@@ -340,6 +344,9 @@ def save_frf(path, frf: FRF) -> Path:
         arrays["Z_T_std"] = np.asarray(frf.Z_T_std, dtype=np.float64)
     if frf.cond_L is not None:
         arrays["cond_L"] = np.asarray(frf.cond_L, dtype=np.float64)
+    for k in COHERENCE_KEYS:
+        if getattr(frf, k, None) is not None:
+            arrays[k] = np.asarray(getattr(frf, k), dtype=np.float64)
     as_frf(**{k: v for k, v in arrays.items()})  # validate
     if _fmt(path) == "csv":
         return _atomic_write(path, lambda fh: fh.write(_frf_csv(arrays).encode()))
@@ -382,8 +389,11 @@ def load_frf(path) -> FRF:
         ZH = mat("Z_H", np.complex128)
         if ZH.ndim != 3 or ZH.shape[1] != ZH.shape[2] or ZH.shape[1] == 0 or N == 0:
             raise ValueError(f"Z_H must be (N, n, n) with N, n ≥ 1, got shape {ZH.shape}")
+        coh = {k: None if k not in d else _numeric(d, k, path) for k in COHERENCE_KEYS}
+        coh = {k: g[None] if g is not None and g.ndim == 1 and N == 1 else g
+               for k, g in coh.items()}  # fmt: skip
         return as_frf(f, ZH, mat("Z_T", np.complex128), mat("Z_H_std", np.float64),
-                      mat("Z_T_std", np.float64), mat("cond_L", np.float64))  # fmt: skip
+                      mat("Z_T_std", np.float64), mat("cond_L", np.float64), **coh)  # fmt: skip
     except ValueError as e:
         raise FileFormatError(f"{path}: {e}") from None
 
@@ -402,6 +412,10 @@ def _frf_csv(arrays: dict) -> str:
         else:
             cols.append(a)
             names += [f"{k}_{s}" for s in idx]
+    for k in COHERENCE_KEYS:
+        if k in arrays:
+            cols.append(arrays[k])
+            names += [f"{k}_{i}" for i in range(n)]
     data = np.concatenate(cols, axis=1)
     buf = _io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -430,6 +444,9 @@ def _read_frf_csv(path) -> dict:
         for k in ("Z_H_std", "Z_T_std"):
             if f"{k}_0_0" in col:
                 out[k] = data[:, [col[f"{k}_{s}"] for s in idx]].reshape(-1, n, n)
+        for k in COHERENCE_KEYS:
+            if f"{k}_0" in col:
+                out[k] = data[:, [col[f"{k}_{i}"] for i in range(n)]]
         return out
     except (KeyError, ValueError, IndexError, ZeroDivisionError, OverflowError) as e:
         raise FileFormatError(f"{path}: malformed FRF CSV ({e})") from None

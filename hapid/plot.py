@@ -8,6 +8,8 @@ matplotlib.use("Agg", force=False)
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ._constants import COHERENCE_LOW  # noqa: E402
+
 
 def _sv(A):
     return np.linalg.svd(np.asarray(A), compute_uv=False)
@@ -48,17 +50,38 @@ def singular_values(
 
 
 def frf_overview(frf, *, title_prefix: str = ""):
-    """Three panels: σ(Z_H), σ(Z_T) and σ(P) of an empirical FRF (dB)."""
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    """Three panels: σ(Z_H), σ(Z_T) and σ(P) of an empirical FRF (dB); when the FRF holds
+    coherences (an H1 estimate), a second row shows γ² of every output channel of Z_H and Z_T
+    with the low-coherence level dashed."""
+    coh = {"Z_H": getattr(frf, "coherence_H", None), "Z_T": getattr(frf, "coherence_T", None)}
+    rows = 2 if any(g is not None for g in coh.values()) else 1
+    fig, axes = plt.subplots(rows, 3, figsize=(15, 4.2 + 2.6 * (rows - 1)), squeeze=False)
     f = np.asarray(frf.freq_hz)
-    singular_values({"Z_H": (f, frf.Z_H)}, ax=axes[0], title=f"{title_prefix}σ(Z_H)",
+    top = axes[0]
+    singular_values({"Z_H": (f, frf.Z_H)}, ax=top[0], title=f"{title_prefix}σ(Z_H)",
                     ylabel="singular values (dB re 1 N/m)")  # fmt: skip
-    singular_values({"Z_T": (f, frf.Z_T)}, ax=axes[1], title=f"{title_prefix}σ(Z_T)",
+    singular_values({"Z_T": (f, frf.Z_T)}, ax=top[1], title=f"{title_prefix}σ(Z_T)",
                     ylabel="singular values (dB re 1 N/m)")  # fmt: skip
-    singular_values({"P": (f, frf.P)}, ax=axes[2], title=f"{title_prefix}σ(P = Z_H Z_T⁻¹)",
+    singular_values({"P": (f, frf.P)}, ax=top[2], title=f"{title_prefix}σ(P = Z_H Z_T⁻¹)",
                     ylabel="singular values (dB)")  # fmt: skip
+    if rows == 2:
+        for ax, (name, g) in zip(axes[1, :2], coh.items(), strict=True):
+            if g is None:
+                ax.set_axis_off()
+                continue
+            g = np.asarray(g)
+            for i in range(g.shape[1]):
+                ax.semilogx(f, g[:, i], "-", lw=1.0, label=f"row {i}")
+            ax.axhline(COHERENCE_LOW, color="k", ls="--", lw=0.8)
+            ax.set_ylim(0, 1.05)
+            ax.set_xlabel("frequency (Hz)")
+            ax.set_ylabel("coherence γ²")
+            ax.set_title(f"{title_prefix}coherence of the rows of {name} (H1)", fontsize=10)
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize=8)
+        axes[1, 2].set_axis_off()
     fig.tight_layout()
-    return fig, axes
+    return fig, axes if rows == 2 else axes[0]
 
 
 ISO = 1 - 1 / np.sqrt(2)

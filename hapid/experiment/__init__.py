@@ -22,3 +22,4 @@ from ._protocol import validate_run as validate_run
 from ._synthesis import periodic_run as periodic_run
 from ._synthesis import time_domain_response as time_domain_response
 from ._synthesis import time_domain_run as time_domain_run
+from ._transient import low_coherence_note as low_coherence_note

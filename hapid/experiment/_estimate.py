@@ -25,6 +25,7 @@ import scipy.signal
 from .._grids import band_mask
 from ..frf import FRF, as_frf
 from ._protocol import Run, validate_run
+from ._transient import coherence
 
 #: 𝓛 with a condition number above this is treated as rank deficient (an error).
 COND_ERROR = 1e10
@@ -173,6 +174,13 @@ def estimate_frf_h1(
     noise. Returns the FRF at the Welch bins nearest to ``freq_hz`` (or all bins in
     ``f_band_hz``, excluding DC). Std from segment-to-segment equation-error scatter
     (segments treated as independent, which is optimistic with overlap).
+
+    Coherence (``reference="L"``): ``coherence_H[f, i]`` is the multiple coherence of the hand
+    force ``R_I,i`` on the displacements ``L``, ``γ²_i = (S_{R L} S_{L L}⁻¹ S_{L R})_ii /
+    S_{R R,ii}`` over the same segments, ``coherence_T`` the same for ``R_A``; ``(N, n)`` in
+    ``[0, 1]`` (1 where a channel's spectrum is zero). It is ``None`` when there are no more
+    segments (over all experiments) than rods, where it is identically 1 and says nothing, and
+    with ``reference="R_A"`` (the command is the instrument there, not the H1 input).
     """
     R_A, R_I, L = (np.asarray(a, dtype=float) for a in (R_A, R_I, L))
     if not (R_A.shape == R_I.shape == L.shape) or R_A.ndim != 3:
@@ -225,4 +233,8 @@ def estimate_frf_h1(
         var = np.einsum("sfi,sfk->fik", np.abs(eps) ** 2, np.abs(w) ** 2)
         return np.sqrt(var)
 
-    return as_frf(fgrid[idx], Z_H, Z_T, std(YI, Z_H), std(YA, Z_T), np.sqrt(cond))
+    coh_H = coh_T = None
+    if reference == "L" and n_seg * E > n:
+        coh_H, coh_T = coherence(YX, YI), coherence(YX, YA)
+    return as_frf(fgrid[idx], Z_H, Z_T, std(YI, Z_H), std(YA, Z_T), np.sqrt(cond),
+                  coherence_H=coh_H, coherence_T=coh_T)  # fmt: skip

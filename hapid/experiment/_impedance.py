@@ -28,7 +28,6 @@ from .._grids import band_mask
 from ..impedance_frf import ImpedanceFRF, as_impedance_frf
 from ._estimate import estimate_frf_h1, segment_spectra, segment_starts
 from ._transient import (
-    COHERENCE_LOW,
     IMPULSIVE_SHARE,
     STATIONARY_SHARE,
     apply_windows,
@@ -36,7 +35,7 @@ from ._transient import (
     coherence,
     decay_db,
     impact_segments,
-    low_coherence_bands,
+    low_coherence_note,
 )
 
 RESPONSE_KINDS = {"displacement": 0, "velocity": 1, "acceleration": 2}
@@ -281,13 +280,8 @@ def estimate_impedance(
         coh = coherence(XF[:, idx], XY[:, idx])
     z = as_impedance_frf(w / (2 * np.pi), Z, std, unit=ts.z_unit, coherence=coh,
                          exp_tau_s=0.0 if exp_tau_s is None else exp_tau_s)  # fmt: skip
-    if coh is not None:
-        bands = low_coherence_bands(np.asarray(z.freq_hz), coh)
-        if bands:
-            txt = ", ".join(f"{a:.4g}–{b:.4g} Hz (min {g:.2f})" for a, b, g in bands[:3])
-            n_low = int(np.sum(np.min(coh, axis=-1) < COHERENCE_LOW))
-            notes.append(f"low coherence γ² < {COHERENCE_LOW:g} at {n_low} of {coh.shape[0]} "
-                         f"frequencies; widest bands {txt}")  # fmt: skip
+    if coh is not None and (low := low_coherence_note(np.asarray(z.freq_hz), coh)):
+        notes.append(low)
     return ImpedanceEstimate(z, method, n_seg, L, frac, decay, win, tuple(notes))
 
 

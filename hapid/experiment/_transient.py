@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._constants import COHERENCE_LOW
+
 #: a record is impulsive when its loudest 1 % of samples hold more than this share of its force
 #: energy (hammer hits: > 0.9; Gaussian noise: ≈ 0.09; a sine or chirp: ≈ 0.02)
 IMPULSIVE_SHARE = 0.5
@@ -43,8 +45,6 @@ IMPACT_MERGE_S = 2e-3
 PRE_TRIGGER = 0.01
 #: a response whose end lies less than this far (dB) below its peak has not decayed
 DECAY_WARN_DB = 40.0
-#: coherence below this is reported as low
-COHERENCE_LOW = 0.9
 
 
 def energy_share(force: np.ndarray) -> np.ndarray:
@@ -179,6 +179,19 @@ def low_coherence_bands(freq_hz: np.ndarray, gamma2: np.ndarray, level=COHERENCE
     return [b[:3] for b in out[:5]]
 
 
+def low_coherence_note(freq_hz: np.ndarray, gamma2: np.ndarray, level=COHERENCE_LOW) -> str:
+    """One line naming where the smallest channel coherence of ``gamma2`` ``(N, n)`` is below
+    ``level``: how many frequencies and the widest bands (at most 3) with their minimum γ²;
+    ``""`` when it nowhere is."""
+    bands = low_coherence_bands(freq_hz, gamma2, level)
+    if not bands:
+        return ""
+    txt = ", ".join(f"{a:.4g}–{b:.4g} Hz (min {g:.2f})" for a, b, g in bands[:3])
+    n_low = int(np.sum(np.min(np.asarray(gamma2), axis=-1) < level))
+    return (f"low coherence γ² < {level:g} at {n_low} of {np.shape(gamma2)[0]} frequencies; "
+            f"widest bands {txt}")  # fmt: skip
+
+
 __all__ = [
     "classify_records",
     "impact_segments",
@@ -186,5 +199,6 @@ __all__ = [
     "decay_db",
     "coherence",
     "low_coherence_bands",
+    "low_coherence_note",
     "energy_share",
 ]
