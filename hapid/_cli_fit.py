@@ -208,10 +208,38 @@ def _band(a, f_all_hz: np.ndarray, f_max_hz: float | None = None) -> tuple[float
     return lo, hi
 
 
+def fit_band(sel, single: bool, a, band: tuple[float, float]):
+    """``(fitted, quality, meta)``: the fit ``hapid fit`` makes of ``sel`` (the data already
+    cut to ``band``, Hz) with the options ``a`` of its parser — the :class:`Fitted`, its
+    :class:`hapid.fit.FitQuality` over the band (extra lines included) and the metadata the
+    model file stores. Raises :class:`FitCommandError` for a fit the command refuses."""
+    from .fit import pair_quality
+
+    table = SINGLE_METHODS if single else PAIR_METHODS
+    fitted = table[a.method](sel, a, band)
+    q = fitted.quality
+    if q is None:
+        before = None
+        if fitted.before is not None:
+            before = pair_quality(sel, fitted.before, method="wls", band_hz=band)
+        q = pair_quality(sel, fitted.model, method=fitted.meta.get("method", a.method),
+                         band_hz=band, before=before)  # fmt: skip
+    q = extra_quality_lines(q, fitted, sel, a)
+    return fitted, q, {**fitted.meta, **q.to_arrays()}
+
+
+def fit_data(data, single: bool, a):
+    """``(fitted, quality, meta, sel)``: :func:`fit_band` on ``data`` cut to the band ``hapid
+    fit`` chooses from ``a`` (``--f-min-hz``/``--f-max-hz``, NLS on the pair: 40 Hz)."""
+    lo, hi = _band(a, np.asarray(data.freq_hz), _default_f_max(a, not single))
+    sel = data.band(lo, hi)
+    return (*fit_band(sel, single, a, (lo, hi)), sel)
+
+
 def run_fit(a) -> None:
     """``hapid fit``: read, dispatch on file kind and method, report, write (all or nothing)."""
     from . import io
-    from .fit import crhp_report, pair_quality, pphat_band_db
+    from .fit import crhp_report, pphat_band_db
     from .impedance_frf import model_units
 
     kind = io.file_kind(a.frf, "an FRF file (freq_hz with Z_H, Z_T or Z)")
@@ -262,17 +290,7 @@ def run_fit(a) -> None:
         how = f"--f-min-hz {lo:g} --f-max-hz {hi:g}"
     print(f"band: {f.min():g}–{f.max():g} Hz, {f.size} of {np.size(data.freq_hz)} frequencies "
           f"({how})")  # fmt: skip
-    fitted = table[a.method](sel, a, (lo, hi))
-    q = fitted.quality
-    if q is None:
-        band = (lo, hi)
-        before = None
-        if fitted.before is not None:
-            before = pair_quality(sel, fitted.before, method="wls", band_hz=band)
-        q = pair_quality(sel, fitted.model, method=fitted.meta.get("method", a.method),
-                         band_hz=band, before=before)  # fmt: skip
-    q = extra_quality_lines(q, fitted, sel, a)
-    meta = {**fitted.meta, **q.to_arrays()}
+    fitted, q, meta = fit_band(sel, single, a, (lo, hi))
     if single:
         out = io.save_impedance_model(a.out, fitted.model, **meta)
     else:
@@ -313,6 +331,25 @@ def run_fit(a) -> None:
 def run_frf_lab(a) -> None:
     """``hapid frf`` on lab records: H1 over Welch segments → impedance FRF file."""
     from . import io
+
+    z, ts = lab_frf(a)
+    out = io.save_impedance_frf(a.out, z)
+    E, T, n = ts.force.shape
+    seg = E * ((T - a.nperseg) // (a.nperseg if a.window == "boxcar" else a.nperseg // 2) + 1)
+    rel = np.asarray(z.Z_std) / np.maximum(np.abs(np.asarray(z.Z)), 1e-300)
+    conv = {"displacement": "Z = F/x", "velocity": "Z = jω·F/v", "acceleration": "Z = (jω)²·F/a"}
+    f = np.asarray(z.freq_hz)
+    print(f"impedance FRF (single impedance, {'+' if a.sign != '-' else '−'}{conv[a.response]}, "
+          f"unit {z.unit}): H1 over {seg} Welch segments of {a.nperseg} samples "
+          f"({E} experiment{'s' if E > 1 else ''} × {T} samples at {ts.fs_hz:g} Hz, n = {n}); "
+          f"{f.size} frequencies {f.min():g}–{f.max():g} Hz; median relative std of Z "
+          f"{np.median(rel):.2e} → {out}")  # fmt: skip
+
+
+def lab_frf(a):
+    """``(impedance FRF, time series)``: the H1 estimate ``hapid frf`` makes of the lab
+    records ``a.run`` (and ``a.add``) with the options ``a`` of its parser."""
+    from . import io
     from .experiment import estimate_impedance_h1
 
     ts = io.load_timeseries([a.run, *(a.add or [])], fs_hz=a.fs_hz, force_key=a.force_key,
@@ -326,17 +363,7 @@ def run_frf_lab(a) -> None:
                               sign=-1.0 if a.sign == "-" else 1.0,
                               f_min_hz=a.f_min_hz, f_max_hz=a.f_max_hz,
                               window=a.window)  # fmt: skip
-    out = io.save_impedance_frf(a.out, z)
-    E, T, n = ts.force.shape
-    seg = E * ((T - a.nperseg) // (a.nperseg if a.window == "boxcar" else a.nperseg // 2) + 1)
-    rel = np.asarray(z.Z_std) / np.maximum(np.abs(np.asarray(z.Z)), 1e-300)
-    conv = {"displacement": "Z = F/x", "velocity": "Z = jω·F/v", "acceleration": "Z = (jω)²·F/a"}
-    f = np.asarray(z.freq_hz)
-    print(f"impedance FRF (single impedance, {'+' if a.sign != '-' else '−'}{conv[a.response]}, "
-          f"unit {z.unit}): H1 over {seg} Welch segments of {a.nperseg} samples "
-          f"({E} experiment{'s' if E > 1 else ''} × {T} samples at {ts.fs_hz:g} Hz, n = {n}); "
-          f"{f.size} frequencies {f.min():g}–{f.max():g} Hz; median relative std of Z "
-          f"{np.median(rel):.2e} → {out}")  # fmt: skip
+    return z, ts
 
 
 def register_lab_frf_args(f) -> None:
