@@ -142,8 +142,7 @@ def run_design(input_path, out_dir, o: DesignOptions, parse: Callable, *, skip=(
     reps = {}
     pair = not isinstance(frf, ImpedanceFRF)
     if nls and "error" not in nls and pair and {"robust", "tune"} & set(cmds):
-        ts = None if o.fs_hz is None else 1.0 / o.fs_hz
-        reps = loops(frf, nls["model"], Compensator.paper(), tune["g"] if tune else None, ts)
+        reps = loops(frf, nls["model"], Compensator.paper(), tune["g"] if tune else None)
     checks = [robust_check(m, r["report"], r["info"]) for m, r in (robust or {}).items()]
     if tune:
         checks.append(tuned_check(tune))
@@ -217,7 +216,7 @@ def _numbers(o, path, cmds, log, res, fits, robust, tune, reps, checks, figs, fi
             "kept_start": tune["kept_start"],
             "returned": tuned_row(tune),
         },  # fmt: skip
-        "loops_on_measured_frf": {k: r.summary() for k, r in reps.items()},
+        "loops_on_measured_plant": {k: r.summary() for k, r in reps.items()},
         "verdict": {
             "overall": worst(*checks).value if checks else None,
             "checks": [c.summary() for c in checks],
@@ -291,7 +290,7 @@ def _page(n: dict, figs) -> str:
         if n["check_command"]:
             h += H.para("Check the design file on a plant: ") + H.pre(n["check_command"])
         secs.append(("Tuned g and its certificate", h))
-    loops = n["loops_on_measured_frf"]
+    loops = n["loops_on_measured_plant"]
     if loops:
         keys = (
             "stable",
@@ -303,11 +302,11 @@ def _page(n: dict, figs) -> str:
             "t_peak_hz",
         )
         h = H.table(
-            ("loop on the measured FRF", *keys),
+            ("loop on the measured plant (GP-interpolated, continuous g)", *keys),
             [(k, *(r.get(x) for x in keys)) for k, r in loops.items()],
         )
         h += "".join(H.figure(byname[k]) for k in ("sigma_T_minus_I", "loci") if k in byname)
-        secs.append(("Closed loop on the measured FRF (NLS model)", h))
+        secs.append(("Closed loop on the measured plant (NLS model)", h))
     st = n["stages"]
     rows = [
         (s, "cache" if s in st["cached"] else "computed", st["seconds"].get(s)) for s in st["run"]

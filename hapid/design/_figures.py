@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax.numpy as jnp
 import numpy as np
 
 from .. import pipeline, plot
 from .._constants import TWO_PI
+from .._grids import continuous_grid
 from ..fit import pphat
 from ..impedance_frf import ImpedanceFRF
+from ..uncertainty import fit_loop_gp, loop_gp_mean
 
 LABELS = {"wls": "WLS + positize", "nls": "NLS (PD)", "ml": "ML"}
 
@@ -69,15 +72,20 @@ def _frf_figures(frf, fits: dict) -> list[Figure]:
     return out
 
 
-def loops(frf, nls_model, g_paper, g_tuned, ts) -> dict:
+def loops(frf, nls_model, g_paper, g_tuned) -> dict:
     """``{label: LoopMetrics}`` of the inverse-model controller of the NLS model with the
-    paper g and the tuned g (when there is one) closed on the measured FRF (``ts``: the
-    controller's sampling period, None for continuous)."""
-    plant = pipeline.frf_plant(frf, ts)
+    paper g and the tuned g (when there is one), continuous time, closed on the measured plant
+    interpolated by the loop GP (``Q̄ P̂``, :func:`hapid.uncertainty.loop_gp_mean`) on the
+    robust check's dense grid: the measured FRF's few frequencies cannot resolve a Nyquist
+    count."""
+    gp = fit_loop_gp(np.asarray(frf.omega), np.asarray(frf.P), nls_model)
+    omega = continuous_grid()
+    P = loop_gp_mean(gp, omega) @ np.asarray(nls_model.P(1j * omega))
+    plant = pipeline.Plant(jnp.asarray(omega), jnp.asarray(P), jnp.asarray(0), None)
     out = {}
     for label, g in (("paper g", g_paper), ("tuned g", g_tuned)):
         if g is not None:
-            ctrl = pipeline.controller(nls_model, g, ts=ts)
+            ctrl = pipeline.controller(nls_model, g, ts=None)
             out[label] = pipeline.loop(ctrl, plant, pipeline.SPEC_FIGURES)
     return out
 
@@ -85,15 +93,18 @@ def loops(frf, nls_model, g_paper, g_tuned, ts) -> dict:
 def _loop_figures(reps: dict) -> list[Figure]:
     if not reps:
         return []
-    f_top = max(float(np.max(np.asarray(r.freq_hz))) for r in reps.values())
-    fig, _ = plot.loci(reps, title="characteristic loci of P G on the measured FRF (NLS model)")
-    a = _fig("loci", "Characteristic loci", "Eigenvalues of P G, P the measured plant, G = "
-             "g Ẑ_T Ẑ_H⁻¹ of the NLS model, on the measured frequencies (Nyquist plane, "
-             "magnitude, phase).", fig)  # fmt: skip
-    fig, _ = plot.sigma_T_minus_I(reps, title="σ(T − I) on the measured FRF", f_max_hz=f_top)
+    f_top = 200.0
+    fig, _ = plot.loci(
+        reps, title="characteristic loci of P G (P: the measured plant, GP-interpolated)"
+    )
+    a = _fig("loci", "Characteristic loci", "Eigenvalues of P G, P the measured plant "
+             "interpolated by the loop GP (Q̄ P̂), G = g Ẑ_T Ẑ_H⁻¹ of the NLS model, continuous "
+             "time (Nyquist plane, magnitude, phase).", fig)  # fmt: skip
+    fig, _ = plot.sigma_T_minus_I(reps, title="σ(T − I) on the measured plant (GP-interpolated)",
+                                  f_max_hz=f_top)  # fmt: skip
     b = _fig("sigma_T_minus_I", "σ̄(T − I) with the isotropic bandwidth", "Singular values of "
-             "T − I on the measured frequencies; the isotropic bandwidth is where σ̄ first "
-             "reaches 1 − 1/√2 (dashed).", fig)  # fmt: skip
+             "T − I with P the measured plant interpolated by the loop GP; the isotropic "
+             "bandwidth is where σ̄ first reaches 1 − 1/√2 (dashed).", fig)  # fmt: skip
     return [a, b]
 
 
