@@ -31,6 +31,7 @@ EXAMPLES = """examples:
   hapid demo --out out/demo                            # simulate → FRF → σ plots
   hapid paper --out out/paper                          # the paper's figures 5–10 + summary
   hapid run scenes/zh_only.toml                        # a scene: only the stages it needs
+  hapid design run.npz --out out/design                # fits, robust check, tuned g, verdict, report.html
 """
 
 
