@@ -74,8 +74,9 @@ def register(sub, parse: Callable) -> None:
         "input", help="run file (hapid simulate), FRF file (hapid frf) or lab time series"
     )
     d.add_argument("--out", required=True, help="output folder")
-    d.add_argument("--f-max-hz", type=float, default=40.0,
-                   help="upper band edge (Hz) of the NLS and ML fits and of the posterior (default 40)")  # fmt: skip
+    d.add_argument("--f-max-hz", type=float,
+                   help="upper band edge (Hz) of the NLS and ML fits and of the posterior (default: "
+                   "40 on the haptic pair, every frequency for a single impedance)")  # fmt: skip
     d.add_argument("--posterior", choices=["laplace", "emcee"], default="laplace",
                    help="posterior method: laplace (default, seconds) or emcee (minutes)")  # fmt: skip
     d.add_argument("--samples", type=int, default=4000, help="Laplace draws (default 4000)")

@@ -227,7 +227,11 @@ def _numbers(o, path, cmds, log, res, fits, robust, tune, reps, checks, figs, fi
             "no controller: a single impedance (lab time series or impedance FRF) is fitted "
             "and checked for quality, not controlled"
             if o.single
-            else "no controller: the robust and tune stages were skipped"
+            else "no controller: "
+            + (
+                "; ".join(f"{k} failed: {v}" for k, v in errors.items())
+                or "the robust and tune stages were skipped"
+            )
         ),  # fmt: skip
         "figures": [{"name": g.name, "title": g.title, "caption": g.caption} for g in figs],
     }
@@ -255,12 +259,14 @@ def _page(n: dict, figs) -> str:
     rows = []
     for m, q in n["fits"].items():
         if "error" in q:
-            rows.append((LABELS[m], "error: " + q["error"], "—", "—", "—"))
+            rows.append((LABELS[m], "error: " + q["error"], "—", "—", "—", "—"))
             continue
         band = q.get("pphat_band_db")
-        rows.append((LABELS[m], q["status"], q["quality"].get("median_db"), q["quality"].get("max_db"),
-                     None if band is None else f"{band[0]:+.1f} / {band[1]:+.1f} dB"))  # fmt: skip
-    fit_html = H.table(("model", "status", "median rel. error (dB)", "max rel. error (dB)",
+        band = None if band is None else f"{band[0]:+.1f} / {band[1]:+.1f} dB"
+        for b, v in q["quality"].items():
+            if isinstance(v, dict):  # one block (Z_H, Z_T or Z)
+                rows.append((LABELS[m], q["status"], b, v["median_rel_err_db"], v["max_rel_err_db"], band))  # fmt: skip
+    fit_html = H.table(("model", "status", "block", "median rel. error (dB)", "max rel. error (dB)",
                         f"P P̂⁻¹ band to {BAND_HZ:g} Hz"), rows)  # fmt: skip
     fit_html += "".join(H.pre("\n".join([f"{LABELS[m]}:"] + q.get("quality_lines", []) + q.get("notes", [])))
                         for m, q in n["fits"].items() if "error" not in q)  # fmt: skip
