@@ -97,10 +97,13 @@ def register(sub, parse: Callable) -> None:
     d.add_argument("--no-cache", action="store_true", help="recompute every stage")
     lab = d.add_argument_group("lab time series (as hapid frf)")
     lab.add_argument("--nperseg", type=int, default=2048, help="samples per Welch segment")
-    lab.add_argument("--window", choices=["hann", "boxcar"], default="hann")
+    lab.add_argument("--window", choices=["hann", "boxcar"], default="hann",
+                     help="segment window (as hapid frf; default hann)")  # fmt: skip
     lab.add_argument("--response", choices=["displacement", "velocity", "acceleration"],
-                     default="displacement")  # fmt: skip
-    lab.add_argument("--sign", choices=["+", "-"], default="+")
+                     default="displacement", help="what the response channels measure "
+                     "(as hapid frf; default displacement)")  # fmt: skip
+    lab.add_argument("--sign", choices=["+", "-"], default="+",
+                     help="+: Z = +F/x, -: Z = -F/x (as hapid frf; default +)")  # fmt: skip
     lab.add_argument(
         "--fs-hz", type=float, help="sampling rate of the records if the file has none"
     )
