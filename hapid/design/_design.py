@@ -294,7 +294,12 @@ def _page(n: dict, figs) -> str:
             [(p["name"], p["start"], p["tuned"]) for p in t["parameters"]],
         )
         if n["check_command"]:
-            h += H.para("Check the design file on a plant: ") + H.pre(n["check_command"])
+            h += H.para(
+                "Check the design file on a plant: a densely measured FRF (the "
+                "experiment's own FRF has too few frequencies for a Nyquist count) in "
+                "place of frf.npz, or --device NAME for a simulated device:"
+            )
+            h += H.pre(n["check_command"])
         secs.append(("Tuned g and its certificate", h))
     loops = n["loops_on_measured_plant"]
     if loops:
