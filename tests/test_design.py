@@ -14,11 +14,13 @@ import pytest
 
 from hapid import io
 from hapid.cli import main
+from hapid.design import check_of, delivered
 from hapid.impedance import ImpedanceModel, SecondOrder
 from hapid.impedance_frf import as_impedance_frf
 from hapid.tune import load_design
 from hapid.uncertainty import fit_loop_gp, loop_gp_mean
 from hapid.uncertainty._loopgp import loop_gp_draws
+from hapid.verdict import Verdict
 
 
 class _Page(HTMLParser):
@@ -236,3 +238,20 @@ def test_design_cu5_numbers_are_the_single_commands(tmp_path):
     assert io.jsonable(info_d["table"]) == io.jsonable(info_s["table"])
     assert numbers["tune"]["table"] == io.jsonable(info_s["table"])
     assert len(numbers["verdict"]["checks"]) == 4  # paper g on 3 models + the tuned g
+
+
+def test_check_of_is_three_valued_and_the_delivered_controller_decides():
+    failed = check_of("paper g, WLS", False, ["|GM| short by 1 dB", "|PM| short by 2°"], "w")
+    assert (
+        failed.verdict is Verdict.FAILED and failed.reason == "|GM| short by 1 dB; |PM| short by 2°"
+    )
+    ne = check_of("paper g, NLS", True, [], "loop gain above 100 Hz 0.7", "measure higher")
+    assert ne.verdict is Verdict.NOT_ESTABLISHED and (ne.reason, ne.remedy) == (
+        "loop gain above 100 Hz 0.7",
+        "measure higher",
+    )
+    ok = check_of("tuned g, NLS model", True, [])
+    assert ok.verdict is Verdict.PASSED and ok.ok
+    assert delivered([failed, ne, ok]) is Verdict.PASSED  # the tuned g is what is delivered
+    assert delivered([ok.__class__(Verdict.PASSED, name="paper g"), ne]) is Verdict.NOT_ESTABLISHED
+    assert delivered([failed, ne]) is Verdict.FAILED

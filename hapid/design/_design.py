@@ -18,7 +18,7 @@ from ..verdict import Check, Verdict, worst
 from . import _graph, _html
 from ._commands import FILES, DesignOptions, analyze_command, shell_line
 from ._figures import LABELS, figures, loops
-from ._verdict import robust_check, tuned_check, tuned_row
+from ._verdict import TUNED, robust_check, tuned_check, tuned_row
 
 BAND_HZ = 30.0  # the P P̂⁻¹ band's upper edge, as hapid fit reports it (--band-hz default)
 
@@ -41,18 +41,25 @@ class DesignReport:
 
     @property
     def status(self) -> str:
-        """The combined verdict's word, or ``"no controller"`` (a single impedance, or the
-        controller stages skipped)."""
-        return worst(*self.checks).value if self.checks else "no controller"
+        """The verdict on the controller the design delivers (:func:`delivered`), or ``"no
+        controller"`` (a single impedance, or the controller stages skipped)."""
+        return delivered(self.checks).value if self.checks else "no controller"
 
     @property
     def ok(self) -> bool:
-        """Every check passed (False without checks)."""
-        return bool(self.checks) and worst(*self.checks) is Verdict.PASSED
+        """The delivered controller passed (False without checks)."""
+        return bool(self.checks) and delivered(self.checks) is Verdict.PASSED
 
     def summary(self) -> dict:
         """``report.json``'s content (strict JSON)."""
         return self.numbers
+
+
+def delivered(checks) -> Verdict:
+    """The verdict on the controller a design delivers: the tuned g's check when it was
+    tuned (the last check), else the worst of the paper g's checks on every model."""
+    tuned = [c for c in checks if c.name.startswith(TUNED)]
+    return tuned[-1].verdict if tuned else worst(*checks)
 
 
 def versions() -> dict:
@@ -218,7 +225,8 @@ def _numbers(o, path, cmds, log, res, fits, robust, tune, reps, checks, figs, fi
         },  # fmt: skip
         "loops_on_measured_plant": {k: r.summary() for k, r in reps.items()},
         "verdict": {
-            "overall": worst(*checks).value if checks else None,
+            "overall": delivered(checks).value if checks else None,
+            "overall_means": "the tuned g's check when tuned, else the worst of the paper g's",
             "checks": [c.summary() for c in checks],
         },  # fmt: skip
         "controller": None
@@ -247,7 +255,8 @@ def _page(n: dict, figs) -> str:
     ]
     v = n["verdict"]
     if v["checks"]:
-        secs.append((f"Verdict: {v['overall']}", H.verdict_table(v["checks"])))
+        secs.append((f"Verdict: {v['overall']}", H.para(f"Overall: {v['overall_means']}.")
+                     + H.verdict_table(v["checks"])))  # fmt: skip
     else:
         secs.append(("Verdict", H.para(n["controller"])))
     fr = n["frf"]

@@ -10,6 +10,7 @@ from .._cli_kw import uncertified_warning
 from ..verdict import Check, Verdict
 from ._figures import LABELS
 
+TUNED = "tuned g"  # the name of the tuned g's check starts with this
 REQUIREMENT = "P(stable) ≥ 0.95, |GM| ≥ 6 dB, |PM| ≥ 30° on loop draws"
 
 
@@ -55,6 +56,6 @@ def tuned_check(tune: dict, quantile: float = 0.975) -> Check:
                        f"{100 * (frac if frac is not None else float('nan')):.1f} % meet GM ≥ 6 dB, "
                        f"PM ≥ 30° (required {100 * quantile:.1f} %)")  # fmt: skip
     warn = uncertified_warning(row)
-    return check_of("tuned g, NLS model: margins on held-out draws and the FRF certificate",
+    return check_of(f"{TUNED}, NLS model: margins on held-out draws and the FRF certificate",
                     passed, reasons, warn.removeprefix("WARNING: "),
                     "measure the FRF densely around the crossover and tune on it")  # fmt: skip
