@@ -278,6 +278,10 @@ PER_COMMAND: dict[str, dict] = {
     "plant": {"out": _Out("an FRF file", (".npz",)), "n_freq": int_between(2, N_FREQ_DRAWS_MAX),
               "f_min_hz": gt(0, " Hz")},
     "run": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder")},
+    "design": {"input": _In("a run, FRF or time-series file", RUN_EXT), "out": _Out("an output folder"),
+               "samples": int_ge(1), "posterior": one_of(["laplace", "emcee"]),
+               "skip": ANY, "only": ANY,  # argparse choices: the stage names
+               "lab_f_min_hz": gt(0, " Hz"), "lab_f_max_hz": gt(0, " Hz")},
 }  # fmt: skip
 
 

@@ -219,10 +219,38 @@ def _band(a, f_all_hz: np.ndarray, f_max_hz: float | None = None) -> tuple[float
     return lo, hi
 
 
+def fit_band(sel, single: bool, a, band: tuple[float, float]):
+    """``(fitted, quality, meta)``: the fit ``hapid fit`` makes of ``sel`` (the data already
+    cut to ``band``, Hz) with the options ``a`` of its parser — the :class:`Fitted`, its
+    :class:`hapid.fit.FitQuality` over the band (extra lines included) and the metadata the
+    model file stores. Raises :class:`FitCommandError` for a fit the command refuses."""
+    from .fit import pair_quality
+
+    table = SINGLE_METHODS if single else PAIR_METHODS
+    fitted = table[a.method](sel, a, band)
+    q = fitted.quality
+    if q is None:
+        before = None
+        if fitted.before is not None:
+            before = pair_quality(sel, fitted.before, method="wls", band_hz=band)
+        q = pair_quality(sel, fitted.model, method=fitted.meta.get("method", a.method),
+                         band_hz=band, before=before)  # fmt: skip
+    q = extra_quality_lines(q, fitted, sel, a)
+    return fitted, q, {**fitted.meta, **q.to_arrays()}
+
+
+def fit_data(data, single: bool, a):
+    """``(fitted, quality, meta, sel)``: :func:`fit_band` on ``data`` cut to the band ``hapid
+    fit`` chooses from ``a`` (``--f-min-hz``/``--f-max-hz``, NLS on the pair: 40 Hz)."""
+    lo, hi = _band(a, np.asarray(data.freq_hz), _default_f_max(a, not single))
+    sel = data.band(lo, hi)
+    return (*fit_band(sel, single, a, (lo, hi)), sel)
+
+
 def run_fit(a) -> None:
     """``hapid fit``: read, dispatch on file kind and method, report, write (all or nothing)."""
     from . import io
-    from .fit import crhp_report, pair_quality, pphat_band_db
+    from .fit import crhp_report, pphat_band_db
     from .impedance_frf import model_units
 
     kind = io.file_kind(a.frf, "an FRF file (freq_hz with Z_H, Z_T or Z)")
@@ -273,17 +301,7 @@ def run_fit(a) -> None:
         how = f"--f-min-hz {lo:g} --f-max-hz {hi:g}"
     print(f"band: {f.min():g}–{f.max():g} Hz, {f.size} of {np.size(data.freq_hz)} frequencies "
           f"({how})")  # fmt: skip
-    fitted = table[a.method](sel, a, (lo, hi))
-    q = fitted.quality
-    if q is None:
-        band = (lo, hi)
-        before = None
-        if fitted.before is not None:
-            before = pair_quality(sel, fitted.before, method="wls", band_hz=band)
-        q = pair_quality(sel, fitted.model, method=fitted.meta.get("method", a.method),
-                         band_hz=band, before=before)  # fmt: skip
-    q = extra_quality_lines(q, fitted, sel, a)
-    meta = {**fitted.meta, **q.to_arrays()}
+    fitted, q, meta = fit_band(sel, single, a, (lo, hi))
     if single:
         out = io.save_impedance_model(a.out, fitted.model, **meta)
     else:

@@ -11,8 +11,11 @@ from . import io
 from .experiment import estimate_impedance
 
 
-def run_frf_lab(a) -> None:
-    """``hapid frf`` on lab records: impact or Welch H1 → impedance FRF file (and ``--plot``)."""
+def lab_estimate(a):
+    """``(estimate, time series)``: the H1 estimate (:class:`hapid.experiment` impedance
+    estimate: ``frf``, ``method``, ``n_segments``…) ``hapid frf`` makes of the lab records
+    ``a.run`` (and ``a.add``) with the options ``a`` of its parser. Raises ``ValueError``
+    naming the file."""
     ts = io.load_timeseries([a.run, *(a.add or [])], fs_hz=a.fs_hz, force_key=a.force_key,
                             response_key=a.response_key, force_unit=a.force_unit,
                             length_unit=a.length_unit)  # fmt: skip
@@ -27,6 +30,18 @@ def run_frf_lab(a) -> None:
                                  force_window_s=a.force_window, exp_tau_s=a.exp_tau)  # fmt: skip
     except ValueError as e:
         raise ValueError(f"{a.run}: {e}") from None
+    return est, ts
+
+
+def lab_frf(a):
+    """``(impedance FRF, time series)`` of :func:`lab_estimate`."""
+    est, ts = lab_estimate(a)
+    return est.frf, ts
+
+
+def run_frf_lab(a) -> None:
+    """``hapid frf`` on lab records: impact or Welch H1 → impedance FRF file (and ``--plot``)."""
+    est, ts = lab_estimate(a)
     z = est.frf
     out = io.save_impedance_frf(a.out, z)
     E, T, n = ts.force.shape

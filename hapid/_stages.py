@@ -85,7 +85,7 @@ def encode(obj) -> tuple[dict, dict]:
         if isinstance(x, int) and not isinstance(x, bool):
             return {"int": x}
         if isinstance(x, float):
-            return {"float": repr(x)}
+            return {"float": repr(float(x))}  # np.float64 is a float: its repr is not
         if _is_array(x):
             a = np.asarray(x)
             if a.dtype == object:

@@ -11,6 +11,13 @@ import warnings
 from pathlib import Path
 
 from ._cli_device import add_device_args, describe, device_from_args
+from ._cli_kw import (  # noqa: F401  (uncertified_warning: part of the CLI's API)
+    device_or_none,
+    posterior_kw,
+    robust_metrics,
+    tune_kw,
+    uncertified_warning,
+)
 from .defaults import FIT_BAND_HZ, GM_DB, PM_DEG
 from .experiment._impedance import NPERSEG
 
@@ -26,16 +33,12 @@ EXAMPLES = """examples:
   hapid demo --out out/demo                            # simulate → FRF → σ plots
   hapid paper --out out/paper                          # the paper's figures 5–10 + summary
   hapid run scenes/zh_only.toml                        # a scene: only the stages it needs
+  hapid design run.npz --out out/design                # fits, robust check, tuned g, verdict, report.html
 """
 
 
 class CLIError(Exception):
     pass
-
-
-def _device_or_none(a):
-    """The device of ``--device`` and its variant options (None without ``--device``)."""
-    return None if a.device is None else device_from_args(a)
 
 
 def _protocol_args(p):
@@ -396,15 +399,7 @@ def cmd_analyze(a):
 def cmd_posterior(a):
     from .uncertainty import posterior_from_files
 
-    ps = posterior_from_files(a.frf, a.out, method=a.method, n_samples=a.samples,
-                              n_steps=a.steps, seed=a.seed, backend_path=a.hdf5,
-                              fit_options={"f_max_hz": a.f_max_hz},
-                              posterior_options={"model_error": a.model_error}
-                              | ({"gp_hyper": a.gp_hyper} if a.gp_hyper and a.model_error in ("gp", "gp_corr") else {})
-                              | ({"error_scale": a.error_scale} if a.error_scale else {}),
-                              sampler_options={"moves": a.moves} | ({"n_walkers": a.walkers} if a.walkers else {}),
-                              fix_boundary=not a.free_boundary,
-                              boundary_refit=not a.keep_boundary)  # fmt: skip
+    ps = posterior_from_files(a.frf, a.out, **posterior_kw(a))
     eps = float(ps.diagnostics.get("fit_pd_eps", 0.0))
     if eps > 0:  # the same note and metadata as hapid fit (diag_fit_pd_eps in the file)
         print(f"note: fit refitted with pd_eps = {eps:g}: the PSD-boundary fit put a root of "
@@ -436,7 +431,7 @@ def cmd_robust(a):
     from .uncertainty import robust_from_files
     from .uncertainty._files import side_by_side
 
-    dev = _device_or_none(a)
+    dev = device_or_none(a)
     if len(a.model) == 1:
         res = robust_from_files(a.samples, a.model[0], a.out, **_robust_kw(a, dev))
         print(to_json(res)[:4000])
@@ -462,16 +457,12 @@ def cmd_robust(a):
         print(f"report → {a.out}")
 
 
-def _robust_metrics(a):
-    return "all" if a.all_metrics else ()
-
-
 def _robust_kw(a, dev) -> dict:
     """The options of ``hapid robust`` for :func:`hapid.uncertainty.robust_from_files`
     (``dev``: the device of the ``--device`` options, or None)."""
     return {"frf_path": a.frf, "draws": a.draws, "gm_db": a.gm_db, "pm_deg": a.pm_deg,
             "max_samples": a.max_samples, "device": dev, "n_subjects": a.subjects,
-            "metrics": _robust_metrics(a)}  # fmt: skip
+            "metrics": robust_metrics(a)}  # fmt: skip
 
 
 def _draws_line(d: dict) -> str:
@@ -490,7 +481,7 @@ def _draws_line(d: dict) -> str:
 def _robust_worker(a):
     from .uncertainty import robust_from_files
 
-    dev = _device_or_none(a)
+    dev = device_or_none(a)
     for m in a.model:
         robust_from_files(a.samples, m, None, **_robust_kw(a, dev))
 
@@ -651,41 +642,14 @@ def _register_sweep(sub):
     sw.set_defaults(func=cmd_sweep)
 
 
-def uncertified_warning(row: dict) -> str:
-    """One warning line when the returned design's re-check row says the evidence does not
-    certify it (``certified`` False, :func:`hapid.tune._evidence.certificate`), else ``""``."""
-    if row.get("certified", True):
-        return ""
-    return (f"WARNING: the returned g is NOT certified by the evidence (measured loci min |1 + λ| "
-            f"{row.get('frf_min_loci_distance', float('nan')):.3g}, floor 0.5; loop gain beyond "
-            f"{row.get('evidence_hz', float('nan')):.3g} Hz {row.get('beyond_loop_gain', float('nan')):.3g}, "
-            "bound 0.5; nominal loop stable: "
-            f"{row.get('nominal_stable')}): the measured FRF cannot exclude a crossing of −1 "
-            "between its frequencies, so the real loop may be unstable. Measure the FRF densely "
-            "around the crossover and tune on it (hapid simulate --freqs 1,2,...).")  # fmt: skip
-
-
 def cmd_tune(a):
+
+    import time
 
     from .tune import tune_from_files
 
-    draws = "loop_gp" if a.loop_draws else a.draws
-    import time
-
     t = time.perf_counter()
-    g0 = None
-    if a.extra_lag or a.extra_notch:  # a richer template: the paper g plus identity terms
-        from .control import Compensator
-        from .tune import extend_structure
-
-        g0 = extend_structure(Compensator.paper(), lag_hz=a.extra_lag or (),
-                              notch_hz=a.extra_notch or ())  # fmt: skip
-    res = tune_from_files(a.model, a.samples, a.out, device=_device_or_none(a), frf=a.frf, g0=g0,
-                          evidence_ts=None if a.fs is None else 1.0 / a.fs, n_train=a.n_train,
-                          n_holdout=a.n_holdout, quantile=a.quantile, n_subjects=a.subjects,
-                          seed=a.seed, max_steps=a.max_steps, keep_dc_gain=not a.free_dc,
-                          model_error_draws=a.predictive, evidence_bandwidth=a.evidence_bandwidth,
-                          draw_family=draws)  # fmt: skip
+    res = tune_from_files(a.model, a.samples, a.out, **tune_kw(a))
     r = res["result"]
     print(res.get("decision", ""))
     print(f"tuned in {r.wall_s:.1f} s: claimed robust bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, "
@@ -778,12 +742,24 @@ def _register_predict(sub):
     register(sub)
 
 
+def _parse_command(argv: list[str]) -> argparse.Namespace:
+    """A ``hapid`` command line parsed by the real parser (every option's default)."""
+    return build_parser().parse_args(argv)
+
+
+def _register_design(sub):
+    from ._cli_design import register
+
+    register(sub, _parse_command)
+
+
 _EXTRA: list = [
     _register_scene,
     _register_stages,
     _register_sweep,
     _register_tune,
     _register_predict,
+    _register_design,
 ]  # later stages register their subcommands here
 
 

@@ -8,6 +8,7 @@ file and the problem in its error.
 from __future__ import annotations
 
 import csv
+import hashlib
 import io as _io
 import json
 import os
@@ -960,6 +961,24 @@ def _no_negative_zero(cell):
         except ValueError:
             pass
     return cell
+
+
+def file_sha256(path) -> str:
+    """sha256 (hex) of a file's bytes."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file")
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def save_bytes(path, data: bytes) -> Path:
+    """Write ``data`` (e.g. a PNG or PDF figure) to ``path``, atomically."""
+    data = bytes(data)
+    return _atomic_write(path, lambda fh: fh.write(data))
 
 
 def save_csv(path, header, rows) -> Path:

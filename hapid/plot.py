@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import io as _io
+from pathlib import Path
+
 import matplotlib
 
 matplotlib.use("Agg", force=False)
@@ -318,10 +321,48 @@ def sweep(keys, rows, metrics):
     return fig, axes
 
 
+def robust_histograms(reports: dict, *, title: str = ""):
+    """Histograms of the robust check's draws per controller/model (``reports``: ``{label:
+    hapid.uncertainty.RobustReport}``): |GM| (dB), |PM| (deg) and the isotropic bandwidth
+    (Hz) of the stable draws, the requirements dashed; each label with its P(stable)."""
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.0))
+    panels = (("gm_db", "|GM| (dB)", "gm_req_db"), ("pm_deg", "|PM| (deg)", "pm_req_deg"),
+              ("iso_bandwidth_hz", "isotropic bandwidth (Hz)", None))  # fmt: skip
+    for ax, (name, xlabel, req) in zip(axes, panels, strict=True):
+        for i, (label, rep) in enumerate(reports.items()):
+            ok = np.asarray(rep.stable, bool)
+            v = np.abs(np.asarray(getattr(rep, name), float))[ok]
+            v = v[np.isfinite(v)]
+            if v.size:
+                ax.hist(v, bins=40, histtype="step", lw=1.4, color=f"C{i}",
+                        label=f"{label}: P(stable) {rep.p_stable:.3f}, n = {rep.n}")  # fmt: skip
+            if req is not None and i == 0:
+                ax.axvline(float(getattr(rep, req)), color="k", ls="--", lw=1,
+                           label=f"required ≥ {float(getattr(rep, req)):g}")  # fmt: skip
+        ax.set_xlabel(xlabel + " of the stable draws")
+        ax.set_ylabel("draws")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return fig, axes
+
+
+def to_bytes(fig, fmt: str = "png", dpi: int = 110) -> bytes:
+    """The figure as ``fmt`` (``"png"``, ``"pdf"``) bytes; the figure stays open."""
+    buf = _io.BytesIO()
+    fig.savefig(buf, format=fmt, dpi=dpi, bbox_inches="tight")
+    return buf.getvalue()
+
+
+def close(fig) -> None:
+    """Close a figure (free its memory)."""
+    plt.close(fig)
+
+
 def save(fig, path) -> None:
     """Save and close a figure (creates the folder)."""
-    from pathlib import Path
-
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=130, bbox_inches="tight")
     plt.close(fig)

@@ -33,6 +33,7 @@ from ._likelihood import param_names as param_names
 from ._loopgp import LoopGP as LoopGP
 from ._loopgp import fit_loop_gp as fit_loop_gp
 from ._loopgp import loop_gp_check as loop_gp_check
+from ._loopgp import loop_gp_mean as loop_gp_mean
 from ._loopgp import loop_gp_plants as loop_gp_plants
 from ._loopgp import measured_data as measured_data
 from ._mode import check_initial_state as check_initial_state

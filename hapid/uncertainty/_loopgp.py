@@ -190,6 +190,26 @@ def loop_gp_draws(gp: LoopGP, omega, n_draws: int, seed: int = 0) -> np.ndarray:
     return np.eye(gp.n) + out.reshape(n_draws, N, gp.n, gp.n)
 
 
+def loop_gp_mean(gp: LoopGP, omega) -> np.ndarray:
+    """``Q̄ = I + E[Δ]`` ``(N, n, n)`` on ``omega (N,)`` rad/s: the mean of
+    :func:`loop_gp_draws` — the GP conditional mean inside the measured band, below it the
+    mean at the lowest measured frequency times ``ρ = m(|u − u_1|/ℓ)``, above it the mean at
+    the highest tapered to 0. ``Q̄ P̂`` is the measured plant interpolated on any grid."""
+    u = np.log(np.asarray(omega, dtype=float))
+    u1, ue = float(gp.u[0]), float(gp.u[-1])
+    lo, hi = u <= u1, u >= ue
+    inside = ~lo & ~hi
+    mean, _ = conditional(gp, np.concatenate([[u1], u[inside], [ue]]))
+    out = np.zeros((u.size, gp.D.shape[1]), complex)
+    out[inside] = mean[1:-1]
+    ratio = np.exp(u[lo] - u1)[:, None]
+    dlo = matern52((u1 - u[lo]) / gp.ell)[:, None] * mean[0][None]
+    out[lo] = dlo.real + 1j * ratio * dlo.imag
+    t = np.clip((u[hi] - ue) / TOP_TAPER, 0.0, 1.0)
+    out[hi] = mean[-1][None] * (0.5 * (1.0 + np.cos(np.pi * t)))[:, None]
+    return np.eye(gp.n) + out.reshape(u.size, gp.n, gp.n)
+
+
 def _correlated(cov, n_draws: int, E: int, rng) -> np.ndarray:
     """``(S, M, E)`` circular complex Gaussian draws with covariance ``cov (M, M)`` per
     element (PSD-safe square root)."""

@@ -1,0 +1,63 @@
+"""How the ``hapid`` commands turn their parsed options into library keyword arguments — one
+place, shared by the commands and by ``hapid design`` (which parses the same commands)."""
+
+from __future__ import annotations
+
+from ._cli_device import device_from_args
+
+
+def device_or_none(a):
+    """The device of ``--device`` and its variant options (None without ``--device``)."""
+    return None if a.device is None else device_from_args(a)
+
+
+def posterior_kw(a) -> dict:
+    """The options of ``hapid posterior`` (parsed ``a``) for
+    :func:`hapid.uncertainty.posterior_from_files`, files aside."""
+    gp = a.model_error in ("gp", "gp_corr")
+    return dict(
+        method=a.method, n_samples=a.samples, n_steps=a.steps, seed=a.seed,
+        backend_path=a.hdf5, fit_options={"f_max_hz": a.f_max_hz},
+        posterior_options={"model_error": a.model_error}
+        | ({"gp_hyper": a.gp_hyper} if a.gp_hyper and gp else {})
+        | ({"error_scale": a.error_scale} if a.error_scale else {}),
+        sampler_options={"moves": a.moves} | ({"n_walkers": a.walkers} if a.walkers else {}),
+        fix_boundary=not a.free_boundary, boundary_refit=not a.keep_boundary,
+    )  # fmt: skip
+
+
+def robust_metrics(a):
+    """``robust_check``'s ``metrics`` for ``hapid robust --all-metrics``."""
+    return "all" if a.all_metrics else ()
+
+
+def tune_kw(a) -> dict:
+    """The options of ``hapid tune`` (parsed ``a``) for :func:`hapid.tune.tune_from_files`,
+    the model, samples and output files aside."""
+    g0 = None
+    if a.extra_lag or a.extra_notch:  # a richer template: the paper g plus identity terms
+        from .control import Compensator
+        from .tune import extend_structure
+
+        g0 = extend_structure(Compensator.paper(), lag_hz=a.extra_lag or (),
+                              notch_hz=a.extra_notch or ())  # fmt: skip
+    return dict(device=device_or_none(a), frf=a.frf, g0=g0,
+                evidence_ts=None if a.fs is None else 1.0 / a.fs, n_train=a.n_train,
+                n_holdout=a.n_holdout, quantile=a.quantile, n_subjects=a.subjects,
+                seed=a.seed, max_steps=a.max_steps, keep_dc_gain=not a.free_dc,
+                model_error_draws=a.predictive, evidence_bandwidth=a.evidence_bandwidth,
+                draw_family="loop_gp" if a.loop_draws else a.draws)  # fmt: skip
+
+
+def uncertified_warning(row: dict) -> str:
+    """One warning line when the returned design's re-check row says the evidence does not
+    certify it (``certified`` False, :func:`hapid.tune._evidence.certificate`), else ``""``."""
+    if row.get("certified", True):
+        return ""
+    return (f"WARNING: the returned g is NOT certified by the evidence (measured loci min |1 + λ| "
+            f"{row.get('frf_min_loci_distance', float('nan')):.3g}, floor 0.5; loop gain beyond "
+            f"{row.get('evidence_hz', float('nan')):.3g} Hz {row.get('beyond_loop_gain', float('nan')):.3g}, "
+            "bound 0.5; nominal loop stable: "
+            f"{row.get('nominal_stable')}): the measured FRF cannot exclude a crossing of −1 "
+            "between its frequencies, so the real loop may be unstable. Measure the FRF densely "
+            "around the crossover and tune on it (hapid simulate --freqs 1,2,...).")  # fmt: skip
