@@ -406,16 +406,18 @@ def cmd_robust(a):
     dev = _device_or_none(a)
     if len(a.model) == 1:
         res = robust_from_files(a.samples, a.model[0], a.out, **_robust_kw(a, dev))
+        for line in verdict_lines(res):
+            print(line)
         print(to_json(res)[:4000])
         print(_draws_line(res["posterior"]["draws"]))
-        for batch in ("posterior", "device"):
-            if res.get(batch) is not None and not res[batch]["passed"]:
-                print(f"{batch}: NOT passed — " + "; ".join(res[batch]["reasons"]))
     else:
         res = {
             Path(m).stem: robust_from_files(a.samples, m, None, **_robust_kw(a, dev))
             for m in a.model
         }
+        for name, r in res.items():
+            for line in verdict_lines(r):
+                print(f"{name}: {line}")
         print(side_by_side(res))
         for name, r in res.items():
             print(f"{name}: {_draws_line(r['posterior']['draws'])}")
@@ -429,6 +431,23 @@ def cmd_robust(a):
         print(f"report → {a.out}")
 
 
+def verdict_lines(res: dict) -> list[str]:
+    """The verdict of each batch of a :func:`hapid.uncertainty.robust_from_files` result, one
+    line each, verdict first: ``posterior: not established: … — measure …``."""
+    out = []
+    for batch in ("posterior", "device"):
+        sm = res.get(batch)
+        if sm is None:
+            continue
+        line = f"{batch}: {sm['verdict'].upper()} — {sm['check']}"
+        if sm["reason"]:
+            line += f": {sm['reason']}"
+        if sm["remedy"]:
+            line += f". To establish it: {sm['remedy']}"
+        out.append(line)
+    return out
+
+
 def _robust_metrics(a):
     return "all" if a.all_metrics else ()
 
@@ -438,7 +457,7 @@ def _robust_kw(a, dev) -> dict:
     (``dev``: the device of the ``--device`` options, or None)."""
     return {"frf_path": a.frf, "draws": a.draws, "gm_db": a.gm_db, "pm_deg": a.pm_deg,
             "max_samples": a.max_samples, "device": dev, "n_subjects": a.subjects,
-            "metrics": _robust_metrics(a)}  # fmt: skip
+            "metrics": _robust_metrics(a), "ts": None if a.fs is None else 1.0 / a.fs}  # fmt: skip
 
 
 def _draws_line(d: dict) -> str:
@@ -446,12 +465,9 @@ def _draws_line(d: dict) -> str:
     if d["draws"] != "loop_gp":
         return "draws: " + d["note"]
     lo, hi = d["measured_hz"]
-    line = (f"draws: loop GP conditioned on the measured FRF {lo:g}–{hi:g} Hz "
-            f"(ℓ = {d['ell']:.2g} in ln ω); loop gain above {hi:g} Hz ≤ {d['beyond_loop_gain']:.3g}")  # fmt: skip
-    if not d["beyond_covered"]:
-        line += (f" — WARNING: above 0.5 there; the draws are the model's own plant above {hi:g} Hz, "
-                 "so they do not cover the loop there (measure the FRF higher, or lower g there)")  # fmt: skip
-    return line
+    return (f"draws: loop GP conditioned on the measured FRF {lo:g}–{hi:g} Hz "
+            f"(ℓ = {d['ell']:.2g} in ln ω), {d['loop']}; loop gain above {hi:g} Hz ≤ "
+            f"{d['beyond_loop_gain']:.3g} (covered by the draws only when ≤ 0.5: see the verdict)")  # fmt: skip
 
 
 def _robust_worker(a):
@@ -551,6 +567,10 @@ def _register_stages(sub):
     ro.add_argument("--subjects", type=int, default=0, help="virtual subjects for --device")
     ro.add_argument("--gm-db", type=float, default=6.0)
     ro.add_argument("--pm-deg", type=float, default=30.0)
+    ro.add_argument("--fs", type=float, default=None,
+                    help="rate (Hz) the controller runs at: the loop draws are checked with the "
+                    "discretized controller (default: the device's with --device, else the "
+                    "continuous-time controller)")  # fmt: skip
     ro.add_argument(
         "--max-samples",
         type=int,

@@ -82,6 +82,8 @@ from ..control import Compensator, MetricsSpec, analyze_loop
 from ..control._metrics import grid_pass, metrics_screened, refine_many
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
+from ..verdict import Check, Verdict
+from ._cover import EvidenceCover, cover_check
 from ._sampler import PosteriorSamples
 
 FIELDS = (
@@ -125,6 +127,25 @@ class RobustReport:
     p_stable_required: float = 0.95
     labels: tuple | None = None
     computed: tuple = FIELDS
+    gm_freq_hz: np.ndarray | None = None
+    pm_freq_hz: np.ndarray | None = None
+    cover: EvidenceCover | None = None
+    loop: str = ""
+
+    @property
+    def check(self) -> Check:
+        """The three-valued verdict (:class:`hapid.verdict.Check`): ``failed`` when the
+        requirements fail on the plants (:meth:`reasons`); with :attr:`cover` (draws
+        conditioned on a measured band) ``not established`` when the evidence does not cover
+        the frequencies that decide it (:func:`hapid.uncertainty._cover.cover_check`); else
+        ``passed``. Its ``name`` states the requirements and :attr:`loop`."""
+        name = f"GM ≥ {self.gm_req_db:g} dB, PM ≥ {self.pm_req_deg:g}°" + (
+            f" ({self.loop})" if self.loop else "")  # fmt: skip
+        if self.cover is not None:
+            return cover_check(self, self.cover, name)
+        why = self.reasons()
+        return Check(Verdict.FAILED, reason="; ".join(why), name=name) if why else Check(
+            Verdict.PASSED, name=name)  # fmt: skip
 
     @property
     def not_computed(self) -> tuple:
@@ -175,7 +196,8 @@ class RobustReport:
 
     @property
     def passed(self) -> bool:
-        return not self.reasons()
+        """:attr:`check` passed (a failed or not-established check is not passed)."""
+        return self.check.ok
 
     def reasons(self) -> list[str]:
         """Why the check did not pass — one line per failed requirement, with how far the
@@ -200,13 +222,14 @@ class RobustReport:
 
     @property
     def ok(self) -> bool:
-        """The requirements are met (:attr:`passed`)."""
-        return self.passed
+        """The check passed (:attr:`check`): the requirements are met on the plants *and*
+        the evidence covers them."""
+        return self.check.ok
 
     @property
-    def status(self) -> str:
-        """``"passed"`` or ``"failed"``."""
-        return "passed" if self.passed else "failed"
+    def status(self) -> Verdict:
+        """The verdict of :attr:`check`: passed / failed / not established."""
+        return self.check.verdict
 
     def summary(self) -> dict:
         """Plain-python summary: P(stable), 5 %/50 % quantiles, worst plant, pass/fail;
@@ -225,6 +248,10 @@ class RobustReport:
                                "p_stable": self.p_stable_required}  # fmt: skip
         out["passed"] = self.passed
         out["reasons"] = self.reasons()
+        ck = self.check
+        out |= {"verdict": ck.verdict.value, "reason": ck.reason, "remedy": ck.remedy,
+                "check": ck.name, "loop": self.loop}  # fmt: skip
+        out["evidence"] = None if self.cover is None else self.cover.summary()
         return out
 
     def rows(self) -> list[dict]:
@@ -243,7 +270,7 @@ class RobustReport:
         return float(getattr(self, name)[i]) if name in self.computed else None
 
 
-_KEYS = ("stable", "n_closed_loop_rhp") + FIELDS
+_KEYS = ("stable", "n_closed_loop_rhp") + FIELDS + ("gm_freq_hz", "pm_freq_hz")
 
 
 def _spec(metrics: tuple) -> MetricsSpec:
@@ -254,7 +281,9 @@ def _spec(metrics: tuple) -> MetricsSpec:
 
 
 def _fields(m: dict, spec: MetricsSpec) -> dict:
-    out = {k: m[k] for k in ("stable", "n_closed_loop_rhp", "gm_db", "pm_deg", "iso_bandwidth_hz")}
+    keys = ("stable", "n_closed_loop_rhp", "gm_db", "pm_deg", "iso_bandwidth_hz", "gm_freq_hz",
+            "pm_freq_hz")  # fmt: skip
+    out = {k: m[k] for k in keys}
     nan = jnp.full_like(m["gm_db"], jnp.nan)
     out["t_peak_db"] = m["t_peak_db"] if spec.t_peak else nan
     if spec.disk:  # loop_metrics fills the disk margin's GM/PM (0 when not stable)
