@@ -285,15 +285,21 @@ def cmd_fit(a):
     run_fit(a)
 
 
+FEW_FRF_FREQUENCIES = 200  # an FRF with fewer points may leave the Nyquist count unresolved
+
+
 def cmd_analyze(a):
 
     import numpy as np
 
     from . import io, pipeline, scene
+    from ._analyze_check import loop_check, margin_words
     from .control import max_siso_gain
+    from .tune._check import loop_label
 
     model = io.load_model(a.model)
     cfg = scene.merge({})
+    note = ""
     if a.design:
         from .tune import load_design
 
@@ -308,8 +314,12 @@ def cmd_analyze(a):
             raise CLIError(f"{a.frf} extends to {float(np.max(frf.freq_hz)):g} Hz, beyond the sampled "
                            f"controller's Nyquist frequency fs/2 = {0.5 * a.fs:g} Hz (--fs {a.fs:g}); "
                            "give the FRF's real sampling rate with --fs, or use --continuous")  # fmt: skip
-        print("note: a measured FRF has few frequencies: the Nyquist verdict needs a dense grid "
-              "and may be unresolved; margins and bandwidth are read on the FRF grid")  # fmt: skip
+        f_hz = np.asarray(frf.freq_hz, dtype=float)
+        note = (f"note: the measured FRF has {f_hz.size} frequencies, {f_hz[0]:g}–{f_hz[-1]:g} Hz: "
+                "the Nyquist count runs over that band only; margins and bandwidth are read on the "
+                "FRF grid")  # fmt: skip
+        if f_hz.size < FEW_FRF_FREQUENCIES:
+            note += " (few frequencies: the count needs a dense grid and may be unresolved)"
     else:
         dev = device_from_args(a)
         if dev.n != model.n:
@@ -336,7 +346,23 @@ def cmd_analyze(a):
     rep = pipeline.loop(ctrl, plant)
     s = rep.summary()
     out = {"controller": a.controller, "siso_gain": c, "continuous": bool(a.continuous),
-           "design": a.design, "controller_rhp_poles": int(ctrl.p_rhp), **s}  # fmt: skip
+           "design": a.design, "controller_rhp_poles": int(ctrl.p_rhp),
+           "loop": loop_label(ts), **s}  # fmt: skip
+    if a.gm_db is not None or a.pm_deg is not None:  # the requirement check, printed first
+        band = top = None
+        if a.frf:
+            band = (float(frf.freq_hz[0]), float(frf.freq_hz[-1]))
+            w = np.asarray(plant.omega)[-1:]
+            L = np.asarray(plant.P)[-1:] @ np.asarray(ctrl.response(w))
+            top = float(np.linalg.svd(L, compute_uv=False)[0, 0])
+        ck = loop_check(s, gm_db=6.0 if a.gm_db is None else a.gm_db,
+                        pm_deg=30.0 if a.pm_deg is None else a.pm_deg, ts=ts,
+                        frf_band_hz=band, top_loop_gain=top)  # fmt: skip
+        out |= {"verdict": ck.verdict.value, "reason": ck.reason, "remedy": ck.remedy,
+                "check": ck.name}  # fmt: skip
+        print(check_line(ck))
+    if note:
+        print(note)
     if a.out:
         io.save_json(a.out, out)
     verdict = (
@@ -349,7 +375,7 @@ def cmd_analyze(a):
           f"encirclements, {int(ctrl.p_rhp)} open-loop RHP pole(s) of the controller)")  # fmt: skip
     if s["stable"]:
         print(f"isotropic bandwidth {s['iso_bandwidth_hz']:.2f} Hz (paper-literal "
-              f"{s['iso_bandwidth_literal_hz']:.2f} Hz); GM {s['gm_db']:.1f} dB, PM {s['pm_deg']:.1f}°, "
+              f"{s['iso_bandwidth_literal_hz']:.2f} Hz); {margin_words(s['gm_db'], s['pm_deg'])}, "
               f"disk margin α {s['disk_margin']:.3f}; peak σ̄(T) {s['t_peak_db']:.1f} dB at "
               f"{s['t_peak_hz']:.1f} Hz")  # fmt: skip
     else:
@@ -431,6 +457,17 @@ def cmd_robust(a):
         print(f"report → {a.out}")
 
 
+def check_line(ck) -> str:
+    """One line of a :class:`hapid.verdict.Check`, the verdict first:
+    ``NOT ESTABLISHED — GM ≥ 6 dB, PM ≥ 30° (loop): reason. To establish it: remedy``."""
+    line = f"{ck.verdict.value.upper()} — {ck.name}"
+    if ck.reason:
+        line += f": {ck.reason}"
+    if ck.remedy:
+        line += f". To establish it: {ck.remedy}"
+    return line
+
+
 def verdict_lines(res: dict) -> list[str]:
     """The verdict of each batch of a :func:`hapid.uncertainty.robust_from_files` result, one
     line each, verdict first: ``posterior: not established: … — measure …``."""
@@ -500,6 +537,11 @@ def _register_stages(sub):
                     "paper does; 0.005 Hz–5 kHz grid) instead of the sampled loop")  # fmt: skip
     an.add_argument("--siso-gain", type=float, help="SISO c (default: the 6 dB / 30° design rule)")
     an.add_argument("--fs", type=float, default=1000.0, help="sampling rate for --frf (Hz)")
+    an.add_argument("--gm-db", type=float, default=None,
+                    help="required GM (dB): print the verdict passed / failed / not established "
+                    "first (default 6 when only --pm-deg is given)")  # fmt: skip
+    an.add_argument("--pm-deg", type=float, default=None,
+                    help="required PM (°), as --gm-db (default 30 when only --gm-db is given)")  # fmt: skip
     an.add_argument("--out", help="JSON report")
     an.set_defaults(func=cmd_analyze)
 
@@ -674,6 +716,8 @@ def cmd_tune(a):
                           model_error_draws=a.predictive, evidence_bandwidth=a.evidence_bandwidth,
                           draw_family=draws)  # fmt: skip
     r = res["result"]
+    if r.check is not None:  # the verdict first: passed / failed / not established, for which loop
+        print(check_line(r.check))
     print(res.get("decision", ""))
     print(f"tuned in {r.wall_s:.1f} s: claimed robust bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, "
           f"smooth constraints {'met' if r.feasible else 'NOT met'} on the training scenarios")  # fmt: skip
@@ -696,7 +740,9 @@ def cmd_tune(a):
         from .io import save_json
 
         save_json(a.report, {"start": tab.get("start"), "tuned": tab.get("tuned"), "constraints": r.constraints,
-                             "history": r.history, "parameters": r.parameters()})  # fmt: skip
+                             "history": r.history, "parameters": r.parameters(), "loop": res.get("loop")}
+                  | ({} if r.check is None else {"verdict": r.check.verdict.value, "reason": r.check.reason,
+                                                 "remedy": r.check.remedy}))  # fmt: skip
     print(f"design → {a.out} ({time.perf_counter() - t:.1f} s)")
 
 
