@@ -654,7 +654,9 @@ def cmd_sweep(a):
     print(f"{rows.shape[0]} configurations in {time.perf_counter() - t0:.1f} s; stable: {ok.sum()}; "
           f"iso-bandwidth {np.nanmin(metrics['iso_bandwidth_hz']):.2f}–{np.nanmax(metrics['iso_bandwidth_hz']):.2f} Hz"
           if ok.any() else f"{rows.shape[0]} configurations; none stable")  # fmt: skip
-    print(f"table → {csv_path}; figure → {fig_path}")
+    print(sweep.STAND_IN_NOTE)
+    (out / "sweep_note.txt").write_text(sweep.STAND_IN_NOTE + "\n")
+    print(f"table → {csv_path}; figure → {fig_path}; note → {out / 'sweep_note.txt'}")
 
 
 def _register_sweep(sub):

@@ -161,9 +161,13 @@ def conditional(gp: LoopGP, u_new) -> tuple[np.ndarray, np.ndarray]:
     return mean, 0.5 * (cov + cov.T)
 
 
-def loop_gp_draws(gp: LoopGP, omega, n_draws: int, seed: int = 0) -> np.ndarray:
+def loop_gp_draws(
+    gp: LoopGP, omega, n_draws: int, seed: int = 0, *, mean: bool = False
+) -> np.ndarray:
     """``Q_d = I + Δ_d`` ``(S, N, n, n)`` on ``omega (N,)`` rad/s: GP conditional draws inside
-    the measured band, the continuations of the module docstring outside it."""
+    the measured band, the continuations of the module docstring outside it. ``mean=True``:
+    the conditional mean instead (``(n_draws, N, n, n)``, every draw the same loop: the
+    measured-FRF-conditioned nominal loop, no draw spread)."""
     omega = np.asarray(omega, dtype=float)
     if omega.ndim != 1 or np.any(omega <= 0) or n_draws < 1:
         raise ValueError("loop_gp_draws: omega must be positive (N,) rad/s and n_draws ≥ 1")
@@ -172,16 +176,19 @@ def loop_gp_draws(gp: LoopGP, omega, n_draws: int, seed: int = 0) -> np.ndarray:
     lo, hi = u <= u1, u >= ue
     inside = ~lo & ~hi
     u_pred = np.concatenate([[u1], u[inside], [ue]])
+    mean_only = mean
     mean, cov = conditional(gp, u_pred)
     rng = np.random.default_rng(seed)
     E = gp.D.shape[1]
-    Dd = mean[None] + _correlated(cov, n_draws, E, rng)  # (S, M, E)
+    Dd = mean[None] + (0.0 if mean_only else _correlated(cov, n_draws, E, rng))  # (S, M, E)
     d1, din, de = Dd[:, 0], Dd[:, 1:-1], Dd[:, -1]
     N = omega.size
     out = np.zeros((n_draws, N, E), complex)
     out[:, inside] = din
     if np.any(lo):
         dlo = _below(gp, u[lo], d1, rng)
+        if mean_only:  # the continuation's mean: ρ(u) d1
+            dlo = matern52((gp.u[0] - u[lo]) / gp.ell)[None, :, None] * d1[:, None, :]
         ratio = (omega[lo] / np.exp(u1))[None, :, None]
         out[:, lo] = dlo.real + 1j * ratio * dlo.imag
     t = np.clip((u[hi] - ue) / TOP_TAPER, 0.0, 1.0)
