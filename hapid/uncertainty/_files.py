@@ -181,8 +181,10 @@ def robust_from_files(
     else:
         if ps is None:
             raise ValueError("the robust check on parameter draws needs a samples file")
-        post = robust_check(ps, (model, g), posterior_omega(), gm_db=gm_db, pm_deg=pm_deg,
-                            max_samples=max_samples, metrics=metrics, seed=seed).summary()  # fmt: skip
+        rep = robust_check(ps, (model, g), posterior_omega(), gm_db=gm_db, pm_deg=pm_deg,
+                           max_samples=max_samples, metrics=metrics, seed=seed)  # fmt: skip
+        post = dataclasses.replace(rep, loop="continuous-time controller, second-order parameter draws",
+                                   uncovered=PARAMS_UNCOVERED).summary()  # fmt: skip
         post["draws"] = {"draws": "params", "note": PARAMS_NOTE}
     out = {"posterior": post, "device": None}
     if device is not None:
@@ -212,6 +214,13 @@ PARAMS_NOTE = (
     "second-order parameter draws: parameter uncertainty only; where the model class is wrong "
     "(delay, unmodeled modes) P(stable) does not track the true plant's verdict "
     "(benchmarks/calibrate_robust.py) — give the measured FRF for loop draws"
+)
+
+
+PARAMS_UNCOVERED = (
+    "second-order parameter draws cover the model class's parameter uncertainty only, not a "
+    "delay or modes the class lacks",
+    "give the measured FRF (--frf, or a samples file from hapid posterior) for loop draws",
 )
 
 

@@ -131,6 +131,7 @@ class RobustReport:
     pm_freq_hz: np.ndarray | None = None
     cover: EvidenceCover | None = None
     loop: str = ""
+    uncovered: tuple = ()
 
     @property
     def check(self) -> Check:
@@ -138,14 +139,20 @@ class RobustReport:
         requirements fail on the plants (:meth:`reasons`); with :attr:`cover` (draws
         conditioned on a measured band) ``not established`` when the evidence does not cover
         the frequencies that decide it (:func:`hapid.uncertainty._cover.cover_check`); else
-        ``passed``. Its ``name`` states the requirements and :attr:`loop`."""
+        ``passed``; ``uncovered`` ``(reason, remedy)``: what the plants do not cover (e.g.
+        parameter draws of a model class that may be wrong) — then a check the plants pass
+        is ``not established``. Its ``name`` states the requirements and :attr:`loop`."""
         name = f"GM ≥ {self.gm_req_db:g} dB, PM ≥ {self.pm_req_deg:g}°" + (
             f" ({self.loop})" if self.loop else "")  # fmt: skip
         if self.cover is not None:
             return cover_check(self, self.cover, name)
         why = self.reasons()
-        return Check(Verdict.FAILED, reason="; ".join(why), name=name) if why else Check(
-            Verdict.PASSED, name=name)  # fmt: skip
+        if why:
+            return Check(Verdict.FAILED, reason="; ".join(why), name=name)
+        if self.uncovered:
+            return Check(Verdict.NOT_ESTABLISHED, reason=self.uncovered[0],
+                         remedy=self.uncovered[1], name=name)  # fmt: skip
+        return Check(Verdict.PASSED, name=name)
 
     @property
     def not_computed(self) -> tuple:
