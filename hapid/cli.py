@@ -504,7 +504,11 @@ def _draws_line(d: dict) -> str:
     lo, hi = d["measured_hz"]
     return (f"draws: loop GP conditioned on the measured FRF {lo:g}–{hi:g} Hz "
             f"(ℓ = {d['ell']:.2g} in ln ω), {d['loop']}; loop gain above {hi:g} Hz ≤ "
-            f"{d['beyond_loop_gain']:.3g} (covered by the draws only when ≤ 0.5: see the verdict)")  # fmt: skip
+            f"{d['beyond_loop_gain']:.3g} (covered by the draws only when ≤ 0.5: see the verdict)"
+            + (f"; isotropic bandwidth {d['iso_bandwidth_nominal_hz']:.2f} Hz (measured-FRF-"
+               f"conditioned loop), draws 5–95 % {d['iso_bandwidth_interval_hz'][0]:.2f}–"
+               f"{d['iso_bandwidth_interval_hz'][1]:.2f} Hz"
+               if d.get("iso_bandwidth_nominal_hz") and d.get("iso_bandwidth_interval_hz") else ""))  # fmt: skip
 
 
 def _robust_worker(a):

@@ -100,3 +100,27 @@ def test_passed_only_when_the_measured_band_covers_the_loop():
         if want is Verdict.NOT_ESTABLISHED:
             assert not info["beyond_covered"] and not rep.reasons()  # the draws alone pass
             assert "measure the FRF to" in ck.remedy and ck.reason
+
+
+def test_mean_loop_is_the_draws_average_and_interpolates_the_measured_loop():
+    """``loop_gp_draws(mean=True)`` (the nominal loop the bandwidth estimate is read on) is the
+    average of the draws, and at the measured frequencies it is the measured loop (up to the
+    fitted nugget)."""
+    from hapid.tune._evidence import measured_plant
+    from hapid.uncertainty._loopgp import fit_loop_gp, loop_gp_draws, measured_delta
+
+    model = random_model(2, seed=3)
+    f_meas = np.concatenate([np.arange(1.0, 11.0), np.arange(15.0, 101.0, 5.0)])
+    meas = _measured(model, f_meas)
+    P_meas = measured_plant(meas["Z_H"], meas["Z_T"])
+    gp = fit_loop_gp(meas["omega"], P_meas, model)
+    om = np.geomspace(0.3, 300.0, 60) * TWO_PI  # below, inside and above the band
+    Qm = loop_gp_draws(gp, om, 2, mean=True)
+    assert np.array_equal(Qm[0], Qm[1])
+    Qd = loop_gp_draws(gp, om, 4000, seed=1)
+    se = np.std(Qd, axis=0) / np.sqrt(4000)
+    assert np.all(np.abs(np.mean(Qd, axis=0) - Qm[0]) <= 5 * se + 1e-12)
+    D = measured_delta(meas["omega"], P_meas, model)
+    Qin = loop_gp_draws(gp, meas["omega"][1:-1], 1, mean=True)[0]
+    err = np.abs(Qin - np.eye(2) - D[1:-1])
+    assert np.max(err) <= 0.05 * np.max(np.abs(D)) + 1e-9

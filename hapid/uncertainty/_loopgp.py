@@ -227,12 +227,14 @@ def _below(gp: LoopGP, u_lo, d1, rng) -> np.ndarray:
     )
 
 
-def loop_gp_plants(gp: LoopGP, model, omega, n_draws: int, seed: int = 0) -> np.ndarray:
+def loop_gp_plants(gp: LoopGP, model, omega, n_draws: int, seed: int = 0, *,
+                   mean: bool = False) -> np.ndarray:  # fmt: skip
     """Plants ``P_d = Q_d P̂`` ``(S, N, n, n)`` on ``omega`` rad/s (for
-    :func:`hapid.tune.make_scenarios`: its ``P P̂⁻¹`` gives back ``Q_d``)."""
+    :func:`hapid.tune.make_scenarios`: its ``P P̂⁻¹`` gives back ``Q_d``); ``mean``: the
+    conditional mean loop (:func:`loop_gp_draws`)."""
     import jax.numpy as jnp
 
-    Q = loop_gp_draws(gp, omega, n_draws, seed)
+    Q = loop_gp_draws(gp, omega, n_draws, seed, mean=mean)
     Ph = np.asarray(model.P(1j * jnp.asarray(omega, dtype=float)))
     return Q @ Ph[None]
 
@@ -274,7 +276,10 @@ def loop_gp_check(
     covers the loop (:mod:`hapid.uncertainty._cover`) — and a dict with the GP's ``ell``,
     ``eta``, ``sigma2``, the measured band ``measured_hz`` ``[f₁, f_e]``, the evidence
     figures of :func:`hapid.tune.certificate` (``frf_min_sigma_I_plus_L``,
-    ``beyond_loop_gain``, ``certified``), ``beyond_covered`` and ``loop``.
+    ``beyond_loop_gain``, ``certified``), ``beyond_covered``, ``loop``, and the isotropic
+    bandwidth as ``iso_bandwidth_nominal_hz`` (of the conditional-mean loop, the nominal
+    estimate from the measured FRF; ``None`` if that loop is not stable) with the draws'
+    5–95 % ``iso_bandwidth_interval_hz`` (stable draws).
 
     Measured (benchmarks/calibrate_robust.py, five devices no one tuned on, 25 controllers
     of known answer): P(stable) 0.755–1.0 for the truth-stable controllers, ≤ 0.86 for the
@@ -286,20 +291,21 @@ def loop_gp_check(
     from ..tune._evidence import certificate, evidence_from_frf, measured_plant
     from ..tune._response import g_response
     from ._cover import EvidenceCover
-    from ._robust import robust_check
+    from ._robust import FIELDS, robust_check
 
     data = measured_data(measured)
     gp = fit_loop_gp(data["omega"], measured_plant(data["Z_H"], data["Z_T"]), model)
     kw = dict(gm_db=gm_db, pm_deg=pm_deg, p_stable_required=p_stable_required,
               max_samples=None, metrics=metrics)  # fmt: skip
+    # the draws and, last, the conditional-mean loop (the nominal bandwidth): one batch
+    omega = continuous_grid(n_freq) if ts is None else nyquist_grid(1.0 / ts, n_freq)
+    S = int(n_draws)
+    P = np.concatenate([loop_gp_plants(gp, model, omega, S, seed),
+                        loop_gp_plants(gp, model, omega, 1, seed, mean=True)])  # fmt: skip
     if ts is None:
-        omega = continuous_grid(n_freq)
-        P = loop_gp_plants(gp, model, omega, int(n_draws), seed)
         rep = robust_check(P, (model, g), omega, **kw)
         loop = "continuous-time controller"
     else:
-        omega = nyquist_grid(1.0 / ts, n_freq)
-        P = loop_gp_plants(gp, model, omega, int(n_draws), seed)
         ctrl = make_controller(model, g, ts=ts)
         rep = robust_check(P, np.asarray(ctrl.response(omega)), omega,
                            controller_rhp=int(ctrl.p_rhp), **kw)  # fmt: skip
@@ -314,8 +320,14 @@ def loop_gp_check(
     lo, hi = float(data["omega"][0] / TWO_PI), float(data["omega"][-1] / TWO_PI)
     cover = EvidenceCover((lo, hi), float(cert["beyond_loop_gain"]), float(ev.kappa), clear,
                           float(ev.g_max), loop)  # fmt: skip
-    rep = dataclasses.replace(rep, cover=cover, loop=loop)
+    nominal_bw = float(rep.iso_bandwidth_hz[-1]) if bool(rep.stable[-1]) else None
+    keep = ("stable", "n_closed_loop_rhp", "gm_freq_hz", "pm_freq_hz") + FIELDS
+    rep = dataclasses.replace(rep, cover=cover, loop=loop,
+                              **{k: np.asarray(getattr(rep, k))[:S] for k in keep})  # fmt: skip
+    bw = np.asarray(rep.iso_bandwidth_hz)[np.asarray(rep.stable, bool)]
     info = {"draws": "loop_gp", "ell": gp.ell, "eta": gp.eta, "sigma2": gp.sigma2,
             "measured_hz": [lo, hi], **cert, "beyond_covered": cover.beyond_covered,
-            "loop": loop}  # fmt: skip
+            "loop": loop, "iso_bandwidth_nominal_hz": nominal_bw,
+            "iso_bandwidth_interval_hz": [float(x) for x in np.quantile(bw, [0.05, 0.95])]
+            if bw.size else None}  # fmt: skip
     return rep, info
