@@ -11,6 +11,7 @@ import warnings
 from pathlib import Path
 
 from ._cli_device import add_device_args, describe, device_from_args
+from ._cli_verdict import check_line, verdict_lines
 
 EXAMPLES = """examples:
   hapid simulate --device cu5 --out run.npz            # the paper's protocol on cu5
@@ -455,34 +456,6 @@ def cmd_robust(a):
         print("disk margin and peak of σ̄(T): not computed (null; add --all-metrics)")
     if a.out:
         print(f"report → {a.out}")
-
-
-def check_line(ck) -> str:
-    """One line of a :class:`hapid.verdict.Check`, the verdict first:
-    ``NOT ESTABLISHED — GM ≥ 6 dB, PM ≥ 30° (loop): reason. To establish it: remedy``."""
-    line = f"{ck.verdict.value.upper()} — {ck.name}"
-    if ck.reason:
-        line += f": {ck.reason}"
-    if ck.remedy:
-        line += f". To establish it: {ck.remedy}"
-    return line
-
-
-def verdict_lines(res: dict) -> list[str]:
-    """The verdict of each batch of a :func:`hapid.uncertainty.robust_from_files` result, one
-    line each, verdict first: ``posterior: not established: … — measure …``."""
-    out = []
-    for batch in ("posterior", "device"):
-        sm = res.get(batch)
-        if sm is None:
-            continue
-        line = f"{batch}: {sm['verdict'].upper()} — {sm['check']}"
-        if sm["reason"]:
-            line += f": {sm['reason']}"
-        if sm["remedy"]:
-            line += f". To establish it: {sm['remedy']}"
-        out.append(line)
-    return out
 
 
 def _robust_metrics(a):
