@@ -18,6 +18,7 @@ from ._cli_kw import (  # noqa: F401  (uncertified_warning: part of the CLI's AP
     tune_kw,
     uncertified_warning,
 )
+from ._cli_verdict import check_line, verdict_lines
 from .defaults import FIT_BAND_HZ, GM_DB, PM_DEG
 from .experiment._impedance import NPERSEG
 
@@ -321,15 +322,21 @@ def cmd_fit(a):
     run_fit(a)
 
 
+FEW_FRF_FREQUENCIES = 200  # an FRF with fewer points may leave the Nyquist count unresolved
+
+
 def cmd_analyze(a):
 
     import numpy as np
 
     from . import io, pipeline, scene
+    from ._analyze_check import loop_check, margin_words
     from .control import max_siso_gain
+    from .tune._check import loop_label
 
     model = io.load_model(a.model)
     cfg = scene.merge({})
+    note = ""
     if a.design:
         from .tune import load_design
 
@@ -344,8 +351,12 @@ def cmd_analyze(a):
             raise CLIError(f"{a.frf} extends to {float(np.max(frf.freq_hz)):g} Hz, beyond the sampled "
                            f"controller's Nyquist frequency fs/2 = {0.5 * a.fs:g} Hz (--fs {a.fs:g}); "
                            "give the FRF's real sampling rate with --fs, or use --continuous")  # fmt: skip
-        print("note: a measured FRF has few frequencies: the Nyquist verdict needs a dense grid "
-              "and may be unresolved; margins and bandwidth are read on the FRF grid")  # fmt: skip
+        f_hz = np.asarray(frf.freq_hz, dtype=float)
+        note = (f"note: the measured FRF has {f_hz.size} frequencies, {f_hz[0]:g}–{f_hz[-1]:g} Hz: "
+                "the Nyquist count runs over that band only; margins and bandwidth are read on the "
+                "FRF grid")  # fmt: skip
+        if f_hz.size < FEW_FRF_FREQUENCIES:
+            note += " (few frequencies: the count needs a dense grid and may be unresolved)"
     else:
         dev = device_from_args(a)
         if dev.n != model.n:
@@ -372,7 +383,23 @@ def cmd_analyze(a):
     rep = pipeline.loop(ctrl, plant)
     s = rep.summary()
     out = {"controller": a.controller, "siso_gain": c, "continuous": bool(a.continuous),
-           "design": a.design, "controller_rhp_poles": int(ctrl.p_rhp), **s}  # fmt: skip
+           "design": a.design, "controller_rhp_poles": int(ctrl.p_rhp),
+           "loop": loop_label(ts), **s}  # fmt: skip
+    if a.gm_db is not None or a.pm_deg is not None:  # the requirement check, printed first
+        band = top = None
+        if a.frf:
+            band = (float(frf.freq_hz[0]), float(frf.freq_hz[-1]))
+            w = np.asarray(plant.omega)[-1:]
+            L = np.asarray(plant.P)[-1:] @ np.asarray(ctrl.response(w))
+            top = float(np.linalg.svd(L, compute_uv=False)[0, 0])
+        ck = loop_check(s, gm_db=6.0 if a.gm_db is None else a.gm_db,
+                        pm_deg=30.0 if a.pm_deg is None else a.pm_deg, ts=ts,
+                        frf_band_hz=band, top_loop_gain=top)  # fmt: skip
+        out |= {"verdict": ck.verdict.value, "reason": ck.reason, "remedy": ck.remedy,
+                "check": ck.name}  # fmt: skip
+        print(check_line(ck))
+    if note:
+        print(note)
     if a.out:
         io.save_json(a.out, out)
     verdict = (
@@ -385,7 +412,7 @@ def cmd_analyze(a):
           f"encirclements, {int(ctrl.p_rhp)} open-loop RHP pole(s) of the controller)")  # fmt: skip
     if s["stable"]:
         print(f"isotropic bandwidth {s['iso_bandwidth_hz']:.2f} Hz (paper-literal "
-              f"{s['iso_bandwidth_literal_hz']:.2f} Hz); GM {s['gm_db']:.1f} dB, PM {s['pm_deg']:.1f}°, "
+              f"{s['iso_bandwidth_literal_hz']:.2f} Hz); {margin_words(s['gm_db'], s['pm_deg'])}, "
               f"disk margin α {s['disk_margin']:.3f}; peak σ̄(T) {s['t_peak_db']:.1f} dB at "
               f"{s['t_peak_hz']:.1f} Hz")  # fmt: skip
     else:
@@ -434,16 +461,18 @@ def cmd_robust(a):
     dev = device_or_none(a)
     if len(a.model) == 1:
         res = robust_from_files(a.samples, a.model[0], a.out, **_robust_kw(a, dev))
+        for line in verdict_lines(res):
+            print(line)
         print(to_json(res)[:4000])
         print(_draws_line(res["posterior"]["draws"]))
-        for batch in ("posterior", "device"):
-            if res.get(batch) is not None and not res[batch]["passed"]:
-                print(f"{batch}: NOT passed — " + "; ".join(res[batch]["reasons"]))
     else:
         res = {
             Path(m).stem: robust_from_files(a.samples, m, None, **_robust_kw(a, dev))
             for m in a.model
         }
+        for name, r in res.items():
+            for line in verdict_lines(r):
+                print(f"{name}: {line}")
         print(side_by_side(res))
         for name, r in res.items():
             print(f"{name}: {_draws_line(r['posterior']['draws'])}")
@@ -462,7 +491,7 @@ def _robust_kw(a, dev) -> dict:
     (``dev``: the device of the ``--device`` options, or None)."""
     return {"frf_path": a.frf, "draws": a.draws, "gm_db": a.gm_db, "pm_deg": a.pm_deg,
             "max_samples": a.max_samples, "device": dev, "n_subjects": a.subjects,
-            "metrics": robust_metrics(a)}  # fmt: skip
+            "metrics": robust_metrics(a), "ts": None if a.fs is None else 1.0 / a.fs}  # fmt: skip
 
 
 def _draws_line(d: dict) -> str:
@@ -470,12 +499,13 @@ def _draws_line(d: dict) -> str:
     if d["draws"] != "loop_gp":
         return "draws: " + d["note"]
     lo, hi = d["measured_hz"]
-    line = (f"draws: loop GP conditioned on the measured FRF {lo:g}–{hi:g} Hz "
-            f"(ℓ = {d['ell']:.2g} in ln ω); loop gain above {hi:g} Hz ≤ {d['beyond_loop_gain']:.3g}")  # fmt: skip
-    if not d["beyond_covered"]:
-        line += (f" — WARNING: above 0.5 there; the draws are the model's own plant above {hi:g} Hz, "
-                 "so they do not cover the loop there (measure the FRF higher, or lower g there)")  # fmt: skip
-    return line
+    return (f"draws: loop GP conditioned on the measured FRF {lo:g}–{hi:g} Hz "
+            f"(ℓ = {d['ell']:.2g} in ln ω), {d['loop']}; loop gain above {hi:g} Hz ≤ "
+            f"{d['beyond_loop_gain']:.3g} (covered by the draws only when ≤ 0.5: see the verdict)"
+            + (f"; isotropic bandwidth {d['iso_bandwidth_nominal_hz']:.2f} Hz (measured-FRF-"
+               f"conditioned loop), draws 5–95 % {d['iso_bandwidth_interval_hz'][0]:.2f}–"
+               f"{d['iso_bandwidth_interval_hz'][1]:.2f} Hz"
+               if d.get("iso_bandwidth_nominal_hz") and d.get("iso_bandwidth_interval_hz") else ""))  # fmt: skip
 
 
 def _robust_worker(a):
@@ -508,6 +538,11 @@ def _register_stages(sub):
                     "paper does; 0.005 Hz–5 kHz grid) instead of the sampled loop")  # fmt: skip
     an.add_argument("--siso-gain", type=float, help="SISO c (default: the 6 dB / 30° design rule)")
     an.add_argument("--fs", type=float, default=1000.0, help="sampling rate for --frf (Hz)")
+    an.add_argument("--gm-db", type=float, default=None,
+                    help="required GM (dB): print the verdict passed / failed / not established "
+                    "first (default 6 when only --pm-deg is given)")  # fmt: skip
+    an.add_argument("--pm-deg", type=float, default=None,
+                    help="required PM (°), as --gm-db (default 30 when only --gm-db is given)")  # fmt: skip
     an.add_argument("--out", help="JSON report")
     an.set_defaults(func=cmd_analyze)
 
@@ -575,6 +610,10 @@ def _register_stages(sub):
     ro.add_argument("--subjects", type=int, default=0, help="virtual subjects for --device")
     ro.add_argument("--gm-db", type=float, default=GM_DB)
     ro.add_argument("--pm-deg", type=float, default=PM_DEG)
+    ro.add_argument("--fs", type=float, default=None,
+                    help="rate (Hz) the controller runs at: the loop draws are checked with the "
+                    "discretized controller (default: the device's with --device, else the "
+                    "continuous-time controller)")  # fmt: skip
     ro.add_argument(
         "--max-samples",
         type=int,
@@ -616,7 +655,9 @@ def cmd_sweep(a):
     print(f"{rows.shape[0]} configurations in {time.perf_counter() - t0:.1f} s; stable: {ok.sum()}; "
           f"iso-bandwidth {np.nanmin(metrics['iso_bandwidth_hz']):.2f}–{np.nanmax(metrics['iso_bandwidth_hz']):.2f} Hz"
           if ok.any() else f"{rows.shape[0]} configurations; none stable")  # fmt: skip
-    print(f"table → {csv_path}; figure → {fig_path}")
+    print(sweep.STAND_IN_NOTE)
+    (out / "sweep_note.txt").write_text(sweep.STAND_IN_NOTE + "\n")
+    print(f"table → {csv_path}; figure → {fig_path}; note → {out / 'sweep_note.txt'}")
 
 
 def _register_sweep(sub):
@@ -651,6 +692,8 @@ def cmd_tune(a):
     t = time.perf_counter()
     res = tune_from_files(a.model, a.samples, a.out, **tune_kw(a))
     r = res["result"]
+    if r.check is not None:  # the verdict first: passed / failed / not established, for which loop
+        print(check_line(r.check))
     print(res.get("decision", ""))
     print(f"tuned in {r.wall_s:.1f} s: claimed robust bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, "
           f"smooth constraints {'met' if r.feasible else 'NOT met'} on the training scenarios")  # fmt: skip
@@ -673,7 +716,9 @@ def cmd_tune(a):
         from .io import save_json
 
         save_json(a.report, {"start": tab.get("start"), "tuned": tab.get("tuned"), "constraints": r.constraints,
-                             "history": r.history, "parameters": r.parameters()})  # fmt: skip
+                             "history": r.history, "parameters": r.parameters(), "loop": res.get("loop")}
+                  | ({} if r.check is None else {"verdict": r.check.verdict.value, "reason": r.check.reason,
+                                                 "remedy": r.check.remedy}))  # fmt: skip
     print(f"design → {a.out} ({time.perf_counter() - t:.1f} s)")
 
 

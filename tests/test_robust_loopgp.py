@@ -71,3 +71,55 @@ def test_samples_file_round_trips_the_measured_frf(tmp_path):
     bad = dict(meas, Z_T=meas["Z_T"][:, :1])  # wrong shape: a clear error on load
     with pytest.raises(ValueError, match="measured FRF 'Z_T'"):
         load_samples(save_samples(tmp_path / "u.npz", dataclasses.replace(ps, measured=bad)))
+
+
+def test_passed_only_when_the_measured_band_covers_the_loop():
+    """A controller whose true loop (the model with a 4 ms delay) is unstable passes the margins
+    on draws conditioned on an FRF measured to 10 Hz — above it the draws are the model's own
+    plant, and the loop gain there is far above 1/2. That is ``not established`` (with the FRF
+    range that would establish it), never ``passed``; measured to 100 Hz the same draws fail;
+    a controller whose true loop meets 6 dB / 30° passes on the 100 Hz FRF."""
+    from hapid.verdict import Verdict
+
+    model = random_model(2, seed=3)
+    om = continuous_grid(300)
+    P_true = np.asarray(model.P(1j * om)) * np.exp(-1j * om * TAU)[:, None, None]
+    f_meas = np.concatenate([np.arange(1.0, 11.0), np.arange(15.0, 101.0, 5.0)])
+    for alpha, f_top, want in ((4.0, 10.0, Verdict.NOT_ESTABLISHED), (4.0, 100.0, Verdict.FAILED),
+                               (1.0, 100.0, Verdict.PASSED)):  # fmt: skip
+        g = scale_gain(Compensator.paper(), alpha)
+        truth = robust_check(P_true[None], (model, g), om, max_samples=None)
+        rep, info = loop_gp_check(_measured(model, f_meas[f_meas <= f_top]), model, g,
+                                  n_draws=40, n_freq=300)  # fmt: skip
+        ck = rep.check
+        assert ck.verdict is want, (alpha, f_top, ck)
+        assert rep.passed == (want is Verdict.PASSED) == truth.passed
+        sm = rep.summary()
+        assert sm["verdict"] == want.value and sm["loop"] == "continuous-time controller"
+        if want is Verdict.NOT_ESTABLISHED:
+            assert not info["beyond_covered"] and not rep.reasons()  # the draws alone pass
+            assert "measure the FRF to" in ck.remedy and ck.reason
+
+
+def test_mean_loop_is_the_draws_average_and_interpolates_the_measured_loop():
+    """``loop_gp_draws(mean=True)`` (the nominal loop the bandwidth estimate is read on) is the
+    average of the draws, and at the measured frequencies it is the measured loop (up to the
+    fitted nugget)."""
+    from hapid.tune._evidence import measured_plant
+    from hapid.uncertainty._loopgp import fit_loop_gp, loop_gp_draws, measured_delta
+
+    model = random_model(2, seed=3)
+    f_meas = np.concatenate([np.arange(1.0, 11.0), np.arange(15.0, 101.0, 5.0)])
+    meas = _measured(model, f_meas)
+    P_meas = measured_plant(meas["Z_H"], meas["Z_T"])
+    gp = fit_loop_gp(meas["omega"], P_meas, model)
+    om = np.geomspace(0.3, 300.0, 60) * TWO_PI  # below, inside and above the band
+    Qm = loop_gp_draws(gp, om, 2, mean=True)
+    assert np.array_equal(Qm[0], Qm[1])
+    Qd = loop_gp_draws(gp, om, 4000, seed=1)
+    se = np.std(Qd, axis=0) / np.sqrt(4000)
+    assert np.all(np.abs(np.mean(Qd, axis=0) - Qm[0]) <= 5 * se + 1e-12)
+    D = measured_delta(meas["omega"], P_meas, model)
+    Qin = loop_gp_draws(gp, meas["omega"][1:-1], 1, mean=True)[0]
+    err = np.abs(Qin - np.eye(2) - D[1:-1])
+    assert np.max(err) <= 0.05 * np.max(np.abs(D)) + 1e-9

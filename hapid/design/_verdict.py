@@ -26,16 +26,12 @@ def check_of(name: str, passed: bool, reasons, warning: str = "", remedy: str = 
 
 
 def robust_check(model: str, report, info: dict) -> Check:
-    """The paper g on ``model``'s controller: the robust report and its loop draws' coverage."""
-    s = report.summary()
-    warn = remedy = ""
-    if not info.get("beyond_covered", True):
-        hi = info["measured_hz"][1]
-        warn = (f"the loop gain above the measured {hi:g} Hz is {info['beyond_loop_gain']:.3g} "
-                "> 0.5: the draws there are the model's own plant, so they do not cover the loop")  # fmt: skip
-        remedy = f"measure the FRF above {hi:g} Hz, or lower g's gain above {hi:g} Hz"
-    return check_of(f"paper g, {LABELS.get(model, model)} model: {REQUIREMENT}", s["passed"],
-                    s["reasons"], warn, remedy)  # fmt: skip
+    """The paper g on ``model``'s controller: the robust report's own three-valued check
+    (:attr:`hapid.uncertainty.RobustReport.check`: loop draws, coverage of the measured band),
+    named for the design's table."""
+    c = report.check
+    return Check(c.verdict, reason=c.reason, remedy=c.remedy,
+                 name=f"paper g, {LABELS.get(model, model)} model: {REQUIREMENT}")  # fmt: skip
 
 
 def tuned_row(tune: dict) -> dict:
@@ -45,8 +41,14 @@ def tuned_row(tune: dict) -> dict:
 
 
 def tuned_check(tune: dict, quantile: float = 0.975) -> Check:
-    """The returned g: its held-out draws' margins (the chance level ``quantile``, ``hapid
-    tune``'s default) and its certificate on the measured FRF."""
+    """The returned g: the tuner's own three-valued check (``hapid tune``'s verdict, stored in
+    the design info); from the re-check row (held-out draws at the chance level ``quantile``,
+    the FRF certificate) when the info has no verdict."""
+    info = tune["info"]
+    name = f"{TUNED}, NLS model: margins on held-out draws and the FRF certificate"
+    if info.get("verdict"):
+        return Check(info["verdict"], reason=info.get("reason", ""),
+                     remedy=info.get("remedy", ""), name=name)  # fmt: skip
     row = tuned_row(tune)
     frac = row.get("posterior_frac_meeting_margins")
     passed = bool(row.get("posterior_passed", True)) and (frac is None or frac >= quantile - 1e-9)
@@ -56,6 +58,5 @@ def tuned_check(tune: dict, quantile: float = 0.975) -> Check:
                        f"{100 * (frac if frac is not None else float('nan')):.1f} % meet GM ≥ 6 dB, "
                        f"PM ≥ 30° (required {100 * quantile:.1f} %)")  # fmt: skip
     warn = uncertified_warning(row)
-    return check_of(f"{TUNED}, NLS model: margins on held-out draws and the FRF certificate",
-                    passed, reasons, warn.removeprefix("WARNING: "),
+    return check_of(name, passed, reasons, warn.removeprefix("WARNING: "),
                     "measure the FRF densely around the crossover and tune on it")  # fmt: skip

@@ -18,7 +18,9 @@ def design_info(out: dict) -> dict:
     return {"bandwidth_claimed_hz": r.bandwidth_hz, "bandwidth0_claimed_hz": r.bandwidth0_hz,
             "constraints": r.constraints, "feasible": r.feasible, "history": r.history,
             "parameters": r.parameters(), "families": out["families"], "wall_s": r.wall_s,
-            "table": out.get("table", {})}  # fmt: skip
+            "table": out.get("table", {}), "loop": out.get("loop")} | (
+                {} if out.get("check") is None else {"verdict": out["check"].verdict.value,
+                "reason": out["check"].reason, "remedy": out["check"].remedy})  # fmt: skip
 
 
 def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf=None,

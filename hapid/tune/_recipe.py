@@ -32,9 +32,10 @@ import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
-from .._grids import NYQUIST_F_MIN_HZ, below_nyquist_grid, log_grid_hz
+from .._grids import NYQUIST_F_MIN_HZ, below_nyquist_grid, log_grid_hz, nyquist_grid
 from .._grids import continuous_grid as posterior_grid
 from ..control import Compensator
+from ._check import FRF_FLOOR, design_check, loop_label
 from ._evidence import KAPPA, beyond_grid, certificate, evidence_from_frf, measured_plant
 from ._objective import Family, Requirements
 from ._params import ParamMap
@@ -268,6 +269,8 @@ def robust_design(
     elif samples is None and device is None:
         raise ValueError("robust_design: give posterior samples, a device, or both")
     g0 = Compensator.paper() if g0 is None else g0
+    if evidence_ts is None and device is not None:  # the loop the device closes: its rate
+        evidence_ts = float(device.ts)
     req = Requirements() if requirements is None else requirements
     if keep_dc_gain and req.min_dc_gain is None:
         # static accuracy no worse than the start's: |g(0)| ≥ |g0(0)|
@@ -291,9 +294,10 @@ def robust_design(
             dense = make_scenarios(P_d, model, omc_d)
         else:
             P = loop_gp_plants(lgp, model, omc, n_train, seed)
-        hold_models = loop_gp_plants(
-            lgp, model, posterior_grid(n_holdout_freq), n_holdout, seed + 1
-        )
+        # held out at the controller's rate (the discretized controller on a grid to fs/2)
+        om_h = (posterior_grid(n_holdout_freq) if evidence_ts is None
+                else nyquist_grid(1.0 / evidence_ts, n_holdout_freq))  # fmt: skip
+        hold_models = loop_gp_plants(lgp, model, om_h, n_holdout, seed + 1)
         families.append(Family(make_scenarios(P, model, omc), quantile=quantile,
                                bandwidth=posterior_bandwidth, bw_quantile=0.5, name="posterior",
                                dense=dense))  # fmt: skip
@@ -395,11 +399,14 @@ def robust_design(
             if isinstance(hold_models, np.ndarray)
             else posterior_grid()
         )
+        hold_ts = None
+        if draw_family == "loop_gp" and evidence_ts is not None:
+            omega_c, hold_ts = om_h, evidence_ts
         for name, g in (("start", g0), ("tuned", res.g)):
             t0 = time.perf_counter()
             v = validate(g, model, samples=hold_models, device=device, variants=variants,
                          omega_c=omega_c, gm_db=req.gm_db, pm_deg=req.pm_deg,
-                         p_required=quantile)  # fmt: skip
+                         p_required=quantile, ts=hold_ts)  # fmt: skip
             out["validation"][name] = v
             out["table"][name] = table_row(v) | {"validate_s": time.perf_counter() - t0}
         ev_chk = ev
@@ -423,10 +430,17 @@ def robust_design(
             and not (chosen.get("certified", True) and _meets_chance(chosen, quantile))
         ):
             fb = _certified_fallback(out, g0, res, ev_chk, model, hold_models, device, variants,
-                                     omega_c, req, quantile, with_tuned=ok_tr, chosen=chosen)  # fmt: skip
+                                     omega_c, req, quantile, with_tuned=ok_tr, chosen=chosen, ts=hold_ts)  # fmt: skip
             if fb is not None:
                 out["result"], out["table"]["returned"], out["decision"] = fb
                 out["kept_start"] = False
+        row = (
+            out["table"].get("returned") or out["table"]["start" if out["kept_start"] else "tuned"]
+        )
+        ck = design_check(row, gm_db=req.gm_db, pm_deg=req.pm_deg, quantile=quantile,
+                          ts=evidence_ts, g_max=None if ev_chk is None else ev_chk.g_max)  # fmt: skip
+        out["result"] = dataclasses.replace(out["result"], check=ck)
+        out["check"], out["loop"] = ck, loop_label(evidence_ts)
     return out
 
 
@@ -445,7 +459,8 @@ def certified_gain(
 
 
 def _certified_fallback(out, g0, res, ev, model, hold_models, device, variants, omega_c, req,
-                        quantile, *, with_tuned: bool = True, chosen: dict | None = None):  # fmt: skip
+                        quantile, *, with_tuned: bool = True, chosen: dict | None = None,
+                        ts: float | None = None):  # fmt: skip
     """The chosen design is not certified by the evidence, or fails the held-out draws'
     chance level (``quantile`` of them meeting the margins): the start and the tuned g, each
     with its gain scaled down to the largest value the evidence certifies
@@ -456,7 +471,8 @@ def _certified_fallback(out, g0, res, ev, model, hold_models, device, variants, 
     where the certificate sees nothing), else the better certified candidate is returned.
     The tuned g only with ``with_tuned`` (it passed :func:`training_no_worse`); a candidate
     that makes the nominal true plant unstable where the ``chosen`` design's row has it
-    stable is dropped. ``(result, row, decision)`` or ``None``."""
+    stable is dropped. ``ts``: the held-out draws' controller rate (:func:`.validate`).
+    ``(result, row, decision)`` or ``None``."""
     cands = []
     pairs = (("start", g0), ("tuned", out["candidate"].g)) if with_tuned else (("start", g0),)
     for name, g in pairs:
@@ -465,7 +481,8 @@ def _certified_fallback(out, g0, res, ev, model, hold_models, device, variants, 
             continue
         gs = scale_gain(g, a)
         v = validate(gs, model, samples=hold_models, device=device, variants=variants,
-                     omega_c=omega_c, gm_db=req.gm_db, pm_deg=req.pm_deg, p_required=quantile)  # fmt: skip
+                     omega_c=omega_c, gm_db=req.gm_db, pm_deg=req.pm_deg, p_required=quantile,
+                     ts=ts)  # fmt: skip
         row = table_row(v) | certificate(ev, model, gs, floor=FRF_FLOOR)
         if (chosen or {}).get("true_stable") and not row.get("true_stable", True):
             continue
@@ -507,7 +524,6 @@ def _meets_chance(row: dict, quantile: float) -> bool:
     return row.get("posterior_frac_meeting_margins", 1.0) >= quantile - 1e-9
 
 
-FRF_FLOOR = 0.5  # min |1 + λ_i| ≥ 0.5 on the measured loop ⇒ loci GM ≥ 6 dB, PM ≥ 29° there
 FRF_KEY = "frf_min_loci_distance"  # the measured-FRF figure rows are compared on (certificate)
 
 

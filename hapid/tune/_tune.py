@@ -25,6 +25,7 @@ import optimistix as optx
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
 from ..control import Compensator, MetricsSpec, nyquist_encirclements, nyquist_verdict
+from ..verdict import Check
 from ._exchange import exchange
 from ._objective import Box, Requirements, aggregate, penalized
 from ._params import ParamMap
@@ -43,7 +44,8 @@ class TuneResult:
     constraints, wall time); ``names`` parameter names; ``requirements``; ``training`` and
     ``training0``: ``{family: (stable, required, total)}`` training scenarios whose closed
     loop is stable under ``g`` and ``g0`` by the analysis' Nyquist rule
-    (:func:`training_verdict`).
+    (:func:`training_verdict`); ``check``: the three-valued verdict of the design on the
+    held-out evidence (:func:`hapid.tune._check.design_check`; ``None`` when not re-checked).
     """
 
     g: Compensator
@@ -60,6 +62,7 @@ class TuneResult:
     gain_backoff: float = 1.0
     training: dict = dataclasses.field(default_factory=dict)
     training0: dict = dataclasses.field(default_factory=dict)
+    check: Check | None = None
 
     @property
     def feasible(self) -> bool:
@@ -88,7 +91,9 @@ class TuneResult:
                 "training_stable": {k: list(v) for k, v in self.training.items()},
                 "bandwidth0_hz": float(self.bandwidth0_hz), "gain_backoff": float(self.gain_backoff),
                 "constraints": {k: float(v) for k, v in self.constraints.items()},
-                "parameters": self.parameters(), "wall_s": float(self.wall_s)}  # fmt: skip
+                "parameters": self.parameters(), "wall_s": float(self.wall_s)} | (
+                    {} if self.check is None else {"verdict": self.check.verdict.value,
+                    "reason": self.check.reason, "remedy": self.check.remedy, "check": self.check.name})  # fmt: skip
 
     def parameters(self) -> list[dict]:
         """Rows ``{name, start, tuned}`` (frequencies in Hz)."""

@@ -113,13 +113,16 @@ def validate(
     pm_deg: float = PM_DEG,
     p_required: float = 0.95,
     time_domain: bool = True,
+    ts: float | None = None,
 ) -> dict:
     """Non-smooth verdicts of ``g`` with the nominal ``model`` (module docstring).
 
     - ``samples``: held-out posterior models (a batched :class:`~hapid.impedance.ImpedanceModel`
       or :class:`~hapid.uncertainty.PosteriorSamples`), analysed on ``omega_c`` (default
       :func:`hapid.uncertainty.posterior_omega`, the wide grid that resolves the Nyquist
-      count of continuous loops; the 0.05–450 Hz grid miscounted most cu5 draws).
+      count of continuous loops; the 0.05–450 Hz grid miscounted most cu5 draws). With
+      ``ts`` (s) and plant arrays ``(S, N, n, n)`` on ``omega_c`` (a grid to ``π/ts``), the
+      loop is closed with the controller discretized at ``ts`` (the loop the device runs).
     - ``device``: the simulated device (true plant, time domain); ``variants``: ``(labels,
       P)`` of held-out device variants on ``omega_d`` (default :func:`device_grid`).
 
@@ -131,8 +134,14 @@ def validate(
     out: dict = {}
     if samples is not None:
         omc = posterior_omega() if omega_c is None else np.asarray(omega_c, dtype=float)
-        rep = robust_check(samples, (model, g), omc, gm_db=gm_db, pm_deg=pm_deg,
-                           p_stable_required=p_required, max_samples=None, metrics="all")  # fmt: skip
+        kw = dict(gm_db=gm_db, pm_deg=pm_deg, p_stable_required=p_required, max_samples=None,
+                  metrics="all")  # fmt: skip
+        if ts is None:
+            rep = robust_check(samples, (model, g), omc, **kw)
+        else:
+            ctrl = pipeline.controller(model, g, ts=ts)
+            rep = robust_check(np.asarray(samples), np.asarray(ctrl.response(omc)), omc,
+                               controller_rhp=int(ctrl.p_rhp), **kw)  # fmt: skip
         out["posterior"] = rep.summary() | {"report": rep}
     if device is not None:
         omd = device_grid(device.fs_hz) if omega_d is None else np.asarray(omega_d, dtype=float)

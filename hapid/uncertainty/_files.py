@@ -130,6 +130,7 @@ def robust_from_files(
     pose_offsets=(),
     metrics=(),
     seed: int = 0,
+    ts: float | None = None,
 ) -> dict:
     """Samples file and/or measured FRF + nominal model file → robust-check summary (and
     optional JSON file).
@@ -151,6 +152,10 @@ def robust_from_files(
     ``None``). Returns ``{"posterior": summary | {"draws": …}, "device": summary | None}``;
     ``"draws"`` says which family was checked (and for ``loop_gp`` the GP, the measured band
     and whether the loop gain above it is small enough for the draws to cover it).
+    Every summary carries the three-valued ``verdict`` (``"passed"``, ``"failed"``, ``"not
+    established"``) with its ``reason`` and ``remedy`` (:attr:`RobustReport.check`) and the
+    ``loop`` it was checked on. ``ts`` (s): the rate the controller runs at for the loop
+    draws (default: the device's with ``device``, else the continuous-time controller).
     """
     from ..control import Compensator
     from ..io import load_frf, load_model, load_samples, save_json
@@ -170,14 +175,20 @@ def robust_from_files(
             raise ValueError(
                 f"the measured FRF is for n = {n_meas} rods, the model for n = {model.n}"
             )
+        if ts is None and device is not None:
+            from ..device import preset
+
+            ts = (preset(device) if isinstance(device, str) else device).ts
         rep, info = loop_gp_check(measured, model, g, n_draws=max_samples, seed=seed, gm_db=gm_db,
-                                  pm_deg=pm_deg, metrics=metrics)  # fmt: skip
+                                  pm_deg=pm_deg, metrics=metrics, ts=ts)  # fmt: skip
         post = rep.summary() | {"draws": info}
     else:
         if ps is None:
             raise ValueError("the robust check on parameter draws needs a samples file")
-        post = robust_check(ps, (model, g), posterior_omega(), gm_db=gm_db, pm_deg=pm_deg,
-                            max_samples=max_samples, metrics=metrics, seed=seed).summary()  # fmt: skip
+        rep = robust_check(ps, (model, g), posterior_omega(), gm_db=gm_db, pm_deg=pm_deg,
+                           max_samples=max_samples, metrics=metrics, seed=seed)  # fmt: skip
+        post = dataclasses.replace(rep, loop="continuous-time controller, second-order parameter draws",
+                                   uncovered=PARAMS_UNCOVERED).summary()  # fmt: skip
         post["draws"] = {"draws": "params", "note": PARAMS_NOTE}
     out = {"posterior": post, "device": None}
     if device is not None:
@@ -193,9 +204,11 @@ def robust_from_files(
         omega = nyquist_grid(dev.fs_hz)
         labels, P = device_plants(dev, omega, poses=poses, n_subjects=n_subjects)
         ctrl = pipeline.controller(model, g, ts=dev.ts)
-        out["device"] = robust_check(P, np.asarray(ctrl.response(omega)), omega,
-                                     controller_rhp=int(ctrl.p_rhp), gm_db=gm_db, pm_deg=pm_deg,
-                                     labels=labels, backend="metrics", metrics=metrics).summary()  # fmt: skip
+        rep = robust_check(P, np.asarray(ctrl.response(omega)), omega,
+                           controller_rhp=int(ctrl.p_rhp), gm_db=gm_db, pm_deg=pm_deg,
+                           labels=labels, backend="metrics", metrics=metrics)  # fmt: skip
+        out["device"] = dataclasses.replace(rep, loop=f"controller sampled at {dev.fs_hz:g} Hz, "
+                                            "the device's true plants").summary()  # fmt: skip
     if out_json is not None:
         save_json(out_json, out)
     return out
@@ -208,6 +221,13 @@ PARAMS_NOTE = (
 )
 
 
+PARAMS_UNCOVERED = (
+    "second-order parameter draws cover the model class's parameter uncertainty only, not a "
+    "delay or modes the class lacks",
+    "give the measured FRF (--frf, or a samples file from hapid posterior) for loop draws",
+)
+
+
 def side_by_side(results: dict) -> str:
     """Markdown table of robust-check summaries of several controllers (``{label: output of
     robust_from_files}``): one row per controller and batch (posterior, device); "—": not
@@ -217,7 +237,7 @@ def side_by_side(results: dict) -> str:
             ("PM q50°", "pm_deg_q50", "{:.1f}"), ("disk q05", "disk_margin_q05", "{:.3f}"),
             ("iso-bw q05 Hz", "iso_bandwidth_hz_q05", "{:.2f}"),
             ("iso-bw q50 Hz", "iso_bandwidth_hz_q50", "{:.2f}"),
-            ("T peak q50 dB", "t_peak_db_q50", "{:.2f}"), ("passed", "passed", "{}")]  # fmt: skip
+            ("T peak q50 dB", "t_peak_db_q50", "{:.2f}"), ("verdict", "verdict", "{}")]  # fmt: skip
     lines = ["| controller | plants | n | " + " | ".join(c[0] for c in cols) + " |",
              "|" + "---|" * (3 + len(cols))]  # fmt: skip
     for label, res in results.items():

@@ -83,6 +83,8 @@ from ..control._metrics import grid_pass, metrics_screened, refine_many
 from ..defaults import GM_DB, PM_DEG
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
+from ..verdict import Check, Verdict
+from ._cover import EvidenceCover, cover_check
 from ._samples import PosteriorSamples
 
 FIELDS = (
@@ -126,6 +128,32 @@ class RobustReport:
     p_stable_required: float = 0.95
     labels: tuple | None = None
     computed: tuple = FIELDS
+    gm_freq_hz: np.ndarray | None = None
+    pm_freq_hz: np.ndarray | None = None
+    cover: EvidenceCover | None = None
+    loop: str = ""
+    uncovered: tuple = ()
+
+    @property
+    def check(self) -> Check:
+        """The three-valued verdict (:class:`hapid.verdict.Check`): ``failed`` when the
+        requirements fail on the plants (:meth:`reasons`); with :attr:`cover` (draws
+        conditioned on a measured band) ``not established`` when the evidence does not cover
+        the frequencies that decide it (:func:`hapid.uncertainty._cover.cover_check`); else
+        ``passed``; ``uncovered`` ``(reason, remedy)``: what the plants do not cover (e.g.
+        parameter draws of a model class that may be wrong) — then a check the plants pass
+        is ``not established``. Its ``name`` states the requirements and :attr:`loop`."""
+        name = f"GM ≥ {self.gm_req_db:g} dB, PM ≥ {self.pm_req_deg:g}°" + (
+            f" ({self.loop})" if self.loop else "")  # fmt: skip
+        if self.cover is not None:
+            return cover_check(self, self.cover, name)
+        why = self.reasons()
+        if why:
+            return Check(Verdict.FAILED, reason="; ".join(why), name=name)
+        if self.uncovered:
+            return Check(Verdict.NOT_ESTABLISHED, reason=self.uncovered[0],
+                         remedy=self.uncovered[1], name=name)  # fmt: skip
+        return Check(Verdict.PASSED, name=name)
 
     @property
     def not_computed(self) -> tuple:
@@ -176,7 +204,8 @@ class RobustReport:
 
     @property
     def passed(self) -> bool:
-        return not self.reasons()
+        """:attr:`check` passed (a failed or not-established check is not passed)."""
+        return self.check.ok
 
     def reasons(self) -> list[str]:
         """Why the check did not pass — one line per failed requirement, with how far the
@@ -201,13 +230,14 @@ class RobustReport:
 
     @property
     def ok(self) -> bool:
-        """The requirements are met (:attr:`passed`)."""
-        return self.passed
+        """The check passed (:attr:`check`): the requirements are met on the plants *and*
+        the evidence covers them."""
+        return self.check.ok
 
     @property
-    def status(self) -> str:
-        """``"passed"`` or ``"failed"``."""
-        return "passed" if self.passed else "failed"
+    def status(self) -> Verdict:
+        """The verdict of :attr:`check`: passed / failed / not established."""
+        return self.check.verdict
 
     def summary(self) -> dict:
         """Plain-python summary: P(stable), 5 %/50 % quantiles, worst plant, pass/fail;
@@ -226,6 +256,10 @@ class RobustReport:
                                "p_stable": self.p_stable_required}  # fmt: skip
         out["passed"] = self.passed
         out["reasons"] = self.reasons()
+        ck = self.check
+        out |= {"verdict": ck.verdict.value, "reason": ck.reason, "remedy": ck.remedy,
+                "check": ck.name, "loop": self.loop}  # fmt: skip
+        out["evidence"] = None if self.cover is None else self.cover.summary()
         return out
 
     def rows(self) -> list[dict]:
@@ -244,7 +278,7 @@ class RobustReport:
         return float(getattr(self, name)[i]) if name in self.computed else None
 
 
-_KEYS = ("stable", "n_closed_loop_rhp") + FIELDS
+_KEYS = ("stable", "n_closed_loop_rhp") + FIELDS + ("gm_freq_hz", "pm_freq_hz")
 
 
 def _spec(metrics: tuple) -> MetricsSpec:
@@ -255,7 +289,9 @@ def _spec(metrics: tuple) -> MetricsSpec:
 
 
 def _fields(m: dict, spec: MetricsSpec) -> dict:
-    out = {k: m[k] for k in ("stable", "n_closed_loop_rhp", "gm_db", "pm_deg", "iso_bandwidth_hz")}
+    keys = ("stable", "n_closed_loop_rhp", "gm_db", "pm_deg", "iso_bandwidth_hz", "gm_freq_hz",
+            "pm_freq_hz")  # fmt: skip
+    out = {k: m[k] for k in keys}
     nan = jnp.full_like(m["gm_db"], jnp.nan)
     out["t_peak_db"] = m["t_peak_db"] if spec.t_peak else nan
     if spec.disk:  # loop_metrics fills the disk margin's GM/PM (0 when not stable)
