@@ -36,7 +36,7 @@ rule (those were chosen on cu5 and tripod3 + 2 samples of delay):
 - ``rods``: 3 to 6 rods at a moved stylus: ``tripod3:move=0.01,0,0``,
   ``quad4:move=0,0.01,0``, ``cu5:move=0,0,0.01``, ``hexapod6:move=0.01,0.01,0``.
 
-For the ``loop_gp`` kind the verdict is :func:`hapid.uncertainty.loop_gp_check`'s three-valued
+For the ``loop_gp`` kind the verdict is :func:`hapid.robust.loop_gp_check`'s three-valued
 check with the controller sampled at the device's rate (the loop the truth is judged on), and
 the summary adds, over every controller: ``false_pass`` (verdict passed, truth misses 6 dB /
 30°: must be 0), ``not_established``, and ``bw_coverage`` (fraction of truth-stable
@@ -166,7 +166,7 @@ def run_device(spec: str, kinds, alphas, n_draws: int, seed: int = 0, on_row=Non
 
 
 def _loop_gp_rows(spec, dev, frf, fit, gs, truth, n_draws, seed, on_row) -> list[dict]:
-    from hapid.uncertainty import loop_gp_check
+    from hapid.robust import loop_gp_check
 
     rows = []
     for a, g in gs.items():

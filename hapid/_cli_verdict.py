@@ -15,7 +15,7 @@ def check_line(ck) -> str:
 
 
 def verdict_lines(res: dict) -> list[str]:
-    """The verdict of each batch of a :func:`hapid.uncertainty.robust_from_files` result, one
+    """The verdict of each batch of a :func:`hapid.robust.robust_from_files` result, one
     line each, verdict first: ``posterior: not established: … — measure …``."""
     out = []
     for batch in ("posterior", "device"):

@@ -455,8 +455,7 @@ def cmd_robust(a):
         return
 
     from .io import to_json
-    from .uncertainty import robust_from_files
-    from .uncertainty._files import side_by_side
+    from .robust import robust_from_files, side_by_side
 
     dev = device_or_none(a)
     if len(a.model) == 1:
@@ -487,7 +486,7 @@ def cmd_robust(a):
 
 
 def _robust_kw(a, dev) -> dict:
-    """The options of ``hapid robust`` for :func:`hapid.uncertainty.robust_from_files`
+    """The options of ``hapid robust`` for :func:`hapid.robust.robust_from_files`
     (``dev``: the device of the ``--device`` options, or None)."""
     return {"frf_path": a.frf, "draws": a.draws, "gm_db": a.gm_db, "pm_deg": a.pm_deg,
             "max_samples": a.max_samples, "device": dev, "n_subjects": a.subjects,
@@ -509,7 +508,7 @@ def _draws_line(d: dict) -> str:
 
 
 def _robust_worker(a):
-    from .uncertainty import robust_from_files
+    from .robust import robust_from_files
 
     dev = device_or_none(a)
     for m in a.model:

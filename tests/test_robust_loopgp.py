@@ -1,4 +1,4 @@
-"""The robust check on loop draws conditioned on the measured FRF (hapid.uncertainty.loop_gp_check,
+"""The robust check on loop draws conditioned on the measured FRF (hapid.robust.loop_gp_check,
 ``hapid robust``'s default when the FRF is known): it recovers the true plant's verdict where the
 model class is wrong, and the samples file carries the measured FRF it needs."""
 
@@ -13,13 +13,9 @@ from hapid._grids import continuous_grid
 from hapid.control import Compensator
 from hapid.fit import Scale
 from hapid.io import load_samples, save_samples
+from hapid.robust import loop_gp_check
 from hapid.tune._tune import scale_gain
-from hapid.uncertainty import (
-    PosteriorSamples,
-    loop_gp_check,
-    robust_check,
-)
-from hapid.uncertainty._likelihood import param_names
+from hapid.uncertainty import PosteriorSamples, param_names, robust_check
 from tests.helpers import random_model
 
 TAU = 4e-3  # s: a delay the second-order model lacks

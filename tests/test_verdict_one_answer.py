@@ -22,7 +22,7 @@ from tests.helpers import second_order_device
 
 @pytest.mark.slow  # ~1 min on 2 cores (compiles the sampled and continuous loop programs)
 def test_robust_loop_draws_and_the_device_row_give_one_answer(tmp_path):
-    from hapid.uncertainty import robust_from_files
+    from hapid.robust import robust_from_files
 
     dev = second_order_device(2, seed=3, delay_samples=2)
     model = dev.model

@@ -35,8 +35,9 @@ from ..experiment import estimate_frf
 from ..fit import FitFailedError
 from ..impedance_frf import ImpedanceFRF
 from ..io import load_samples, save_samples
+from ..robust import loop_gp_check
 from ..tune import design_info, tune_from_files
-from ..uncertainty import loop_gp_check, posterior_from_files
+from ..uncertainty import posterior_from_files
 from ._commands import FILES, DesignOptions, commands, resolve
 
 #: a rough guide (s) to each stage's wall time on cu5 with the paper protocol and a warm JAX

@@ -11,9 +11,9 @@
   model-error term (GP conditional on the fit residuals); :func:`band_calibration`.
 - :func:`robust_check`, :func:`device_plants` → :class:`RobustReport` — P(stable), margin
   and bandwidth quantiles of a fixed controller over posterior samples or device variants.
-- :func:`loop_gp_check` — the robust check on draws of the loop ``Q = P P̂⁻¹`` conditioned
-  on the whole measured FRF (:func:`fit_loop_gp`, :func:`loop_gp_plants`): calibrated where
-  the model class is wrong (``hapid robust``'s default when the FRF is known).
+- :func:`fit_loop_gp`, :func:`loop_gp_plants` — draws of the loop ``Q = P P̂⁻¹`` conditioned
+  on the whole measured FRF, calibrated where the model class is wrong (the robust check on
+  them, with the evidence on the measured FRF, is :func:`hapid.robust.loop_gp_check`).
 - :func:`pose_study` — nominal vs re-identified controller over a grid of stylus poses.
 """
 
@@ -22,7 +22,6 @@ from ._coords import fold_theta as fold_theta
 from ._coords import matrix_to_theta as matrix_to_theta
 from ._coords import theta_to_matrix as theta_to_matrix
 from ._files import posterior_from_files as posterior_from_files
-from ._files import robust_from_files as robust_from_files
 from ._laplace import laplace_posterior as laplace_posterior
 from ._laplace import laplace_samples as laplace_samples
 from ._laplace import posterior_laplace_samples as posterior_laplace_samples
@@ -32,7 +31,6 @@ from ._likelihood import boundary_fixed as boundary_fixed
 from ._likelihood import param_names as param_names
 from ._loopgp import LoopGP as LoopGP
 from ._loopgp import fit_loop_gp as fit_loop_gp
-from ._loopgp import loop_gp_check as loop_gp_check
 from ._loopgp import loop_gp_mean as loop_gp_mean
 from ._loopgp import loop_gp_plants as loop_gp_plants
 from ._loopgp import measured_data as measured_data

@@ -45,7 +45,6 @@ import dataclasses
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
-from ..defaults import GM_DB, PM_DEG
 from ..impedance import plant
 
 ENVELOPE_WIDTH = 0.35  # ln-ω half-width of the amplitude envelope's Gaussian smoothing
@@ -265,90 +264,3 @@ def measured_data(frf) -> dict:
     those attributes (:class:`hapid.experiment.FRF`) or keys (a samples file's ``measured``)."""
     get = (lambda k: frf[k]) if isinstance(frf, dict) else (lambda k: getattr(frf, k))  # noqa: E731
     return {k: np.asarray(get(k)) for k in ("omega", "Z_H", "Z_T")}
-
-
-def loop_gp_check(
-    measured,
-    model,
-    g,
-    *,
-    n_draws: int = 1000,
-    n_freq: int = 1000,
-    seed: int = 0,
-    gm_db: float = GM_DB,
-    pm_deg: float = PM_DEG,
-    p_stable_required: float = 0.95,
-    metrics=(),
-    ts: float | None = None,
-):
-    """The robust check on draws of the loop conditioned on the measured FRF.
-
-    ``measured``: the FRF (:func:`measured_data` input: ``omega``, ``Z_H``, ``Z_T``, every
-    measured frequency); ``model``: the nominal model the controller ``G = g Ẑ_T Ẑ_H⁻¹``
-    inverts; ``g``: a :class:`hapid.control.Compensator`; ``ts`` (s): the sampling period the
-    controller runs at (``None``: the continuous-time controller). ``n_draws`` plants
-    ``Q_d P̂`` (:func:`loop_gp_plants`), each analysed by
-    :func:`hapid.uncertainty.robust_check` — with ``ts=None`` the continuous controller on
-    :func:`hapid._grids.continuous_grid` (``n_freq``); with ``ts`` the discretized controller
-    (its phase lag included, the loop ``hapid analyze --device`` closes at that rate) on
-    :func:`hapid._grids.nyquist_grid` (the draws are of the measured, sampled plant). Returns
-    ``(report, info)``: the :class:`~hapid.uncertainty.RobustReport` — its
-    :attr:`~hapid.uncertainty.RobustReport.check` is ``passed`` only when the measured band
-    covers the loop (:mod:`hapid.uncertainty._cover`) — and a dict with the GP's ``ell``,
-    ``eta``, ``sigma2``, the measured band ``measured_hz`` ``[f₁, f_e]``, the evidence
-    figures of :func:`hapid.tune.certificate` (``frf_min_sigma_I_plus_L``,
-    ``beyond_loop_gain``, ``certified``), ``beyond_covered``, ``loop``, and the isotropic
-    bandwidth as ``iso_bandwidth_nominal_hz`` (of the conditional-mean loop, the nominal
-    estimate from the measured FRF; ``None`` if that loop is not stable) with the draws'
-    5–95 % ``iso_bandwidth_interval_hz`` (stable draws).
-
-    Measured (benchmarks/calibrate_robust.py, five devices no one tuned on, 25 controllers
-    of known answer): P(stable) 0.755–1.0 for the truth-stable controllers, ≤ 0.86 for the
-    others (0.86 at the edge, GM −0.1 dB; most 0), P(meeting 6 dB / 30°) right for all 25;
-    second-order parameter draws gave 0.52–1.0 whatever the truth (docs/robust-design.md).
-    """
-    from .._grids import continuous_grid, nyquist_grid
-    from ..pipeline import controller as make_controller
-    from ..tune._evidence import certificate, evidence_from_frf, measured_plant
-    from ..tune._response import g_response
-    from ._cover import EvidenceCover
-    from ._robust import FIELDS, robust_check
-
-    data = measured_data(measured)
-    gp = fit_loop_gp(data["omega"], measured_plant(data["Z_H"], data["Z_T"]), model)
-    kw = dict(gm_db=gm_db, pm_deg=pm_deg, p_stable_required=p_stable_required,
-              max_samples=None, metrics=metrics)  # fmt: skip
-    # the draws and, last, the conditional-mean loop (the nominal bandwidth): one batch
-    omega = continuous_grid(n_freq) if ts is None else nyquist_grid(1.0 / ts, n_freq)
-    S = int(n_draws)
-    P = np.concatenate([loop_gp_plants(gp, model, omega, S, seed),
-                        loop_gp_plants(gp, model, omega, 1, seed, mean=True)])  # fmt: skip
-    if ts is None:
-        rep = robust_check(P, (model, g), omega, **kw)
-        loop = "continuous-time controller"
-    else:
-        ctrl = make_controller(model, g, ts=ts)
-        rep = robust_check(P, np.asarray(ctrl.response(omega)), omega,
-                           controller_rhp=int(ctrl.p_rhp), **kw)  # fmt: skip
-        loop = f"controller sampled at {1.0 / ts:g} Hz"
-    ev = evidence_from_frf(data, model, ts=ts)
-    cert = certificate(ev, model, g)
-    # where |g| m falls to κ for good: on the checked grid above the band
-    wb = np.geomspace(ev.omega_e, float(omega[-1]), 800)
-    over = np.abs(np.asarray(g_response(g, wb, ev.ts))) * ev.mismatch > ev.kappa + 1e-9
-    clear = float("nan") if over[-1] else float(wb[np.nonzero(over)[0][-1] + 1] if over.any()
-                                                 else wb[0]) / TWO_PI  # fmt: skip
-    lo, hi = float(data["omega"][0] / TWO_PI), float(data["omega"][-1] / TWO_PI)
-    cover = EvidenceCover((lo, hi), float(cert["beyond_loop_gain"]), float(ev.kappa), clear,
-                          float(ev.g_max), loop)  # fmt: skip
-    nominal_bw = float(rep.iso_bandwidth_hz[-1]) if bool(rep.stable[-1]) else None
-    keep = ("stable", "n_closed_loop_rhp", "gm_freq_hz", "pm_freq_hz") + FIELDS
-    rep = dataclasses.replace(rep, cover=cover, loop=loop,
-                              **{k: np.asarray(getattr(rep, k))[:S] for k in keep})  # fmt: skip
-    bw = np.asarray(rep.iso_bandwidth_hz)[np.asarray(rep.stable, bool)]
-    info = {"draws": "loop_gp", "ell": gp.ell, "eta": gp.eta, "sigma2": gp.sigma2,
-            "measured_hz": [lo, hi], **cert, "beyond_covered": cover.beyond_covered,
-            "loop": loop, "iso_bandwidth_nominal_hz": nominal_bw,
-            "iso_bandwidth_interval_hz": [float(x) for x in np.quantile(bw, [0.05, 0.95])]
-            if bw.size else None}  # fmt: skip
-    return rep, info

@@ -28,7 +28,7 @@ class PosteriorSamples:
     - ``measured``: the whole measured FRF the posterior was built from (``omega (K,)``
       rad/s, ``Z_H``, ``Z_T (K, n, n)``: every measured frequency, also above the fit band),
       or None. The robust check and the tuner draw the loop from it
-      (:func:`hapid.uncertainty.loop_gp_check`).
+      (:func:`hapid.robust.loop_gp_check`).
     - ``log_prob``: ``(S,)`` log-posterior of each draw (NaN for Laplace draws).
     - ``scale``: the :class:`~hapid.fit.Scale` θ is expressed in.
     - ``n``: rods. ``names``: the ``d`` coordinate names.

@@ -1,0 +1,235 @@
+"""The robust check of a controller: on loop draws conditioned on the measured FRF
+(:func:`loop_gp_check`) and from files, as ``hapid robust`` runs it (:func:`robust_from_files`,
+:func:`side_by_side`).
+
+It composes the uncertainty layer (loop draws, :func:`hapid.uncertainty.robust_check`) with
+the tuner's evidence (:mod:`hapid.tune._evidence`: the certificate on the measured FRF and the
+small-gain bound above it), so it sits above both.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from . import pipeline
+from ._constants import TWO_PI
+from ._grids import continuous_grid, nyquist_grid
+from .control import Compensator
+from .defaults import GM_DB, PM_DEG
+from .device import preset
+from .io import load_frf, load_model, load_samples, save_json
+from .tune._evidence import certificate, evidence_from_frf, measured_plant
+from .tune._response import g_response
+from .uncertainty._cover import EvidenceCover
+from .uncertainty._files import DRAWS, resolve_draws
+from .uncertainty._loopgp import fit_loop_gp, loop_gp_plants, measured_data
+from .uncertainty._robust import FIELDS, device_plants, posterior_omega, robust_check
+
+
+def loop_gp_check(
+    measured,
+    model,
+    g,
+    *,
+    n_draws: int = 1000,
+    n_freq: int = 1000,
+    seed: int = 0,
+    gm_db: float = GM_DB,
+    pm_deg: float = PM_DEG,
+    p_stable_required: float = 0.95,
+    metrics=(),
+    ts: float | None = None,
+):
+    """The robust check on draws of the loop conditioned on the measured FRF.
+
+    ``measured``: the FRF (:func:`measured_data` input: ``omega``, ``Z_H``, ``Z_T``, every
+    measured frequency); ``model``: the nominal model the controller ``G = g Ẑ_T Ẑ_H⁻¹``
+    inverts; ``g``: a :class:`hapid.control.Compensator`; ``ts`` (s): the sampling period the
+    controller runs at (``None``: the continuous-time controller). ``n_draws`` plants
+    ``Q_d P̂`` (:func:`loop_gp_plants`), each analysed by
+    :func:`hapid.uncertainty.robust_check` — with ``ts=None`` the continuous controller on
+    :func:`hapid._grids.continuous_grid` (``n_freq``); with ``ts`` the discretized controller
+    (its phase lag included, the loop ``hapid analyze --device`` closes at that rate) on
+    :func:`hapid._grids.nyquist_grid` (the draws are of the measured, sampled plant). Returns
+    ``(report, info)``: the :class:`~hapid.uncertainty.RobustReport` — its
+    :attr:`~hapid.uncertainty.RobustReport.check` is ``passed`` only when the measured band
+    covers the loop (:mod:`hapid.uncertainty._cover`) — and a dict with the GP's ``ell``,
+    ``eta``, ``sigma2``, the measured band ``measured_hz`` ``[f₁, f_e]``, the evidence
+    figures of :func:`hapid.tune.certificate` (``frf_min_sigma_I_plus_L``,
+    ``beyond_loop_gain``, ``certified``), ``beyond_covered``, ``loop``, and the isotropic
+    bandwidth as ``iso_bandwidth_nominal_hz`` (of the conditional-mean loop, the nominal
+    estimate from the measured FRF; ``None`` if that loop is not stable) with the draws'
+    5–95 % ``iso_bandwidth_interval_hz`` (stable draws).
+
+    Measured (benchmarks/calibrate_robust.py, five devices no one tuned on, 25 controllers
+    of known answer): P(stable) 0.755–1.0 for the truth-stable controllers, ≤ 0.86 for the
+    others (0.86 at the edge, GM −0.1 dB; most 0), P(meeting 6 dB / 30°) right for all 25;
+    second-order parameter draws gave 0.52–1.0 whatever the truth (docs/robust-design.md).
+    """
+
+    data = measured_data(measured)
+    gp = fit_loop_gp(data["omega"], measured_plant(data["Z_H"], data["Z_T"]), model)
+    kw = dict(gm_db=gm_db, pm_deg=pm_deg, p_stable_required=p_stable_required,
+              max_samples=None, metrics=metrics)  # fmt: skip
+    # the draws and, last, the conditional-mean loop (the nominal bandwidth): one batch
+    omega = continuous_grid(n_freq) if ts is None else nyquist_grid(1.0 / ts, n_freq)
+    S = int(n_draws)
+    P = np.concatenate([loop_gp_plants(gp, model, omega, S, seed),
+                        loop_gp_plants(gp, model, omega, 1, seed, mean=True)])  # fmt: skip
+    if ts is None:
+        rep = robust_check(P, (model, g), omega, **kw)
+        loop = "continuous-time controller"
+    else:
+        ctrl = pipeline.controller(model, g, ts=ts)
+        rep = robust_check(P, np.asarray(ctrl.response(omega)), omega,
+                           controller_rhp=int(ctrl.p_rhp), **kw)  # fmt: skip
+        loop = f"controller sampled at {1.0 / ts:g} Hz"
+    ev = evidence_from_frf(data, model, ts=ts)
+    cert = certificate(ev, model, g)
+    # where |g| m falls to κ for good: on the checked grid above the band
+    wb = np.geomspace(ev.omega_e, float(omega[-1]), 800)
+    over = np.abs(np.asarray(g_response(g, wb, ev.ts))) * ev.mismatch > ev.kappa + 1e-9
+    clear = float("nan") if over[-1] else float(wb[np.nonzero(over)[0][-1] + 1] if over.any()
+                                                 else wb[0]) / TWO_PI  # fmt: skip
+    lo, hi = float(data["omega"][0] / TWO_PI), float(data["omega"][-1] / TWO_PI)
+    cover = EvidenceCover((lo, hi), float(cert["beyond_loop_gain"]), float(ev.kappa), clear,
+                          float(ev.g_max), loop)  # fmt: skip
+    nominal_bw = float(rep.iso_bandwidth_hz[-1]) if bool(rep.stable[-1]) else None
+    keep = ("stable", "n_closed_loop_rhp", "gm_freq_hz", "pm_freq_hz") + FIELDS
+    rep = dataclasses.replace(rep, cover=cover, loop=loop,
+                              **{k: np.asarray(getattr(rep, k))[:S] for k in keep})  # fmt: skip
+    bw = np.asarray(rep.iso_bandwidth_hz)[np.asarray(rep.stable, bool)]
+    info = {"draws": "loop_gp", "ell": gp.ell, "eta": gp.eta, "sigma2": gp.sigma2,
+            "measured_hz": [lo, hi], **cert, "beyond_covered": cover.beyond_covered,
+            "loop": loop, "iso_bandwidth_nominal_hz": nominal_bw,
+            "iso_bandwidth_interval_hz": [float(x) for x in np.quantile(bw, [0.05, 0.95])]
+            if bw.size else None}  # fmt: skip
+    return rep, info
+
+
+def robust_from_files(
+    samples_path,
+    model_path,
+    out_json=None,
+    *,
+    frf_path=None,
+    draws: str = "auto",
+    g=None,
+    gm_db: float = GM_DB,
+    pm_deg: float = PM_DEG,
+    max_samples: int = 1000,
+    device=None,
+    n_subjects: int = 0,
+    pose_offsets=(),
+    metrics=(),
+    seed: int = 0,
+    ts: float | None = None,
+) -> dict:
+    """Samples file and/or measured FRF + nominal model file → robust-check summary (and
+    optional JSON file).
+
+    The controller is ``g Ẑ_T Ẑ_H⁻¹`` of the model file (``g`` default the paper's). ``draws``:
+
+    - ``"loop_gp"``: ``max_samples`` draws of the loop ``Q = P P̂⁻¹`` conditioned on the whole
+      measured FRF (:func:`hapid.robust.loop_gp_check`) — the FRF of ``frf_path``, else
+      the one a samples file from ``hapid posterior`` stores (``PosteriorSamples.measured``);
+    - ``"params"``: the posterior samples' own second-order plants (at most ``max_samples``):
+      parameter uncertainty only, not calibrated where the model class is wrong (delay,
+      unmodeled modes: benchmarks/calibrate_robust.py);
+    - ``"auto"`` (default): ``"loop_gp"`` when a measured FRF is known, else ``"params"``.
+
+    With ``device`` (a preset name, e.g. ``"cu5"``, or a device), the device-based check (nominal device,
+    ``pose_offsets`` (dx, dy, dz) m, ``n_subjects`` virtual subjects) is added under
+    ``"device"``. ``metrics``: as :func:`robust_check` (``"all"``: also the disk margin and
+    the peak of σ̄(T); default: verdict, bandwidth and loci margins only — the others are
+    ``None``). Returns ``{"posterior": summary | {"draws": …}, "device": summary | None}``;
+    ``"draws"`` says which family was checked (and for ``loop_gp`` the GP, the measured band
+    and whether the loop gain above it is small enough for the draws to cover it).
+    Every summary carries the three-valued ``verdict`` (``"passed"``, ``"failed"``, ``"not
+    established"``) with its ``reason`` and ``remedy`` (:attr:`RobustReport.check`) and the
+    ``loop`` it was checked on. ``ts`` (s): the rate the controller runs at for the loop
+    draws (default: the device's with ``device``, else the continuous-time controller).
+    """
+
+    if draws not in DRAWS:  # before any file is read
+        raise ValueError(f"draws must be one of {DRAWS}, got {draws!r}")
+    model = load_model(model_path)
+    ps = None if samples_path is None else load_samples(samples_path, n=model.n)
+    measured = load_frf(frf_path) if frf_path is not None else getattr(ps, "measured", None)
+    kind = resolve_draws(draws, measured)
+    g = Compensator.paper() if g is None else g
+    if kind == "loop_gp":
+        n_meas = np.shape(measured["Z_H"] if isinstance(measured, dict) else measured.Z_H)[-1]
+        if n_meas != model.n:
+            raise ValueError(
+                f"the measured FRF is for n = {n_meas} rods, the model for n = {model.n}"
+            )
+        if ts is None and device is not None:
+            ts = (preset(device) if isinstance(device, str) else device).ts
+        rep, info = loop_gp_check(measured, model, g, n_draws=max_samples, seed=seed, gm_db=gm_db,
+                                  pm_deg=pm_deg, metrics=metrics, ts=ts)  # fmt: skip
+        post = rep.summary() | {"draws": info}
+    else:
+        if ps is None:
+            raise ValueError("the robust check on parameter draws needs a samples file")
+        rep = robust_check(ps, (model, g), posterior_omega(), gm_db=gm_db, pm_deg=pm_deg,
+                           max_samples=max_samples, metrics=metrics, seed=seed)  # fmt: skip
+        post = dataclasses.replace(rep, loop="continuous-time controller, second-order parameter draws",
+                                   uncovered=PARAMS_UNCOVERED).summary()  # fmt: skip
+        post["draws"] = {"draws": "params", "note": PARAMS_NOTE}
+    out = {"posterior": post, "device": None}
+    if device is not None:
+        dev = preset(device) if isinstance(device, str) else device
+        poses = [dev.pose.moved(*o) for o in pose_offsets]
+        # the sampled controller (as analyze/paper/tune close the loop with the device) on a
+        # grid to fs/2, refined crossings: the nominal row is the single analysis's numbers
+
+        omega = nyquist_grid(dev.fs_hz)
+        labels, P = device_plants(dev, omega, poses=poses, n_subjects=n_subjects)
+        ctrl = pipeline.controller(model, g, ts=dev.ts)
+        rep = robust_check(P, np.asarray(ctrl.response(omega)), omega,
+                           controller_rhp=int(ctrl.p_rhp), gm_db=gm_db, pm_deg=pm_deg,
+                           labels=labels, backend="metrics", metrics=metrics)  # fmt: skip
+        out["device"] = dataclasses.replace(rep, loop=f"controller sampled at {dev.fs_hz:g} Hz, "
+                                            "the device's true plants").summary()  # fmt: skip
+    if out_json is not None:
+        save_json(out_json, out)
+    return out
+
+
+PARAMS_NOTE = (
+    "second-order parameter draws: parameter uncertainty only; where the model class is wrong "
+    "(delay, unmodeled modes) P(stable) does not track the true plant's verdict "
+    "(benchmarks/calibrate_robust.py) — give the measured FRF for loop draws"
+)
+
+
+PARAMS_UNCOVERED = (
+    "second-order parameter draws cover the model class's parameter uncertainty only, not a "
+    "delay or modes the class lacks",
+    "give the measured FRF (--frf, or a samples file from hapid posterior) for loop draws",
+)
+
+
+def side_by_side(results: dict) -> str:
+    """Markdown table of robust-check summaries of several controllers (``{label: output of
+    robust_from_files}``): one row per controller and batch (posterior, device); "—": not
+    computed (``metrics``)."""
+    cols = [("P(stable)", "p_stable", "{:.3f}"), ("GM q05 dB", "gm_db_q05", "{:.2f}"),
+            ("GM q50 dB", "gm_db_q50", "{:.2f}"), ("PM q05°", "pm_deg_q05", "{:.1f}"),
+            ("PM q50°", "pm_deg_q50", "{:.1f}"), ("disk q05", "disk_margin_q05", "{:.3f}"),
+            ("iso-bw q05 Hz", "iso_bandwidth_hz_q05", "{:.2f}"),
+            ("iso-bw q50 Hz", "iso_bandwidth_hz_q50", "{:.2f}"),
+            ("T peak q50 dB", "t_peak_db_q50", "{:.2f}"), ("verdict", "verdict", "{}")]  # fmt: skip
+    lines = ["| controller | plants | n | " + " | ".join(c[0] for c in cols) + " |",
+             "|" + "---|" * (3 + len(cols))]  # fmt: skip
+    for label, res in results.items():
+        for batch in ("posterior", "device"):
+            sm = res.get(batch)
+            if sm is None:
+                continue
+            vals = ["—" if sm[key] is None else fmt.format(sm[key]) for _, key, fmt in cols]
+            lines.append(f"| {label} | {batch} | {sm['n']} | " + " | ".join(vals) + " |")
+    return "\n".join(lines)
