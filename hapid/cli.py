@@ -635,11 +635,13 @@ def uncertified_warning(row: dict) -> str:
 def cmd_tune(a):
 
     from .tune import tune_from_files
+    from .tune._progress import TuneProgress
 
     draws = "loop_gp" if a.loop_draws else a.draws
     import time
 
     t = time.perf_counter()
+    bar = TuneProgress(enabled=not a.quiet)
     g0 = None
     if a.extra_lag or a.extra_notch:  # a richer template: the paper g plus identity terms
         from .control import Compensator
@@ -647,12 +649,15 @@ def cmd_tune(a):
 
         g0 = extend_structure(Compensator.paper(), lag_hz=a.extra_lag or (),
                               notch_hz=a.extra_notch or ())  # fmt: skip
-    res = tune_from_files(a.model, a.samples, a.out, device=_device_or_none(a), frf=a.frf, g0=g0,
-                          evidence_ts=None if a.fs is None else 1.0 / a.fs, n_train=a.n_train,
-                          n_holdout=a.n_holdout, quantile=a.quantile, n_subjects=a.subjects,
-                          seed=a.seed, max_steps=a.max_steps, keep_dc_gain=not a.free_dc,
-                          model_error_draws=a.predictive, evidence_bandwidth=a.evidence_bandwidth,
-                          draw_family=draws)  # fmt: skip
+    try:
+        res = tune_from_files(a.model, a.samples, a.out, device=_device_or_none(a), frf=a.frf, g0=g0,
+                              evidence_ts=None if a.fs is None else 1.0 / a.fs, n_train=a.n_train,
+                              n_holdout=a.n_holdout, quantile=a.quantile, n_subjects=a.subjects,
+                              seed=a.seed, max_steps=a.max_steps, keep_dc_gain=not a.free_dc,
+                              model_error_draws=a.predictive, evidence_bandwidth=a.evidence_bandwidth,
+                              draw_family=draws, progress=bar)  # fmt: skip
+    finally:
+        bar.close()
     r = res["result"]
     print(res.get("decision", ""))
     print(f"tuned in {r.wall_s:.1f} s: claimed robust bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, "
@@ -681,13 +686,18 @@ def cmd_tune(a):
 
 
 def _register_tune(sub):
+    from .tune._progress import EXPECTED_S
     tu = sub.add_parser("tune", help="tune g(s) by gradients, robustly over posterior samples / device variants",
                         description="Differentiable design of the compensator g(s) of G = g Ẑ_T Ẑ_H⁻¹: "
                         "maximize a smooth robust isotropic bandwidth subject to loci-sensitivity "
                         "constraints (GM ≥ 6 dB, PM ≥ 30°) on a CVaR quantile of posterior samples "
                         "(and, with --device, on the device's true plants at other poses and "
                         "subjects), then re-check paper g and tuned g with the non-smooth analysis "
-                        "on held-out samples, the true plant and in the time domain.",
+                        "on held-out samples, the true plant and in the time domain. "
+                        f"Expect about {EXPECTED_S / 60:.0f} min with the defaults on a 2-core machine "
+                        "(cu5, warm compilation cache; the first run compiles for longer); progress "
+                        "(stage, BFGS steps, objective, worst constraint, elapsed / expected time) "
+                        "goes to stderr, the report to stdout.",
                         epilog="example: hapid tune --model nls.npz --samples samples.npz --device cu5 --out design.npz")  # fmt: skip
     tu.add_argument("--model", required=True, help="nominal model file (the controller inverts it)")
     tu.add_argument("--samples", help="posterior samples file (hapid posterior)")
@@ -736,6 +746,7 @@ def _register_tune(sub):
                     help="tune the paper g plus a notch (ζ_num = ζ_den at the start) at each of these "
                     "frequencies (Hz): it can become a dip or a bump")  # fmt: skip
     tu.add_argument("--seed", type=int, default=0)
+    tu.add_argument("--quiet", action="store_true", help="no progress on stderr")
     tu.set_defaults(func=cmd_tune)
 
 
