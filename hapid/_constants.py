@@ -12,3 +12,8 @@ TWO_PI = 2.0 * math.pi
 #: Fraction of the sampling frequency at which log-spaced analysis grids of sampled systems stop
 #: (just below Nyquist, f_s/2; the Nyquist point itself is appended separately).
 BELOW_NYQUIST = 0.49999
+
+#: Wall time (s) of ``hapid tune`` with its defaults on cu5 (150 training / 200 held-out draws,
+#: 3 continuation stages, re-check) on a 2-core machine with a warm compilation cache
+#: (``benchmarks/bench_route.py``): the "expected" time of its progress report and ``--help``.
+TUNE_EXPECTED_S = 360.0

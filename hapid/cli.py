@@ -11,6 +11,7 @@ import warnings
 from pathlib import Path
 
 from ._cli_device import add_device_args, describe, device_from_args
+from ._constants import TUNE_EXPECTED_S
 
 EXAMPLES = """examples:
   hapid simulate --device cu5 --out run.npz            # the paper's protocol on cu5
@@ -686,7 +687,6 @@ def cmd_tune(a):
 
 
 def _register_tune(sub):
-    from .tune._progress import EXPECTED_S
     tu = sub.add_parser("tune", help="tune g(s) by gradients, robustly over posterior samples / device variants",
                         description="Differentiable design of the compensator g(s) of G = g Ẑ_T Ẑ_H⁻¹: "
                         "maximize a smooth robust isotropic bandwidth subject to loci-sensitivity "
@@ -694,7 +694,7 @@ def _register_tune(sub):
                         "(and, with --device, on the device's true plants at other poses and "
                         "subjects), then re-check paper g and tuned g with the non-smooth analysis "
                         "on held-out samples, the true plant and in the time domain. "
-                        f"Expect about {EXPECTED_S / 60:.0f} min with the defaults on a 2-core machine "
+                        f"Expect about {TUNE_EXPECTED_S / 60:.0f} min with the defaults on a 2-core machine "
                         "(cu5, warm compilation cache; the first run compiles for longer); progress "
                         "(stage, BFGS steps, objective, worst constraint, elapsed / expected time) "
                         "goes to stderr, the report to stdout.",

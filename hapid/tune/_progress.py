@@ -17,10 +17,7 @@ import time
 
 from tqdm import tqdm
 
-EXPECTED_S = 360.0
-"""Wall time (s) of ``hapid tune`` with its defaults on cu5 (150 training / 200 held-out
-draws, 3 continuation stages, the device's variants, re-check) on a 2-core machine with a
-warm compilation cache (``benchmarks/bench_route.py``); the "expected" figure."""
+from .._constants import TUNE_EXPECTED_S as EXPECTED_S
 
 REFRESH_S = 5.0
 """Seconds between redraws of the bar while a stage runs."""

@@ -38,8 +38,8 @@ from ..control import Compensator
 from ._evidence import KAPPA, beyond_grid, certificate, evidence_from_frf, measured_plant
 from ._objective import Family, Requirements
 from ._params import ParamMap
-from ._scenarios import make_scenarios
 from ._progress import note
+from ._scenarios import make_scenarios
 from ._tune import largest_gain, scale_gain, tune
 from ._validate import device_grid, table_row, validate
 
@@ -379,7 +379,10 @@ def robust_design(
             info["evidence"] = {"source": ev.source, "n_freq": int(ev.omega.size),
                                 "evidence_hz": ev.omega_e / TWO_PI, "mismatch_bound": ev.mismatch,
                                 "kappa": ev.kappa}  # fmt: skip
-    note(progress, f"tuning on {', '.join(f'{f.name} ({f.scenarios.n_scenarios})' for f in families)}")
+    note(
+        progress,
+        f"tuning on {', '.join(f'{f.name} ({f.scenarios.n_scenarios})' for f in families)}",
+    )
     res = tune(families, g0, requirements=req, mu_schedule=mu_schedule, max_steps=max_steps,
                f_max_hz=f_max_hz, progress=progress)  # fmt: skip
     out = {"result": res, "candidate": res, "families": info, "kept_start": False,
