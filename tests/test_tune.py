@@ -246,3 +246,13 @@ def test_tuning_notebook_runs_in_fast_mode(tmp_path):
     assert probe["stable"]
     assert probe["n"] == 20
     assert (tmp_path / "04_robust_tuning" / "tuned_vs_paper.png").exists()
+
+
+def test_tune_help_states_the_expected_time_and_quiet(capsys):
+    from hapid._constants import TUNE_EXPECTED_S
+    from hapid.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["tune", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert f"Expect about {TUNE_EXPECTED_S / 60:.0f} min" in out and "--quiet" in out
