@@ -71,14 +71,12 @@ def _profile(argv: list[str]) -> dict:
     return out
 
 
-def profile_rows(tree: Path, routes: dict, cache: Path, skip_tune: bool) -> list[dict]:
+def profile_rows(tree: Path, routes: dict, cache: Path) -> list[dict]:
     """One row per command: the profile of :func:`_profile` (warm persistent cache: each
     command runs once before, unmeasured, to fill it)."""
     rows = []
     env = dict(os.environ, PYTHONPATH=str(tree), HAPID_JAX_CACHE=str(cache))
     for name, args in routes.items():
-        if skip_tune and name.startswith("tune"):
-            continue
         subprocess.run([sys.executable, "-m", "hapid", *args], cwd=tree, env=env,
                        capture_output=True, timeout=3600)  # fmt: skip
         p = subprocess.run([sys.executable, __file__, *args], cwd=tree, env=env, text=True,

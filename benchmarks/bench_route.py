@@ -1,7 +1,8 @@
 """The user's route through the CLI, before and after: fit, posterior, robust, analyze, tune.
 
 Run: ``.venv/bin/python benchmarks/bench_route.py [--before COMMIT] [--runs 3] [--quick]
-[--skip-tune] [--out out/bench]`` from the repository root.
+[--only fit,posterior,robust,analyze,tune] [--profile] [--numpy] [--data DIR] [--out DIR]``
+from the repository root.
 
 ``COMMIT`` (default: the parent of the first commit of this work, :data:`BEFORE`) is
 extracted with ``git archive`` into a temporary folder; "after" is this checkout. Each
@@ -17,8 +18,8 @@ a shared machine the CPU time is the steadier figure. The route's data (cu5, the
 protocol: run, FRF, NLS model, 1000 Laplace draws) are made once, by "after", and both trees
 read the same files. With ``--profile``, each command of "after" is also run in one process
 twice (:mod:`_route_profile`): import, first call and second call, I/O — the profile table
-of benchmarks/README.md. Last, the parameter-draw robust check against a plain numpy loop over
-the same 1000 plants (:func:`hapid.uncertainty.robust_check` vs numpy), in each tree.
+of benchmarks/README.md. With ``--numpy``, the parameter-draw robust check against a plain numpy
+loop over the same 1000 plants (:func:`hapid.uncertainty.robust_check` vs numpy), in each tree.
 """
 
 from __future__ import annotations
@@ -139,11 +140,13 @@ def _span(xs):
     return f"{_med(xs):.1f} ({min(xs):.1f}–{max(xs):.1f})" if xs else "-"
 
 
-def route(before: Path, d: Path, runs: int, quick: bool, skip_tune: bool) -> list[dict]:
+def route(before: Path, d: Path, runs: int, quick: bool, only: list[str]) -> list[dict]:
+    """One row per command of ``only`` (name prefixes, in that order): cold and warm."""
     rows = []
-    for name, args in _routes(d, quick).items():
-        if skip_tune and name.startswith("tune"):
-            continue
+    routes = _routes(d, quick)
+    for key in only:
+        name = next(k for k in routes if k.startswith(key))
+        args = routes[name]
         res = {}
         for label, tree in (("before", before), ("after", ROOT)):
             cold_cache = d / f"cold_{label}_{len(rows)}"
@@ -193,12 +196,16 @@ def main(argv=None) -> None:
     ap.add_argument("--before", default=BEFORE, help="git commit of 'before'")
     ap.add_argument("--runs", type=int, default=3, help="warm runs per tree (default 3)")
     ap.add_argument("--quick", action="store_true", help="100 draws instead of 1000")
-    ap.add_argument("--skip-tune", action="store_true", help="leave out hapid tune (minutes)")
-    ap.add_argument(
-        "--profile", action="store_true", help="also the per-command profile of 'after'"
-    )
+    ap.add_argument("--only", default="fit,posterior,robust,analyze,tune",
+                    help="commands to time, in this order (comma list of fit, posterior, robust, "
+                    "analyze, tune; default all)")  # fmt: skip
+    ap.add_argument("--profile", action="store_true", help="also each command's profile (after)")
+    ap.add_argument("--numpy", action="store_true", help="also the parameter-draw check vs numpy")
+    ap.add_argument("--data", help="a folder with the route's inputs (run, frf, nls, samples .npz) "
+                    "from an earlier run: reused instead of made")  # fmt: skip
     ap.add_argument("--out", default="out/bench")
     a = ap.parse_args(argv)
+    only = [k.strip() for k in a.only.split(",") if k.strip()]
     print(header("bench_route: the CLI route, before and after"), flush=True)
     tmp = Path(tempfile.mkdtemp(prefix="hapid_route_"))
     try:
@@ -209,25 +216,27 @@ def main(argv=None) -> None:
         )
         subprocess.run(["tar", "-x", "-C", str(before)], input=arch.stdout, check=True)
         print(f"before: {a.before} (git archive → {before}); after: {ROOT}", flush=True)
-        make_data(tmp, a.quick)
+        if a.data:
+            for f in ("run.npz", "frf.npz", "nls.npz", "samples.npz"):
+                shutil.copy(Path(a.data) / f, tmp / f)
+        else:
+            make_data(tmp, a.quick)
         md = ["## Route (whole processes, `python -m hapid …`)", "",
               f"command: `python benchmarks/bench_route.py --before {a.before} --runs {a.runs}"
-              + (" --quick" if a.quick else "") + (" --skip-tune" if a.skip_tune else "") + "`", ""]  # fmt: skip
-        md.append(table(route(before, tmp, a.runs, a.quick, a.skip_tune)))
+              + (" --quick" if a.quick else "") + f" --only {a.only}`", ""]  # fmt: skip
+        md.append(table(route(before, tmp, a.runs, a.quick, only)))
         if a.profile:
             from _route_profile import profile_rows
 
-            md += ["", "## Profile of 'after' (one process, command run twice)", ""]
-            md.append(
-                table(profile_rows(ROOT, _routes(tmp, a.quick), tmp / "cache_profile", a.skip_tune))
-            )
-        S = 100 if a.quick else 1000
-        md += [
-            "",
-            f"## Parameter-draw robust check vs a numpy loop ({S} draws × 1000 frequencies)",
-            "",
-        ]
-        md.append(table(robust_vs_numpy(before, S)))
+            routes = _routes(tmp, a.quick)
+            sel = {k: v for k, v in routes.items() if any(k.startswith(o) for o in only)}
+            md += ["", "## Profile of 'after' (one process, the command run twice)", ""]
+            md.append(table(profile_rows(ROOT, sel, tmp / "cache_profile")))
+        if a.numpy:
+            S = 100 if a.quick else 1000
+            md += ["", f"## Parameter-draw robust check vs a numpy loop ({S} draws × 1000 "
+                   "frequencies)", ""]  # fmt: skip
+            md.append(table(robust_vs_numpy(before, S)))
         text = "\n".join(md)
         print("\n" + text)
         Path(a.out).mkdir(parents=True, exist_ok=True)
