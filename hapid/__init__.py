@@ -1,20 +1,37 @@
 """hapid: differentiable system identification of multi-DOF haptic interfaces (JAX).
 
-Importing hapid switches on float64 (``jax_enable_x64``).
+Importing hapid switches on float64 (``jax_enable_x64``). The subpackages (``control``,
+``device``, ``experiment``, ``fit``, ``uncertainty``) and the names below are imported on
+first use, so that a command loads only what it needs.
 """
 
+import importlib
+
 from . import _config  # noqa: F401  (float64 before anything else)
-from . import control as control
-from . import device as device
-from . import experiment as experiment
-from . import fit as fit
-from . import uncertainty as uncertainty
-from .frf import FRF as FRF
-from .frf import as_frf as as_frf
-from .impedance import ImpedanceModel as ImpedanceModel
-from .impedance import SecondOrder as SecondOrder
-from .impedance import plant as plant
-from .impedance import singular_values as singular_values
-from .impedance import span_db as span_db
 
 __version__ = "0.1.0"
+
+_SUBPACKAGES = ("control", "device", "experiment", "fit", "uncertainty")
+_NAMES = {
+    "FRF": "frf",
+    "as_frf": "frf",
+    "ImpedanceModel": "impedance",
+    "SecondOrder": "impedance",
+    "plant": "impedance",
+    "singular_values": "impedance",
+    "span_db": "impedance",
+}
+__all__ = [*_SUBPACKAGES, *_NAMES]
+
+
+def __getattr__(name: str):
+    """Import a subpackage or a top-level name on first access (PEP 562)."""
+    if name in _SUBPACKAGES:
+        return importlib.import_module(f".{name}", __name__)
+    if name in _NAMES:
+        return getattr(importlib.import_module(f".{_NAMES[name]}", __name__), name)
+    raise AttributeError(f"module 'hapid' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted([*globals(), *__all__])

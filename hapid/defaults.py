@@ -21,3 +21,6 @@ FS_HZ = 1000.0
 
 N_DRAWS = 1000
 """Loop or parameter draws in a robust check."""
+
+NPERSEG = 2048
+"""Samples per Welch segment of an H1 estimate (``hapid frf --h1`` on non-periodic records)."""

@@ -31,6 +31,7 @@ from hapid.tune import (
     validate,
 )
 from hapid.tune._objective import Box
+from hapid.tune._progress import TuneProgress
 from tests.helpers import random_model
 
 TS = 1e-3
@@ -166,10 +167,20 @@ def test_gradients_of_objective_and_constraints_match_finite_differences(small, 
     assert np.all(J[-1, :-1] != 0.0)  # every tuned parameter moves the objective
 
 
-def test_tune_small_problem_meets_margins_on_held_out_plants(small):
+def test_tune_small_problem_meets_margins_on_held_out_plants(small, capsys):
     model, om, P, sc_d, sc_c = small
     fam = Family(sc_c.subset([0, 1, 2]), quantile=1.0, name="train")
-    res = tune([fam], Compensator.paper(), mu_schedule=(100.0, 1e4), max_steps=150)
+    bar = TuneProgress()  # stderr at construction: capsys's
+    res = tune([fam], Compensator.paper(), mu_schedule=(100.0, 1e4), max_steps=150, progress=bar)
+    bar.close()
+    # progress: on stderr only, one bar over the stages, each stage's figures as recorded
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert "tune: checking the start g" in err and "expected" in err
+    assert f"tune stage {len(res.history)}/{len(res.history)} (μ = {1e4:g})" in err
+    last = res.history[-1]
+    worst = max(last["constraints"].items(), key=lambda kv: kv[1])
+    assert f"{last['steps']} steps, objective {last['objective']:.4g}, worst {worst[0]}" in err
     assert res.feasible, res.constraints
     assert res.bandwidth_hz > res.bandwidth0_hz
     # non-smooth re-check (generalized Nyquist first) on the training plants
@@ -235,3 +246,13 @@ def test_tuning_notebook_runs_in_fast_mode(tmp_path):
     assert probe["stable"]
     assert probe["n"] == 20
     assert (tmp_path / "04_robust_tuning" / "tuned_vs_paper.png").exists()
+
+
+def test_tune_help_states_the_expected_time_and_quiet(capsys):
+    from hapid._constants import TUNE_EXPECTED_S
+    from hapid.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["tune", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert f"Expect about {TUNE_EXPECTED_S / 60:.0f} min" in out and "--quiet" in out

@@ -471,6 +471,7 @@ def test_bad_inputs(case, tmp_path):
         PosteriorSamples(np.zeros((4, 5)), np.zeros(4), nls.scale, 2, tuple("abcde"))
 
 
+@pytest.mark.slow  # ~5 min on 2 cores (compiles per pose); it checks only the rows' shape
 def test_pose_study_smoke():
     """One pose, nominal controller only, from the device's rigid model (no identification)."""
     from hapid.device import cu5

@@ -85,11 +85,13 @@ def inverse_model_state_space(model: ImpedanceModel, g: Compensator) -> StateSpa
     return series(block_diag(g.state_space(), model.n), impedance_ratio_state_space(model))
 
 
+@eqx.filter_jit
 def controller_unstable_poles(
     model: ImpedanceModel, g: Compensator | None = None, tol: float = 0.0
 ):
     """Number of poles of G in the open RHP (``Re > tol``): roots of det Ẑ_H there, plus
-    unstable poles of g. Pass it (plus the plant's) as ``P_ol_rhp`` to ``analyze_loop``."""
+    unstable poles of g. Pass it (plus the plant's) as ``P_ol_rhp`` to ``analyze_loop``.
+    One compiled program (jit; traced inline under an outer jit/vmap)."""
     n = jnp.sum(jnp.real(model.hand.roots()) > tol)
     if g is not None:
         n = n + g.state_space().n_unstable_poles(tol)

@@ -25,6 +25,7 @@ import dataclasses
 import numpy as np
 
 from .._grids import band_mask
+from ..defaults import NPERSEG
 from ..impedance_frf import ImpedanceFRF, as_impedance_frf
 from ._estimate import estimate_frf_h1, segment_spectra, segment_starts
 from ._transient import (
@@ -40,7 +41,6 @@ from ._transient import (
 
 RESPONSE_KINDS = {"displacement": 0, "velocity": 1, "acceleration": 2}
 #: Welch segment length (samples) when none is given
-NPERSEG = 2048
 #: the force and exponential windows span at least this many samples
 WINDOW_MIN_SAMPLES = 4
 #: impact responses that decay less than this (dB) by the segment end leak (auto refuses)

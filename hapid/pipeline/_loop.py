@@ -64,10 +64,27 @@ class DeviceResponse(eqx.Module):
         return self.device.P(1j * jnp.asarray(omega, dtype=jnp.float64))
 
 
-def _sampled_device_response(device) -> SystemResponse:
-    """``device.sampled_P`` as a :class:`SystemResponse` (ZOH realization built once; the
-    position outputs are the rows after the first ``n``; the actuator delay in samples)."""
-    return SystemResponse(device.discrete(), int(device.n), int(device.delay_samples))
+def _sampled_device_response(device, sys=None) -> SystemResponse:
+    """``device.sampled_P`` as a :class:`SystemResponse` (ZOH realization built once, or
+    ``sys`` when given; the position outputs are the rows after the first ``n``; the actuator
+    delay in samples)."""
+    sys = device.discrete() if sys is None else sys
+    return SystemResponse(sys, int(device.n), int(device.delay_samples))
+
+
+@eqx.filter_jit
+def _sampled_device(device, omega):
+    """``(device.sampled_P(omega), device.discrete())`` as one compiled program (op by op,
+    the small matrix algebra of the realization compiles a program per operation)."""
+    return device.sampled_P(omega), device.discrete()
+
+
+@eqx.filter_jit
+def _controller_parts(controller, omega):
+    """``(G on omega, open-loop RHP poles of G, sampled realization or None)`` of a
+    :class:`hapid.pipeline.Controller` as one compiled program."""
+    sys = controller.discrete() if controller.ts is not None else None
+    return controller.response(omega), jnp.asarray(controller.p_rhp), sys
 
 
 class ModelResponse(eqx.Module):
@@ -120,8 +137,8 @@ def device_plant(device, omega, *, continuous: bool = False) -> Plant:
     omega = jnp.asarray(omega, dtype=jnp.float64)
     if continuous:
         return Plant(omega, device.P(1j * omega), jnp.asarray(0), None, DeviceResponse(device))
-    P_fn = _sampled_device_response(device)
-    return Plant(omega, device.sampled_P(omega), jnp.asarray(0), float(device.ts), P_fn)
+    P, sys = _sampled_device(device, omega)
+    return Plant(omega, P, jnp.asarray(0), float(device.ts), _sampled_device_response(device, sys))
 
 
 def model_plant(model, omega) -> Plant:
@@ -176,10 +193,10 @@ def loop(controller, plant: Plant, spec: MetricsSpec = SPEC_REPORT):
     if controller.n != plant.n:
         raise ValueError(f"controller has n = {controller.n} rods but the plant has {plant.n}")
     check_nyquist(controller, plant)
-    G = controller.response(plant.omega)
-    p_ol = jnp.asarray(plant.p_rhp) + jnp.asarray(controller.p_rhp)
+    G, p_c, sys = _controller_parts(controller, plant.omega)
+    p_ol = jnp.asarray(plant.p_rhp) + p_c
     L_fn = None
     if plant.P_fn is not None:
-        c_fn = SystemResponse(controller.discrete()) if controller.ts is not None else None
+        c_fn = SystemResponse(sys) if sys is not None else None
         L_fn = LoopResponse(plant.P_fn, c_fn or _ControllerResponse(controller))
     return _backend(plant.P, G, plant.omega, p_ol, spec, L_fn)

@@ -245,6 +245,13 @@ def penalized(z, mu, pm: ParamMap, families, req: Requirements, box: Box, x0, rh
     """The penalized objective of the module docstring at ``z = (x, u)``. ``u`` is boxed to
     the first family's grid (beyond it the bandwidth claim would be unbounded). ``counted``:
     see :func:`aggregate` (the ``/unstable`` entries are constants and not penalized)."""
+    return penalized_parts(z, mu, pm, families, req, box, x0, rho, counted)[0]
+
+
+def penalized_parts(z, mu, pm: ParamMap, families, req: Requirements, box: Box, x0, rho: float,
+                    counted=None):  # fmt: skip
+    """``(objective, constraints)``: :func:`penalized`'s value and the :func:`aggregate` dict
+    it was built from (≤ 0 met), for progress reports."""
     x, u = z[:-1], z[-1]
     g = pm.compensator(x)
     cons = aggregate(g, families, u, req, counted)
@@ -252,4 +259,5 @@ def penalized(z, mu, pm: ParamMap, families, req: Requirements, box: Box, x0, rh
     lw = jnp.log(families[0].scenarios.omega)
     u_box = jax.nn.relu(u - lw[-1]) ** 2 + jax.nn.relu(lw[0] - u) ** 2
     wbox = jnp.maximum(mu, BOX_WEIGHT)
-    return -u + mu * pen + wbox * (box.penalty(x) + u_box) + rho * jnp.sum((x - x0) ** 2)
+    obj = -u + mu * pen + wbox * (box.penalty(x) + u_box) + rho * jnp.sum((x - x0) ** 2)
+    return obj, cons

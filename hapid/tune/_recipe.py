@@ -39,6 +39,7 @@ from ._check import FRF_FLOOR, design_check, loop_label
 from ._evidence import KAPPA, beyond_grid, certificate, evidence_from_frf, measured_plant
 from ._objective import Family, Requirements
 from ._params import ParamMap
+from ._progress import note
 from ._scenarios import make_scenarios
 from ._tune import largest_gain, scale_gain, tune
 from ._validate import device_grid, table_row, validate
@@ -276,6 +277,7 @@ def robust_design(
         # static accuracy no worse than the start's: |g(0)| ≥ |g0(0)|
         req = dataclasses.replace(req, min_dc_gain=float(np.abs(g0(np.array([0.0]))[0])))
     rng = np.random.default_rng(seed)
+    note(progress, "building the training plants")
     families, info = [], {}
     hold_models = None
     omc = posterior_grid(n_freq)
@@ -381,6 +383,10 @@ def robust_design(
             info["evidence"] = {"source": ev.source, "n_freq": int(ev.omega.size),
                                 "evidence_hz": ev.omega_e / TWO_PI, "mismatch_bound": ev.mismatch,
                                 "kappa": ev.kappa}  # fmt: skip
+    note(
+        progress,
+        f"tuning on {', '.join(f'{f.name} ({f.scenarios.n_scenarios})' for f in families)}",
+    )
     res = tune(families, g0, requirements=req, mu_schedule=mu_schedule, max_steps=max_steps,
                f_max_hz=f_max_hz, progress=progress)  # fmt: skip
     out = {"result": res, "candidate": res, "families": info, "kept_start": False,
@@ -403,6 +409,7 @@ def robust_design(
         if draw_family == "loop_gp" and evidence_ts is not None:
             omega_c, hold_ts = om_h, evidence_ts
         for name, g in (("start", g0), ("tuned", res.g)):
+            note(progress, f"re-checking the {name} g (held-out plants, true plant)")
             t0 = time.perf_counter()
             v = validate(g, model, samples=hold_models, device=device, variants=variants,
                          omega_c=omega_c, gm_db=req.gm_db, pm_deg=req.pm_deg,
@@ -429,6 +436,7 @@ def robust_design(
             and certified_fallback
             and not (chosen.get("certified", True) and _meets_chance(chosen, quantile))
         ):
+            note(progress, "not certified: trying the certified-gain fallback")
             fb = _certified_fallback(out, g0, res, ev_chk, model, hold_models, device, variants,
                                      omega_c, req, quantile, with_tuned=ok_tr, chosen=chosen, ts=hold_ts)  # fmt: skip
             if fb is not None:

@@ -27,8 +27,9 @@ from .._constants import TWO_PI
 from ..control import Compensator, MetricsSpec, nyquist_encirclements, nyquist_verdict
 from ..verdict import Check
 from ._exchange import exchange
-from ._objective import Box, Requirements, aggregate, penalized
+from ._objective import Box, Requirements, aggregate, penalized, penalized_parts
 from ._params import ParamMap
+from ._progress import TuneProgress, note
 from ._response import g_response
 
 
@@ -275,6 +276,8 @@ def tune(
       up to ``f_max_hz``: 0.45·f_s for a sampled design, else a quarter of the grid's top).
     - ``mu_schedule``, ``max_steps``: continuation stages and BFGS steps per stage.
     - ``rho``: weight of ``‖x − x₀‖²`` (keeps flat directions near the start).
+    - ``progress``: a :class:`.TuneProgress` (a bar over the stages), or a callable
+      given each stage's history entry, or None.
     - ``max_exchanges``: how many times, in all, a stage may be repeated after families with a
       dense grid (:attr:`.Family.dense`) had violated frequencies added to their training
       grid (:mod:`._exchange`; ``history[i]["grid_added"]`` counts them per family).
@@ -287,6 +290,7 @@ def tune(
     g0 = Compensator.paper() if g0 is None else g0
     pm = ParamMap.from_template(g0)
     x_given = pm.vector(g0)
+    note(progress, "checking the start g on the training plants")
     g_start, alpha = gain_backoff(g0, families, req.ms)
     x0 = pm.vector(g_start)
     if f_max_hz is None:
@@ -307,8 +311,8 @@ def tune(
         return penalized(z, mu, pm, rebuild(sc), req, box, x0, rho, counted)
 
     @eqx.filter_jit
-    def cons(z, sc, counted):
-        return aggregate(pm.compensator(z[:-1]), rebuild(sc), z[-1], req, counted)
+    def cons(z, mu, sc, counted):  # (objective, constraints) at z
+        return penalized_parts(z, mu, pm, rebuild(sc), req, box, x0, rho, counted)
 
     def counted_at(zc):
         st = stable_scenarios(pm.compensator(zc[:-1]), families)
@@ -324,9 +328,13 @@ def tune(
         )
 
     stages = [float(m) for m in mu_schedule]
-    n_exchange = 0
+    n_exchange, n_done = 0, 0
+    mu = stages[0] if stages else 0.0
+    report = progress if isinstance(progress, TuneProgress) else None
     while stages:
         mu = stages[0]
+        if report is not None:
+            report.stage(n_done, n_done + len(stages), mu)
         ts_ = time.perf_counter()
         # scenarios whose loop is stable at the stage start must stay so (same count,
         # resolved); chance-constrained scenarios that are unstable are free to change
@@ -354,13 +362,18 @@ def tune(
         if not stop and n_exchange < max_exchanges:
             families, added = exchange(pm.compensator(z[:-1]), families, req.ms)
             scens = [f.scenarios for f in families]
-        c = {k: float(v) for k, v in cons(z, scens, counted_at(z)[0]).items()}
+        obj, c = cons(z, jnp.asarray(mu), scens, counted_at(z)[0])
+        c = {k: float(v) for k, v in c.items()}
         rec = {"mu": float(mu), "steps": int(sol.stats["num_steps"]), "result": str(sol.result),
+               "objective": float(obj),
                "bandwidth_hz": float(np.exp(z[-1]) / TWO_PI), "constraints": c,
                "wall_s": time.perf_counter() - ts_, "step_fraction": 0.0 if stop else frac,
                "grid_added": added}  # fmt: skip
         history.append(rec)
-        if progress:
+        n_done += 1
+        if report is not None:
+            report.stage_done(rec)
+        elif progress:
             progress(rec)
         if stop:
             break
@@ -369,7 +382,7 @@ def tune(
         else:
             stages.pop(0)
     x = np.asarray(z[:-1])
-    c = {k: float(v) for k, v in cons(z, scens, counted_at(z)[0]).items()}
+    c = {k: float(v) for k, v in cons(z, jnp.asarray(mu), scens, counted_at(z)[0])[1].items()}
     return TuneResult(
         g=pm.compensator(x), g0=g0, x=x, x0=np.asarray(x_given),
         bandwidth_hz=float(np.exp(z[-1]) / TWO_PI), bandwidth0_hz=wb0 / TWO_PI,
