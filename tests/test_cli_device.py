@@ -93,8 +93,8 @@ def _capture(monkeypatch, module, name, argv, cwd):
 
 
 def test_tune_robust_analyze_validate_on_the_varied_device(files, monkeypatch):
+    import hapid.robust
     import hapid.tune
-    import hapid.uncertainty
 
     d, _ = files
     ref = preset("cu5", delay_samples=2, rod_compliance=2.0)
@@ -103,7 +103,7 @@ def test_tune_robust_analyze_validate_on_the_varied_device(files, monkeypatch):
                    ["tune", "--model", "model.npz", *var, "--out", "d.npz"], d)  # fmt: skip
     _same_device(dev, ref)
     var3 = ["--device", "tripod3", "--delay", "2", "--rod-compliance", "2.0"]  # model.npz: n = 3
-    dev = _capture(monkeypatch, hapid.uncertainty, "robust_from_files",
+    dev = _capture(monkeypatch, hapid.robust, "robust_from_files",
                    ["robust", "--samples", "samples.npz", "--model", "model.npz", *var3], d)  # fmt: skip
     _same_device(dev, preset("tripod3", delay_samples=2, rod_compliance=2.0))
     got = {}
