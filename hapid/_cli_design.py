@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from . import io
+from .defaults import N_DRAWS
 from .design import STAGES, DesignOptions, run_design
 
 
@@ -81,7 +82,10 @@ def register(sub, parse: Callable) -> None:
                    help="posterior method: laplace (default, seconds) or emcee (minutes)")  # fmt: skip
     d.add_argument("--samples", type=int, default=4000, help="Laplace draws (default 4000)")
     d.add_argument(
-        "--max-samples", type=int, default=1000, help="robust check's loop draws (default 1000)"
+        "--max-samples",
+        type=int,
+        default=N_DRAWS,
+        help=f"robust check's loop draws (default {N_DRAWS})",
     )
     d.add_argument("--seed", type=int, default=0, help="seed of the posterior and the tuner")
     d.add_argument(

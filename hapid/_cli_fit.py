@@ -10,7 +10,7 @@ and on ``--method`` through :data:`PAIR_METHODS` / :data:`SINGLE_METHODS` (name 
 ``(data, args, band_hz) -> Fitted``; ``data`` already restricted to the band): adding a method
 is one function and one table entry. Every
 method sees the band given by ``--f-min-hz``/``--f-max-hz`` (default every frequency in the
-file, except NLS and ML on the haptic pair: up to :data:`NLS_DEFAULT_F_MAX_HZ`), selected before the fit and echoed in the report; every fit gets a
+file, except NLS and ML on the haptic pair: up to :data:`hapid.defaults.FIT_BAND_HZ`), selected before the fit and echoed in the report; every fit gets a
 :class:`hapid.fit.FitQuality` over that band, printed and stored in the model file. Extra
 report lines (a Cramér–Rao band, an error against a known true plant) go through
 ``FitQuality.with_line`` in the method function or in :func:`extra_quality_lines`.
@@ -192,16 +192,11 @@ def extra_quality_lines(quality, fitted: Fitted, data, a):
     )
 
 
-NLS_DEFAULT_F_MAX_HZ = FIT_BAND_HZ
-"""Default upper band edge (Hz) of the model fits (NLS, ML) on the haptic pair:
-:data:`hapid.defaults.FIT_BAND_HZ`, shared with ``hapid posterior`` and the scenes."""
-
-
 def _default_f_max(a, pair: bool) -> float | None:
-    """The band's upper edge when ``--f-max-hz`` is not given: :data:`NLS_DEFAULT_F_MAX_HZ`
+    """The band's upper edge when ``--f-max-hz`` is not given: :data:`hapid.defaults.FIT_BAND_HZ`
     for NLS and ML on the haptic pair, else every frequency (the paper's WLS, single impedances)."""
     if a.f_max_hz is None and pair and a.method in ("nls", "ml"):
-        return NLS_DEFAULT_F_MAX_HZ
+        return FIT_BAND_HZ
     return a.f_max_hz
 
 
@@ -330,7 +325,7 @@ def run_fit(a) -> None:
             warnings.warn(f"Ẑ_H has {int(after.hand)} closed-right-half-plane root(s): the "
                           "inverse-model controller g Ẑ_T Ẑ_H⁻¹ cancels them unstably, so no g "
                           "makes its loop stable (hapid tune will not certify it); "
-                          + (f"fit a narrower band (e.g. --f-max-hz {NLS_DEFAULT_F_MAX_HZ:g})"
+                          + (f"fit a narrower band (e.g. --f-max-hz {FIT_BAND_HZ:g})"
                              if a.method != "wls" else "use --positize or --method nls"),
                           stacklevel=1)  # fmt: skip
         if np.all(np.asarray(data.Z_H) == np.asarray(data.Z_T)) or not np.any(np.asarray(data.Z_H)):

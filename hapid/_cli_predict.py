@@ -7,7 +7,7 @@ import numpy as np
 
 from ._constants import TWO_PI
 from ._grids import log_grid_hz
-from .defaults import FIT_BAND_HZ
+from .defaults import FIT_BAND_HZ, FS_HZ
 
 
 class CommandError(ValueError):
@@ -118,7 +118,9 @@ def register(sub):
     from ._cli_device import add_device_args
 
     add_device_args(pl)
-    pl.add_argument("--fs", type=float, default=1000.0, help="sampling rate (Hz), default 1000")
+    pl.add_argument(
+        "--fs", type=float, default=FS_HZ, help=f"sampling rate (Hz), default {FS_HZ:g}"
+    )
     pl.add_argument(
         "--f-min-hz", type=float, default=0.001, help="lowest frequency (Hz), default 0.001"
     )

@@ -20,7 +20,7 @@ from ._cli_kw import (  # noqa: F401  (uncertified_warning: part of the CLI's AP
 )
 from ._cli_verdict import check_line, verdict_lines
 from ._constants import TUNE_EXPECTED_S
-from .defaults import FIT_BAND_HZ, GM_DB, NPERSEG, PM_DEG
+from .defaults import FIT_BAND_HZ, FS_HZ, GM_DB, N_DRAWS, NPERSEG, PM_DEG
 
 EXAMPLES = """examples:
   hapid simulate --device cu5 --out run.npz            # the paper's protocol on cu5
@@ -46,7 +46,7 @@ def _protocol_args(p):
     g = p.add_argument_group("protocol")
     g.add_argument("--freqs", default="paper",
                    help="excited frequencies in Hz: 'paper' (1..10, 15..100) or a comma list")  # fmt: skip
-    g.add_argument("--fs", type=float, default=1000.0, help="sampling rate (Hz), default 1000")
+    g.add_argument("--fs", type=float, default=FS_HZ, help=f"sampling rate (Hz), default {FS_HZ:g}")
     g.add_argument(
         "--period", type=int, default=1000, help="period length in samples (default 1000)"
     )
@@ -536,7 +536,7 @@ def _register_stages(sub):
                     help="analyse the continuous-time controller with the continuous plant (as the "
                     "paper does; 0.005 Hz–5 kHz grid) instead of the sampled loop")  # fmt: skip
     an.add_argument("--siso-gain", type=float, help="SISO c (default: the 6 dB / 30° design rule)")
-    an.add_argument("--fs", type=float, default=1000.0, help="sampling rate for --frf (Hz)")
+    an.add_argument("--fs", type=float, default=FS_HZ, help="sampling rate for --frf (Hz)")
     an.add_argument("--gm-db", type=float, default=None,
                     help="required GM (dB): print the verdict passed / failed / not established "
                     "first (default 6 when only --pm-deg is given)")  # fmt: skip
@@ -616,7 +616,7 @@ def _register_stages(sub):
     ro.add_argument(
         "--max-samples",
         type=int,
-        default=1000,
+        default=N_DRAWS,
         help="draws checked (posterior samples used, or loop draws made)",
     )
     ro.add_argument("--all-metrics", action="store_true",

@@ -17,7 +17,7 @@ from . import pipeline
 from ._constants import TWO_PI
 from ._grids import continuous_grid, nyquist_grid
 from .control import Compensator
-from .defaults import GM_DB, PM_DEG
+from .defaults import GM_DB, N_DRAWS, PM_DEG
 from .device import preset
 from .io import load_frf, load_model, load_samples, save_json
 from .tune._evidence import certificate, evidence_from_frf, measured_plant
@@ -33,7 +33,7 @@ def loop_gp_check(
     model,
     g,
     *,
-    n_draws: int = 1000,
+    n_draws: int = N_DRAWS,
     n_freq: int = 1000,
     seed: int = 0,
     gm_db: float = GM_DB,
@@ -119,7 +119,7 @@ def robust_from_files(
     g=None,
     gm_db: float = GM_DB,
     pm_deg: float = PM_DEG,
-    max_samples: int = 1000,
+    max_samples: int = N_DRAWS,
     device=None,
     n_subjects: int = 0,
     pose_offsets=(),

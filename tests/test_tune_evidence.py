@@ -219,10 +219,11 @@ def test_cli_route_tuned_g_is_stable_on_a_device_not_used_for_tuning(tmp_path):
 def test_fit_band_default_rule():
     from types import SimpleNamespace as NS
 
-    from hapid._cli_fit import NLS_DEFAULT_F_MAX_HZ, _band, _default_f_max
+    from hapid._cli_fit import _band, _default_f_max
+    from hapid.defaults import FIT_BAND_HZ
 
     f = np.arange(1.0, 101.0)
-    assert _default_f_max(NS(f_max_hz=None, method="nls"), True) == NLS_DEFAULT_F_MAX_HZ == 40.0
+    assert _default_f_max(NS(f_max_hz=None, method="nls"), True) == FIT_BAND_HZ == 40.0
     assert _default_f_max(NS(f_max_hz=None, method="nls"), False) is None  # single impedance
     assert _default_f_max(NS(f_max_hz=None, method="wls"), True) is None
     assert _default_f_max(NS(f_max_hz=80.0, method="nls"), True) == 80.0

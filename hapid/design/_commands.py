@@ -13,10 +13,9 @@ from __future__ import annotations
 import dataclasses
 import shlex
 
-from .._cli_fit import NLS_DEFAULT_F_MAX_HZ
+from ..defaults import FIT_BAND_HZ, N_DRAWS
 
-INPUT = "INPUT"
-PAIR_F_MAX_HZ = NLS_DEFAULT_F_MAX_HZ  # the NLS/ML/posterior band on the haptic pair (Hz)  # the input file's token in a command's argument list
+INPUT = "INPUT"  # the input file's token in a command's argument list
 
 #: every stage of a design, in order (``--skip`` / ``--only`` take these names)
 STAGES = ("frf", "wls", "nls", "ml", "posterior", "robust", "tune")
@@ -35,7 +34,7 @@ class DesignOptions:
     Attributes:
         kind: the input's file kind (``run``, ``frf``, ``timeseries``, ``impedance_frf``).
         f_max_hz: upper band edge (Hz) of the NLS and ML fits and of the posterior; None:
-            :data:`PAIR_F_MAX_HZ` on the haptic pair, every frequency for a single impedance.
+            :data:`hapid.defaults.FIT_BAND_HZ` on the haptic pair, every frequency for a single impedance.
         posterior: ``"laplace"`` (default, seconds) or ``"emcee"``.
         samples: Laplace draws of the posterior.
         max_samples: loop draws of the robust check.
@@ -50,7 +49,7 @@ class DesignOptions:
     f_max_hz: float | None = None
     posterior: str = "laplace"
     samples: int = 4000
-    max_samples: int = 1000
+    max_samples: int = N_DRAWS
     seed: int = 0
     fs_hz: float | None = None
     lab: tuple[str, ...] = ()
@@ -64,7 +63,7 @@ class DesignOptions:
 def commands(o: DesignOptions) -> dict[str, list[str]]:
     """``{stage: argv}`` of the single commands (``frf`` is absent when the input already is
     an FRF; ``ml`` only for a run file; the pair-only stages absent for a single impedance)."""
-    f_max_hz = PAIR_F_MAX_HZ if o.f_max_hz is None and not o.single else o.f_max_hz
+    f_max_hz = FIT_BAND_HZ if o.f_max_hz is None and not o.single else o.f_max_hz
     f_max = [] if f_max_hz is None else ["--f-max-hz", f"{f_max_hz:g}"]
     out: dict[str, list[str]] = {}
     if o.kind == "run":

@@ -25,6 +25,7 @@ import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from .. import _config  # noqa: F401
+from ..defaults import FS_HZ
 from ..impedance import ImpedanceModel, SecondOrder
 from ..lti import StateSpace, zoh
 from ._geometry import Geometry, Pose
@@ -34,7 +35,7 @@ from ._parts import ExtraModes, Hand, Mechanism
 class Device(eqx.Module):
     """Base class: a linear plant from applied actuator force to ``[L; R_I]`` plus a delay."""
 
-    fs_hz: float = eqx.field(static=True, default=1000.0, kw_only=True)
+    fs_hz: float = eqx.field(static=True, default=FS_HZ, kw_only=True)
     delay_samples: int = eqx.field(static=True, default=1, kw_only=True)
 
     @property

@@ -78,7 +78,6 @@ import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
-from ..defaults import FIT_BAND_HZ
 from ..fit._pd import MATRIX_NAMES, Scale, n_params
 from ._coords import (
     _positive_definite,
@@ -100,7 +99,6 @@ from ._gp import (
 )
 from ._weights import N_CLASS_HYPER, class_weights
 
-DEFAULT_F_MAX_HZ = FIT_BAND_HZ
 DEFAULT_PRIOR_SCALE = 10.0
 DEFAULT_LOG_TAU_MEAN = float(np.log(0.03))
 DEFAULT_LOG_TAU_SD = 2.0

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from ..defaults import FIT_BAND_HZ
 from ..fit._pd import MATRIX_NAMES, Scale, n_params
 from ..fit._result import NLSResult
 from ..frf import FRF
@@ -20,7 +21,6 @@ from ._coords import fold_theta
 from ._gp import N_GP_CORR_HYPER
 from ._hyper import GP_HYPER_MODES, fix_gp_hyper, marginal_hyper
 from ._likelihood import (
-    DEFAULT_F_MAX_HZ,
     DEFAULT_LOG_ELL_MEAN,
     DEFAULT_LOG_ELL_SD,
     DEFAULT_LOG_TAU_MEAN,
@@ -39,7 +39,7 @@ def make_log_posterior(
     frf: FRF,
     scale: Scale | None = None,
     *,
-    f_max_hz: float | None = DEFAULT_F_MAX_HZ,
+    f_max_hz: float | None = FIT_BAND_HZ,
     model_error: bool | str = True,
     noise_corr: float = 0.0,
     prior_scale: float = DEFAULT_PRIOR_SCALE,
