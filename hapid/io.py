@@ -14,17 +14,18 @@ import json
 import os
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import jax.numpy as jnp
 import numpy as np
 
 from .control._compensator import FIELDS as COMPENSATOR_FIELDS
 from .control._compensator import POSITIVE_FIELDS, Compensator
 from .experiment import Run, validate_run
-from .fit._pd import Scale, n_params
 from .frf import FRF, as_frf
 from .impedance import ImpedanceModel, SecondOrder
-from .uncertainty._samples import PosteriorSamples
+
+if TYPE_CHECKING:
+    from .uncertainty._samples import PosteriorSamples
 
 MODEL_KEYS = ("M_H", "B_H", "K_H", "M_T", "B_T", "K_T")
 
@@ -1069,6 +1070,13 @@ def load_samples(path, n: int | None = None) -> PosteriorSamples:
     """Read a :func:`save_samples` file. ``n`` (optional): the rod count expected — a file
     for a different ``n``, or whose sample width does not match its ``n``, is a
     ``ValueError``."""
+    # imported here: hapid.uncertainty pulls emcee, optimistix and scipy into every command that
+    # reads a file (hapid analyze's start-up), for the one reader that builds its samples
+    import jax.numpy as jnp
+
+    from .fit._pd import Scale, n_params
+    from .uncertainty._samples import PosteriorSamples
+
     path = Path(path)
     if not path.exists():
         raise ValueError(f"samples file {path} does not exist")
