@@ -218,7 +218,8 @@ def estimate_impedance(
         if window != "hann" or nperseg is not None:
             notes.append("--nperseg/--window are for --estimate welch; impact records use one "
                          "unwindowed segment per impact")  # fmt: skip
-        Fs, Ys, n_split = impact_segments(F, Y, ts.fs_hz)
+        Fs, Ys, seg_notes = impact_segments(F, Y, ts.fs_hz)
+        notes.extend(seg_notes)
         Fs, Ys = apply_windows(Fs, Ys, ts.fs_hz, force_window_s=force_window_s,
                                exp_tau_s=exp_tau_s)  # fmt: skip
         decay = decay_db(Ys)
@@ -238,8 +239,6 @@ def estimate_impedance(
             win += f", force window {force_window_s:g} s"
         if exp_tau_s is not None:
             win += f", exponential τ = {exp_tau_s:g} s"
-        if n_split:
-            notes.append(f"{n_split} record(s) held several impacts: split before each impact")
         n_seg = Fs.shape[0]
         wname = "boxcar"
     else:

@@ -11,8 +11,9 @@ unwindowed segment per impact, every segment starting just before its impact.
   the force energy in the loudest 1 % of the samples (:data:`IMPULSIVE_SHARE`,
   :data:`STATIONARY_SHARE`).
 - :func:`impact_segments`: ``(S, L, n)`` force and response segments, one per impact (a record
-  with one impact is one segment; a record with several is split before each impact); all
-  segments have the length of the shortest gap between impacts (or record ends).
+  with one impact is one segment; a record with several is split before each impact when the
+  response decays between them, and kept whole as a double hit otherwise); records whose force
+  is clipped (:func:`clipped_records`) are dropped with a note.
 - :func:`apply_windows`: optional force window (force kept for ``force_window_s`` seconds
   after the segment start, zero after) and exponential window ``e^{−t/τ}`` on force and
   response. The exponential window turns the measured system ``h(t)`` into ``h(t) e^{−t/τ}``:
@@ -45,6 +46,11 @@ IMPACT_MERGE_S = 2e-3
 PRE_TRIGGER = 0.01
 #: a response whose end lies less than this far (dB) below its peak has not decayed
 DECAY_WARN_DB = 40.0
+#: a record's impacts are separate hits (split) when the response decays this far (dB) before
+#: each next impact; otherwise a double hit (one segment)
+SPLIT_DECAY_DB = 20.0
+#: a force at its peak for this many consecutive samples is clipped
+CLIP_RUN = 3
 
 
 def energy_share(force: np.ndarray) -> np.ndarray:
@@ -81,35 +87,100 @@ def impact_onsets(force_record: np.ndarray, fs_hz: float) -> np.ndarray:
     return above[new]
 
 
+def clipped_records(force: np.ndarray, run: int = CLIP_RUN) -> list[tuple[int, float, int]]:
+    """Records whose force sits at its peak magnitude for ``run`` or more consecutive samples
+    (an overloaded hammer or ADC: the recorded pulse is not the applied one), as
+    ``(record, peak, samples at the peak)``; ``force`` ``(E, T, n)``."""
+    out = []
+    for e, rec in enumerate(np.asarray(force, dtype=np.float64)):
+        mag = np.max(np.abs(rec), axis=-1)
+        peak = float(mag.max())
+        at = np.concatenate([[0], (mag >= peak * (1 - 1e-7)).astype(int), [0]])
+        edges = np.diff(at)
+        lengths = np.nonzero(edges == -1)[0] - np.nonzero(edges == 1)[0]
+        if peak > 0 and lengths.max() >= run:
+            out.append((e, peak, int(lengths.max())))
+    return out
+
+
 def impact_segments(
     force: np.ndarray, response: np.ndarray, fs_hz: float
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """Force and response segments ``(S, L, n)``, one per impact, and the number of records
-    split. A segment starts :data:`PRE_TRIGGER`·L before its impact and ends before the next;
-    ``L`` is the shortest such span over all records. Raises ``ValueError`` when a record has
-    no impact or the segments would be shorter than 16 samples."""
+) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Force and response segments ``(S, L, n)``, one per impact, and notes for the user.
+
+    Records whose force is clipped (:func:`clipped_records`) are dropped. A record with one
+    impact is one segment from its start. A record with several impacts is split, each segment
+    starting :data:`PRE_TRIGGER`·L before its impact and ending before the next (``L`` the
+    shortest such span over all records), when the response has decayed by
+    :data:`SPLIT_DECAY_DB` before each next impact; otherwise the later impacts are double hits
+    and the record stays one segment (H1 holds for any force inside a segment). Raises
+    ``ValueError`` when every record is clipped, a record has no impact, or the segments would
+    be shorter than 16 samples."""
     F, Y = np.asarray(force, dtype=np.float64), np.asarray(response, dtype=np.float64)
+    notes: list[str] = []
+    clipped = clipped_records(F)
+    if len(clipped) == F.shape[0]:
+        e, peak, k = clipped[0]
+        raise ValueError(f"the force of every record is clipped (record {e}: {k} samples at its "
+                         f"peak {peak:.4g}): the hammer or the ADC was overloaded; measure again "
+                         "with a softer hit or a larger range")  # fmt: skip
+    for e, peak, k in clipped:
+        notes.append(f"record {e} dropped: its force is clipped ({k} samples at its peak "
+                     f"{peak:.4g}; an overloaded hammer or ADC)")  # fmt: skip
+    keep = [e for e in range(F.shape[0]) if e not in {c[0] for c in clipped}]
+    F, Y = F[keep], Y[keep]
     E, T, _ = F.shape
     onsets = [impact_onsets(F[e], fs_hz) for e in range(E)]
     for e, o in enumerate(onsets):
         if o.size == 0:
-            raise ValueError(f"record {e} has no impact (its force is zero)")
-    # one impact per record: the whole record (from its start); several: before each impact
-    L_multi = [int(np.min(np.diff(np.append(o, T)))) for o in onsets if o.size > 1]
+            raise ValueError(f"record {keep[e]} has no impact (its force is zero)")
+    # several impacts in a record: separate hits when the response decays before each next one
+    split = []
+    for e, o in enumerate(onsets):
+        if o.size > 1:
+            w = max(1, int(round(IMPACT_MERGE_S * fs_hz)))
+            decays = [
+                _decay_before(Y[e], int(a), int(b), w) for a, b in zip(o[:-1], o[1:], strict=True)
+            ]
+            if min(decays) >= SPLIT_DECAY_DB:
+                split.append(e)
+            else:
+                i = int(np.argmin(decays))
+                ratio = (
+                    np.abs(F[e, o[i + 1] : o[i + 1] + w]).max()
+                    / np.abs(F[e, o[i] : o[i] + w]).max()
+                )
+                notes.append(f"record {keep[e]} has a double hit ({1e3 * (o[i + 1] - o[i]) / fs_hz:.1f} "
+                             f"ms after the first, {100 * ratio:.0f} % of its peak): kept as one "
+                             "segment")  # fmt: skip
+    L_multi = [int(np.min(np.diff(np.append(onsets[e], T)))) for e in split]
     L = T if not L_multi else min(L_multi)
     pre = int(PRE_TRIGGER * L) if L_multi else 0
     if L - pre < 16:
         raise ValueError(f"impacts only {L} samples apart: too close for one segment each")
     segF, segY = [], []
     for e, o in enumerate(onsets):
-        if o.size == 1:
+        if e not in split:
             start = [0] if not L_multi else [max(0, min(int(o[0]) - pre, T - L))]
         else:
             start = [max(0, min(int(t) - pre, T - L)) for t in o]
         for s in start:
             segF.append(F[e, s : s + L])
             segY.append(Y[e, s : s + L])
-    return np.stack(segF), np.stack(segY), sum(o.size > 1 for o in onsets)
+    if split:
+        notes.append(f"{len(split)} record(s) held several impacts: split before each impact")
+    return np.stack(segF), np.stack(segY), notes
+
+
+def _decay_before(y: np.ndarray, a: int, b: int, w: int) -> float:
+    """dB from the response's largest mean square over ``w`` samples in ``[a, b)`` to its mean
+    square over the last ``w`` samples before ``b`` (``y`` ``(T, n)``)."""
+    ms = np.convolve(np.sum(y[a:b] ** 2, axis=-1), np.ones(w) / w, mode="valid")
+    if ms.size == 0:
+        return 0.0
+    return float(
+        10 * np.log10(max(ms.max(), np.finfo(float).tiny) / max(ms[-1], np.finfo(float).tiny))
+    )
 
 
 def apply_windows(
