@@ -229,6 +229,7 @@ def test_illinois_returns_the_root_where_false_position_converges_from_one_side(
     assert float(same[0]) == 0.0  # no sign change: the end of smaller |f|
 
 
+@pytest.mark.slow
 def test_refinement_windows_give_the_whole_grid_interpolant(monkeypatch):
     """The refinement pass sees only a window of grid nodes around each task; its local
     interpolant must be the whole grid's: the same metrics with windows as wide as the grid,

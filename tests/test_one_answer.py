@@ -42,7 +42,7 @@ _EXACT = lambda w: _diag_L(w, jnp)  # noqa: E731
 @pytest.mark.parametrize(
     "grids",
     [
-        [(400, None)],  # the default run: one compile, refinement on the grid's interpolant
+        pytest.param([(400, None)], marks=pytest.mark.slow),  # the default run: one compile
         pytest.param([(300, None), (1700, _EXACT)], marks=pytest.mark.slow),
     ],
 )

@@ -29,6 +29,7 @@ def _measured(model, f_hz):
     return {"omega": TWO_PI * np.asarray(f_hz, float), "Z_H": ZH, "Z_T": ZT}
 
 
+@pytest.mark.slow
 def test_loop_draws_recover_the_true_verdict_under_an_unmodeled_delay():
     model = random_model(2, seed=3)
     om = continuous_grid(300)

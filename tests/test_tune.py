@@ -128,7 +128,7 @@ def test_scenarios_reproduce_loop_matrices_and_loci(small):
     np.testing.assert_allclose(np.sort_complex(gam[:, None] * lam), loci, rtol=1e-8, atol=1e-10)
 
 
-@pytest.mark.parametrize("discrete", [True, False])
+@pytest.mark.parametrize("discrete", [pytest.param(True, marks=pytest.mark.slow), False])
 def test_gradients_of_objective_and_constraints_match_finite_differences(small, discrete):
     """d/dz of every per-scenario constraint, every CVaR aggregate and the penalized
     objective, for every tuned parameter and the claimed bandwidth, vs central differences."""
@@ -167,6 +167,7 @@ def test_gradients_of_objective_and_constraints_match_finite_differences(small, 
     assert np.all(J[-1, :-1] != 0.0)  # every tuned parameter moves the objective
 
 
+@pytest.mark.slow
 def test_tune_small_problem_meets_margins_on_held_out_plants(small, capsys):
     model, om, P, sc_d, sc_c = small
     fam = Family(sc_c.subset([0, 1, 2]), quantile=1.0, name="train")

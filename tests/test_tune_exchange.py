@@ -74,6 +74,7 @@ def test_violations_find_the_mode_between_points_and_merge_is_exact(case):
     assert locus_violation(g, merged, ms).max() == pytest.approx(v_d.max(), abs=TOL)
 
 
+@pytest.mark.slow
 def test_tune_with_dense_grid_meets_margins_between_training_points(case):
     model, om_d, P, sc_tr, sc_d, f_r = case
     ms = Requirements().ms

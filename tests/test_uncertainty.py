@@ -283,6 +283,7 @@ def _lowpass_g(k, f_hz=20.0):
     return Compensator(k=k, lowpass=[2 * np.pi * f_hz] * 3)
 
 
+@pytest.mark.slow
 def test_robust_aggressive_vs_conservative(case):
     """L ≈ g(s) I for plants near the nominal model; g = k/(1+s/a)³ is unstable in
     feedback for k > 8 (phase −180° at a√3 where |g| = k/8)."""

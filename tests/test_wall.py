@@ -98,6 +98,7 @@ def test_mimo_wall_has_less_force_error_and_directional_distortion_than_siso(loo
         assert abs(ss / pc - 1) < 0.05
 
 
+@pytest.mark.slow
 def test_too_stiff_wall_is_flagged_and_the_limit_is_a_stability_boundary(loops):
     dev, mimo, _ = loops
     e = np.eye(dev.n)[1]
