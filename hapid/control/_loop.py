@@ -263,7 +263,7 @@ def analyze_loop(
     loci = characteristic_loci(after(L, sv_all), method=loci_method)
     mg = loci_margins(loci, omega, L_fn=L_fn, n_refine=n_refine)
     # det(I + L) hides two loci that each swing by π between grid points (a 2π step of its
-    # phase unwraps to 0): every locus 1 + λ_i must be resolved too (stress case, issue 7)
+    # phase unwraps to 0): every locus 1 + λ_i must be resolved too (tests/test_stress.py)
     dphi = jnp.diff(jnp.unwrap(jnp.angle(1.0 + loci), axis=0), axis=0)
     resolved = resolved & jnp.all(jnp.abs(dphi) < max_phase_step)
     stable = nyquist_verdict(n_enc, p_ol, resolved, singular)

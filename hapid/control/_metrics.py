@@ -103,7 +103,7 @@ class MetricsSpec:
     max_phase_step: float = float(np.pi / 2)
     n_candidates: int = 128
     kernels: str = "xla"
-    # additions for the one-answer callers (analyze/paper/tune; issue 16):
+    # additions for the one-answer callers (analyze, paper, tune):
     # ``literal``: also the paper-literal iso-bandwidth (last upward crossing of σ̄(T − I)
     # over 1 − 1/√2, refined; exact σ̄ on the whole grid); ``full_sv``: ``sv_T_minus_I``
     # (with ``arrays``) holds every singular value ``(N, n)``, largest first (figures 5, 10).

@@ -50,7 +50,7 @@ def cu5_soft(pose: Pose | None = None, *, extra_modes: bool = True,
              rod_compliance: float = CU5_SOFT_COMPLIANCE) -> ParallelDevice:  # fmt: skip
     """cu5 with 1 ms more actuator delay (2 samples at 1 kHz) and compliant rods (traction
     and sensor springs halved: traction resonance ≈ 80 → 56 Hz). The held-out device of the
-    robust-design check (issue 14): never used to choose tuning settings."""
+    robust-design check: never used to choose tuning settings."""
     return cu5(pose, extra_modes=extra_modes, delay_samples=delay_samples, fs_hz=fs_hz,
                light_damping=light_damping, encoder=encoder, rod_compliance=rod_compliance)  # fmt: skip
 

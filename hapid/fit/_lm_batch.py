@@ -1,5 +1,5 @@
 # ruff: noqa: F722  (jaxtyping shape strings such as "N n n" are not Python expressions)
-"""Levenberg–Marquardt on the compressed NLS residual, lean enough to batch (issue 13).
+"""Levenberg–Marquardt on the compressed NLS residual, lean enough to batch.
 
 ``fit_nls`` runs optimistix's ``LevenbergMarquardt`` (``linear_solver=lx.Normal(lx.Cholesky())``)
 through :func:`hapid.fit._iterate.iterate` on the :class:`~hapid.fit._compress.CompressedProblem`.

@@ -177,21 +177,10 @@ def robust_design(
     :attr:`PosteriorSamples.error_kind`), the training and held-out plants are
     posterior-*predictive* draws (:func:`predictive_scenario_plants`; held out on
     ``n_holdout_freq`` points of :func:`posterior_grid`), not the bare second-order models.
-    **Off by default (unfinished).** The earlier fault (every predictive plant called not
-    stable, paper g included) was a sampling bug in the GP prior draw, fixed: the paper's g is
-    now stable on 90–97.5 % of cu5 and 95 % of tripod3 (2-sample delay) predictive plants,
-    as on the true plants. But the predictive plants are the second-order model above the fit
-    band (the data say nothing there), so a design tuned on them is blind to the delay's
-    phase lag above ~40 Hz: on cu5 (16 train / 24 held-out GP draws) the tuned g raised the
-    held-out fraction meeting the margins 25 → 87.5 % and the FRF return difference
-    0.61 → 1.05, and made the true sampled plant unstable (:func:`.true_plant_loop`: GM
-    0.65 dB, PM 9.6°; the start: stable, GM 3.9 dB, PM 28.7°, |T| peak at 53 Hz, above the
-    1–40 Hz fit band). Needs evidence above the band before it can be on: the evidence
-    constraints below (on by default) now supply it — the measured FRF to 100 Hz and small
-    gain beyond. Measured on cu5 with them (GP Laplace draws, quick settings): the tuned g
-    is certified and stable on the true plant (GM 7.0 dB, PM 38.3°, 88.8 % of held-out
-    predictive draws meet the margins against 26.2 % for the paper g) but at 1.78 Hz — the
-    wide GP draws cost the bandwidth — so the option stays off.
+    Off by default: above the fit band the predictive plants are the second-order model (the
+    data say nothing there), so a design tuned on them alone is blind to phase lag there; with
+    the evidence constraints (on by default) it is certified but at a lower bandwidth than the
+    loop draws give (docs/robust-design.md, "What binds: the width of the draws").
 
     ``evidence_bandwidth`` (off): let the measured FRF claim the bandwidth instead of the
     median draw. With narrow NLS-Laplace draws (24, q = 0.95) it failed on cu5: 6.9 Hz on the

@@ -1,4 +1,4 @@
-"""Draws of the loop coordinate ``Q = P P̂⁻¹`` conditioned on the measured FRF (issue 14).
+"""Draws of the loop coordinate ``Q = P P̂⁻¹`` conditioned on the measured FRF.
 
 The inverse-model controller ``G = g Ẑ_T Ẑ_H⁻¹`` sees any plant through ``Q = P P̂⁻¹``
 (``L = g Q``; ``Q = I`` for the model's own plant). Posterior draws of a second-order fit
