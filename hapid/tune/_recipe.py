@@ -180,7 +180,7 @@ def robust_design(
     Off by default: above the fit band the predictive plants are the second-order model (the
     data say nothing there), so a design tuned on them alone is blind to phase lag there; with
     the evidence constraints (on by default) it is certified but at a lower bandwidth than the
-    loop draws give (docs/robust-design.md, "What binds: the width of the draws").
+    loop draws give (docs/robust-design.md, section `draw_family="loop_gp"`).
 
     ``evidence_bandwidth`` (off): let the measured FRF claim the bandwidth instead of the
     median draw. With narrow NLS-Laplace draws (24, q = 0.95) it failed on cu5: 6.9 Hz on the
