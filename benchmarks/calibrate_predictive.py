@@ -16,6 +16,13 @@ coverage). Devices:
   used to tune the likelihood: a 3-rod tripod with a 2-sample (2 ms) actuator delay;
 - ``hexapod6_d2`` — the held-out check, chosen before it was ever run and reported once: a
   6-rod hexapod with a 2-sample delay (one more than its preset);
+- the **held-out family of the draw constructions** (``params``: the posterior's parameter
+  draws plus its model-error term; ``loop_gp``: draws of ``Q = P P̂⁻¹`` conditioned on the
+  whole measured FRF, :func:`hapid.uncertainty.plant_draws`), fixed before either was run
+  on it and run once per construction, no re-tuning: ``cu5_soft`` (the preset),
+  ``cu5_d2`` (cu5, 2-sample delay), ``tripod3_c3`` (tripod3, rod compliance ×3, the CLI's
+  ``--rod-compliance 3``), ``hexapod6_d2`` (above), ``quad4`` (the preset). ``cu5`` and
+  ``tripod3`` at their defaults were development devices of the loop draws and do not count;
 - ``second_order`` — a strictly second-order n = 2 device. Its *measured* response is the
   sampled one (ZOH): Z_T carries a half-sample lag (~ωT/2) the continuous model lacks, and
   with force noise only the FRF's ``Z_T_std`` is 0 while the encoder quantization (2 µm)
@@ -33,9 +40,17 @@ draws' median; ``width / error`` — median over those frequencies of the ball's
 if it were exactly calibrated; a Gaussian gives 1.13–2.44 depending on its shape). ``eval ms``
 is one log-posterior evaluation of 200 walkers (jitted, vmapped).
 
+Kinds: the posterior's model error (``white``, ``gp``, ``gp_corr``, …: parameter draws
+plus that model-error term, ``hapid predict --draws params``) and ``loop_gp`` (the loop draws
+of ``hapid predict --draws loop_gp``, around the same NLS fit, from the same FRF; their
+posterior is not used, so the row's posterior columns are empty).
+
 Run:  PYTHONPATH=. python benchmarks/calibrate_predictive.py [--method laplace|emcee]
       [--draws 400] [--devices cu5,tripod3_d2,second_order,second_order_exact]
-      [--kinds white,gp,gp_corr,gp_corr_el,gp_corr_cls]
+      [--kinds white,gp,gp_corr,gp_corr_el,gp_corr_cls,loop_gp]
+Held-out family (both constructions):
+      PYTHONPATH=. python benchmarks/calibrate_predictive.py --draws 200 --kinds gp_corr,loop_gp
+      --devices cu5_soft,cu5_d2,tripod3_c3,hexapod6_d2,quad4 --quantities P
 Prints a markdown table.
 """
 
