@@ -16,6 +16,13 @@ coverage). Devices:
   used to tune the likelihood: a 3-rod tripod with a 2-sample (2 ms) actuator delay;
 - ``hexapod6_d2`` — the held-out check, chosen before it was ever run and reported once: a
   6-rod hexapod with a 2-sample delay (one more than its preset);
+- the **held-out family of the draw constructions** (``params``: the posterior's parameter
+  draws plus its model-error term; ``loop_gp``: draws of ``Q = P P̂⁻¹`` conditioned on the
+  whole measured FRF, :func:`hapid.uncertainty.plant_draws`), fixed before either was run
+  on it and run once per construction, no re-tuning: ``cu5_soft`` (the preset),
+  ``cu5_d2`` (cu5, 2-sample delay), ``tripod3_c3`` (tripod3, rod compliance ×3, the CLI's
+  ``--rod-compliance 3``), ``hexapod6_d2`` (above), ``quad4`` (the preset). ``cu5`` and
+  ``tripod3`` at their defaults were development devices of the loop draws and do not count;
 - ``second_order`` — a strictly second-order n = 2 device. Its *measured* response is the
   sampled one (ZOH): Z_T carries a half-sample lag (~ωT/2) the continuous model lacks, and
   with force noise only the FRF's ``Z_T_std`` is 0 while the encoder quantization (2 µm)
@@ -33,9 +40,17 @@ draws' median; ``width / error`` — median over those frequencies of the ball's
 if it were exactly calibrated; a Gaussian gives 1.13–2.44 depending on its shape). ``eval ms``
 is one log-posterior evaluation of 200 walkers (jitted, vmapped).
 
+Kinds: the posterior's model error (``white``, ``gp``, ``gp_corr``, …: parameter draws
+plus that model-error term, ``hapid predict --draws params``) and ``loop_gp`` (the loop draws
+of ``hapid predict --draws loop_gp``, around the same NLS fit, from the same FRF; their
+posterior is not used, so the row's posterior columns are empty).
+
 Run:  PYTHONPATH=. python benchmarks/calibrate_predictive.py [--method laplace|emcee]
       [--draws 400] [--devices cu5,tripod3_d2,second_order,second_order_exact]
-      [--kinds white,gp,gp_corr,gp_corr_el,gp_corr_cls]
+      [--kinds white,gp,gp_corr,gp_corr_el,gp_corr_cls,loop_gp]
+Held-out family (both constructions):
+      PYTHONPATH=. python benchmarks/calibrate_predictive.py --draws 200 --kinds gp_corr,loop_gp
+      --devices cu5_soft,cu5_d2,tripod3_c3,hexapod6_d2,quad4 --quantities P
 Prints a markdown table.
 """
 
@@ -52,12 +67,16 @@ from hapid.device import SecondOrderDevice, preset
 from hapid.experiment import Protocol, estimate_frf, periodic_run
 from hapid.fit import fit_nls
 from hapid.uncertainty import (
+    PosteriorSamples,
     ShortChainWarning,
     band_calibration,
     batched_log_prob,
     boundary_fixed,
     initial_point,
     make_log_posterior,
+    measured_data,
+    param_names,
+    plant_draws,
     posterior_laplace_samples,
     predictive_plants,
     sample_posterior,
@@ -78,6 +97,10 @@ def device(name: str):
         return preset("tripod3", delay_samples=2)
     if name == "hexapod6_d2":
         return preset("hexapod6", delay_samples=2)
+    if name == "cu5_d2":
+        return preset("cu5", delay_samples=2)
+    if name == "tripod3_c3":
+        return preset("tripod3", rod_compliance=3.0)
     if name in ("second_order", "second_order_exact"):
         rng = np.random.default_rng(0)
         hand = hapid.SecondOrder(_spd(rng, 2, 0.3), _spd(rng, 2, 10.0), _spd(rng, 2, 800.0))
@@ -114,7 +137,26 @@ def _eval_ms(post, x0, walkers=200, reps=20):
     return (time.perf_counter() - t0) / reps * 1e3
 
 
-def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", draws=400, seed=0):
+def _loop_gp_rows(name, frf, nls, om, tr, draws, seed, quantities):
+    """The ``loop_gp`` construction: ``hapid predict --draws loop_gp``'s library call on a
+    samples stand-in that carries the measured FRF and the NLS fit (no posterior needed)."""
+    n = np.asarray(frf.Z_H).shape[-1]
+    names = tuple(param_names(n, model_error=False))
+    ps = PosteriorSamples(samples=np.asarray(nls.theta)[None], log_prob=np.full(1, np.nan),
+                          scale=nls.scale, n=n, names=names, measured=measured_data(frf),
+                          diagnostics={"fit_theta": np.asarray(nls.theta)})  # fmt: skip
+    t0 = time.perf_counter()
+    pd = plant_draws(ps, om, draws="loop_gp", max_samples=draws, seed=seed)
+    t_pred = time.perf_counter() - t0
+    nan = float("nan")
+    return [{"device": name, "error model": "loop_gp", "quantity": q,
+             **band_calibration(pd.P, tr[q]), "eval_ms": nan, "build_s": nan,
+             "posterior_s": nan, "predict_s": t_pred, "n_held_out": len(om), "tau": nan,
+             "steps_over_tau": nan} for q in quantities if q == "P"]  # fmt: skip
+
+
+def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", draws=400, seed=0,
+              quantities=("P", "Z_H", "Z_T")):  # fmt: skip
     dev = device(name)
     noise = 5e-3 if not isinstance(dev, SecondOrderDevice) else 2e-2
     pattern = "hadamard" if dev.n < 3 else "paper"  # the paper's pattern is singular for n = 2
@@ -137,6 +179,9 @@ def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", dra
     tr = truth(dev, om, exact)
     rows = []
     for kind in kinds:
+        if kind == "loop_gp":
+            rows += _loop_gp_rows(name, frf, nls, om, tr, draws, seed, quantities)
+            continue
         fixed = boundary_fixed(nls) if nls.boundary else None
         base, _, mode = kind.partition("@")  # e.g. "gp_corr@map": gp_hyper mode after "@"
         opts = {"warp": False} if base == "gp_logf" else {}
@@ -162,7 +207,7 @@ def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", dra
         t0 = time.perf_counter()
         pred = predictive_plants(ps, om, max_samples=draws, seed=seed)
         t_pred = time.perf_counter() - t0
-        for q in ("P", "Z_H", "Z_T"):
+        for q in quantities:
             c = band_calibration(pred[q], tr[q])
             d = ps.diagnostics
             rows.append({"device": name, "error model": kind, "quantity": q, **c, "eval_ms": ms,
@@ -181,8 +226,12 @@ def main(argv=None):
                     help="model errors to compare: white, gp, gp_corr, gp_corr_el (gp_corr "
                          "with error_scale='element'), gp_corr_cls (gp_corr with "
                          "error_scale='class': learned diagonal/off-diagonal amplitudes), "
-                         "gp_logf (gp with κ ≡ 0); "
+                         "gp_logf (gp with κ ≡ 0), loop_gp (loop draws conditioned on the "
+                         "measured FRF); "
                          "kind@mode sets gp_hyper (e.g. gp@marginal, gp_corr@map)")  # fmt: skip
+    ap.add_argument(
+        "--quantities", default="P,Z_H,Z_T", help="responses compared (loop_gp draws have P only)"
+    )
     a = ap.parse_args(argv)
     print(f"posterior: {a.method}; 90 % predictive band; held-out frequencies in 1–40 Hz\n")
     print("| device | model error | quantity | coverage | width / error | calibrated | "
@@ -190,7 +239,8 @@ def main(argv=None):
           "posterior s | τ | steps/τ | predict s |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in a.devices.split(","):
-        for r in calibrate(name, kinds=a.kinds.split(","), method=a.method, draws=a.draws):
+        for r in calibrate(name, kinds=a.kinds.split(","), method=a.method, draws=a.draws,
+                           quantities=a.quantities.split(",")):  # fmt: skip
             print(f"| {r['device']} | {r['error model']} | {r['quantity']} | {r['coverage']:.3f} | "
                   f"{r['width_ratio']:.2f} | {r['width_ratio_calibrated']:.2f} | "
                   f"{r['element_coverage']:.3f} | {r['rel_error_median']:.4f} | "

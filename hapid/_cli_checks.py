@@ -15,6 +15,7 @@ from pathlib import Path
 
 from ._cli_checks_io import check_model_matches_device, check_out_not_input
 from ._cli_device import PRESETS_TEXT, variant_flags
+from .defaults import DRAWS
 
 # ---- value tests ----------------------------------------------------------------------------
 
@@ -240,7 +241,7 @@ COMMON: dict[str, tuple] = {
     "predictive": FLAG,
     "evidence_bandwidth": FLAG,
     "loop_draws": FLAG,
-    "draws": one_of(["auto", "loop_gp", "params"]),
+    "draws": one_of(list(DRAWS)),
     "extra_lag": (_pos_list, "one or more frequencies > 0 Hz"),
     "extra_notch": (_pos_list, "one or more frequencies > 0 Hz"),
     "no_cache": FLAG,

@@ -20,7 +20,7 @@ from ._cli_kw import (  # noqa: F401  (uncertified_warning: part of the CLI's AP
 )
 from ._cli_verdict import check_line, verdict_lines
 from ._constants import TUNE_EXPECTED_S
-from .defaults import FIT_BAND_HZ, FS_HZ, GM_DB, N_DRAWS, NPERSEG, PM_DEG
+from .defaults import DRAWS, FIT_BAND_HZ, FS_HZ, GM_DB, N_DRAWS, NPERSEG, PM_DEG
 
 EXAMPLES = """examples:
   hapid simulate --device cu5 --out run.npz            # the paper's protocol on cu5
@@ -596,7 +596,7 @@ def _register_stages(sub):
         help="the measured FRF file (whole range): draws of the loop are "
         "conditioned on it (default: the FRF the samples file stores)",
     )
-    ro.add_argument("--draws", default="auto", choices=["auto", "loop_gp", "params"],
+    ro.add_argument("--draws", default="auto", choices=list(DRAWS),
                     help="loop_gp: draws of Q = P P̂⁻¹ conditioned on the measured FRF "
                     "(calibrated where the model class is wrong); params: the samples' "
                     "second-order plants (parameter uncertainty only); auto (default): loop_gp "
@@ -772,7 +772,7 @@ def _register_tune(sub):
     tu.add_argument("--evidence-bandwidth", action="store_true",
                     help="the measured FRF (--frf) claims the bandwidth, the draws keep the margins (chance "
                     "constraint); default: the median draw claims it")  # fmt: skip
-    tu.add_argument("--draws", default="auto", choices=["auto", "loop_gp", "params"],
+    tu.add_argument("--draws", default="auto", choices=list(DRAWS),
                     help="what the design is tuned and re-checked on: loop_gp: draws of Q = P P̂⁻¹ "
                     "conditioned on the measured FRF (--frf, or the FRF the samples file stores; "
                     "calibrated where the model class is wrong: benchmarks/calibrate_robust.py); params: "

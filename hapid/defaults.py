@@ -22,5 +22,10 @@ FS_HZ = 1000.0
 N_DRAWS = 1000
 """Loop or parameter draws in a robust check."""
 
+DRAWS = ("auto", "loop_gp", "params")
+"""The draw families of ``--draws`` (``hapid robust``, ``hapid tune``, ``hapid predict``):
+``loop_gp`` (the loop conditioned on the measured FRF), ``params`` (the posterior's parameter
+draws), ``auto`` (``loop_gp`` when the measured FRF is known)."""
+
 NPERSEG = 2048
 """Samples per Welch segment of an H1 estimate (``hapid frf --h1`` on non-periodic records)."""

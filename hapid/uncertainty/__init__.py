@@ -14,6 +14,8 @@
 - :func:`fit_loop_gp`, :func:`loop_gp_plants` — draws of the loop ``Q = P P̂⁻¹`` conditioned
   on the whole measured FRF, calibrated where the model class is wrong (the robust check on
   them, with the evidence on the measured FRF, is :func:`hapid.robust.loop_gp_check`).
+- :func:`plant_draws` → :class:`PlantDraws` — draws of the true P on any grid by either
+  construction (``params`` or ``loop_gp``), the draws of ``hapid predict``.
 - :func:`pose_study` — nominal vs re-identified controller over a grid of stylus poses.
 """
 
@@ -36,6 +38,8 @@ from ._loopgp import loop_gp_plants as loop_gp_plants
 from ._loopgp import measured_data as measured_data
 from ._mode import check_initial_state as check_initial_state
 from ._mode import initial_point as initial_point
+from ._plant_draws import PlantDraws as PlantDraws
+from ._plant_draws import plant_draws as plant_draws
 from ._poses import identify as identify
 from ._poses import pose_grid as pose_grid
 from ._poses import pose_study as pose_study

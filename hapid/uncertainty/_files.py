@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
-from ..defaults import FIT_BAND_HZ
+from ..defaults import DRAWS, FIT_BAND_HZ
 
 
 def posterior_from_files(
@@ -95,9 +95,6 @@ def posterior_fit(
     band = frf if f_max_hz is None else frf.band(0.0, float(f_max_hz))  # as hapid fit cuts it
     f, refit = fit_for_control(band, boundary_refit=boundary_refit, f_max_hz=None, **options)
     return f.result.raise_if_failed(), refit
-
-
-DRAWS = ("auto", "loop_gp", "params")
 
 
 def resolve_draws(draws: str, measured) -> str:
