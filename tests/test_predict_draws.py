@@ -113,19 +113,20 @@ def test_params_draws_and_errors_of_the_library_call():
         plant_draws(psm, om, draws="loop_gp", include_error=False)
 
 
-def test_cli_draws_auto_picks_the_family_the_file_supports(tmp_path, capsys):
+def test_cli_draws_default_to_params_and_loop_gp_needs_the_file_s_frf(tmp_path, capsys):
     with_frf, _ = _samples()
     without, _ = _samples(measured=False)
     save_samples(tmp_path / "with.npz", with_frf)
     save_samples(tmp_path / "without.npz", without)
     grid = ["--f-min-hz", "2", "--f-max-hz", "30", "--n-freq", "6", "--max-samples", "7"]
+    # the default is params on either file; loop_gp when asked for, on the file with the FRF
     for name, family, keys in (("with", "loop_gp", {"freq_hz", "P"}),
+                               ("with", "params", {"freq_hz", "P", "Z_H", "Z_T"}),
                                ("without", "params", {"freq_hz", "P", "Z_H", "Z_T"})):  # fmt: skip
-        out = tmp_path / f"{name}_draws.npz"
-        assert (
-            main(["predict", "--samples", str(tmp_path / f"{name}.npz"), *grid, "--out", str(out)])
-            == 0
-        )
+        out = tmp_path / f"{name}_{family}_draws.npz"
+        ask = ["--draws", "loop_gp"] if family == "loop_gp" else []
+        argv = ["predict", "--samples", str(tmp_path / f"{name}.npz"), *grid, *ask]
+        assert main([*argv, "--out", str(out)]) == 0
         text = capsys.readouterr().out
         assert f"--draws {family}" in text
         with np.load(out) as z:
