@@ -27,7 +27,7 @@ import numpy as np
 from ._cli_lab import matrices_report
 from ._constants import TWO_PI
 from ._grids import band_mask
-from .defaults import FIT_BAND_HZ
+from .defaults import FIT_BAND_HZ, NLS_MAX_STEPS
 
 
 class FitCommandError(ValueError):
@@ -369,7 +369,12 @@ def register_fit(sub, func) -> None:
                    help=f"fit band upper edge (Hz), every method; default: {FIT_BAND_HZ:g} for nls and ml "
                    "on the haptic pair (hapid posterior's band), else the file's highest")  # fmt: skip
     f.add_argument("--omega-c-hz", type=float, default=7.0, help="paper weight corner (Hz)")
-    f.add_argument("--max-steps", type=int, default=500)
+    f.add_argument(
+        "--max-steps",
+        type=int,
+        default=NLS_MAX_STEPS,
+        help=f"NLS solver step limit (default: {NLS_MAX_STEPS})",
+    )
     f.add_argument("--band-hz", type=float, default=30.0,
                    help="report the P·P̂⁻¹ band to here (haptic pair)")  # fmt: skip
     f.add_argument("--allow-unconverged", action="store_true")

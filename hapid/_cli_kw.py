@@ -17,7 +17,7 @@ def posterior_kw(a) -> dict:
     gp = a.model_error in ("gp", "gp_corr")
     return dict(
         method=a.method, n_samples=a.samples, n_steps=a.steps, seed=a.seed,
-        backend_path=a.hdf5, fit_options={"f_max_hz": a.f_max_hz},
+        backend_path=a.hdf5, fit_options={"f_max_hz": a.f_max_hz, "max_steps": a.max_steps},
         posterior_options={"model_error": a.model_error}
         | ({"gp_hyper": a.gp_hyper} if a.gp_hyper and gp else {})
         | ({"error_scale": a.error_scale} if a.error_scale else {}),

@@ -20,7 +20,7 @@ from ._cli_kw import (  # noqa: F401  (uncertified_warning: part of the CLI's AP
 )
 from ._cli_verdict import check_line, verdict_lines
 from ._constants import TUNE_EXPECTED_S
-from .defaults import DRAWS, FIT_BAND_HZ, FS_HZ, GM_DB, N_DRAWS, NPERSEG, PM_DEG
+from .defaults import DRAWS, FIT_BAND_HZ, FS_HZ, GM_DB, N_DRAWS, NLS_MAX_STEPS, NPERSEG, PM_DEG
 
 EXAMPLES = """examples:
   hapid simulate --device cu5 --out run.npz            # the paper's protocol on cu5
@@ -424,9 +424,15 @@ def cmd_analyze(a):
 
 
 def cmd_posterior(a):
+    from .fit import FitFailedError
     from .uncertainty import posterior_from_files
 
-    ps = posterior_from_files(a.frf, a.out, **posterior_kw(a))
+    try:
+        ps = posterior_from_files(a.frf, a.out, **posterior_kw(a))
+    except FitFailedError as e:
+        raise CLIError(f"{a.frf}: the NLS fit the posterior is built around did not converge "
+                       f"({e}); no samples written: give more steps (--max-steps, default "
+                       f"{NLS_MAX_STEPS}) or check the fit with hapid fit {a.frf} --method nls") from e  # fmt: skip
     eps = float(ps.diagnostics.get("fit_pd_eps", 0.0))
     if eps > 0:  # the same note and metadata as hapid fit (diag_fit_pd_eps in the file)
         print(f"note: fit refitted with pd_eps = {eps:g}: the PSD-boundary fit put a root of "
@@ -566,6 +572,9 @@ def _register_stages(sub):
     po.add_argument("--steps", type=int, help="emcee steps (default: run to 50 τ)")
     po.add_argument("--samples", type=int, default=4000, help="Laplace draws")
     po.add_argument("--f-max-hz", type=float, default=FIT_BAND_HZ)
+    po.add_argument("--max-steps", type=int, default=NLS_MAX_STEPS,
+                    help=f"step limit of the NLS fit the posterior is built around (default: "
+                    f"{NLS_MAX_STEPS}, as hapid fit)")  # fmt: skip
     po.add_argument("--model-error", choices=["white", "gp", "gp_corr", "none"], default="gp_corr",
                     help="model-error term: gp_corr (default: the misfit of Z_H and Z_M as correlated "
                          "smooth random functions of frequency, marginalized; its 90 %% band of P "

@@ -25,7 +25,11 @@ N_DRAWS = 1000
 DRAWS = ("auto", "loop_gp", "params")
 """The draw families of ``--draws`` (``hapid robust``, ``hapid tune``, ``hapid predict``):
 ``loop_gp`` (the loop conditioned on the measured FRF), ``params`` (the posterior's parameter
-draws), ``auto`` (``loop_gp`` when the measured FRF is known)."""
+draws), ``auto`` (``loop_gp`` when the measured FRF is known). ``hapid predict`` offers
+``params`` (its default: the band measured calibrated) and ``loop_gp``."""
+
+NLS_MAX_STEPS = 500
+"""Step limit of the NLS fit of ``hapid fit`` and of the fit ``hapid posterior`` centres on."""
 
 NPERSEG = 2048
 """Samples per Welch segment of an H1 estimate (``hapid frf --h1`` on non-periodic records)."""

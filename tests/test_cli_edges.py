@@ -250,3 +250,15 @@ def test_console_script_error_is_one_stderr_line(tmp_path):
     assert len(lines) == 1, res.stderr
     assert lines[0].startswith("hapid: error: empty.npz: empty file (0 bytes); expected a run file")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.npz"]
+
+
+def test_posterior_on_a_fit_that_does_not_converge_names_max_steps(files):
+    """The NLS fit a posterior is centred on stops at its step limit: one line naming
+    --max-steps, no samples file (was an 'internal error, please report' with exit 1)."""
+    d, _ = files
+    line = assert_clean_error(
+        ["posterior", "frf.npz", "--method", "laplace", "--max-steps", "1", "--out", "s.npz"],
+        d,
+        "the NLS fit the posterior is built around did not converge",
+    )
+    assert "--max-steps" in line and "max_steps" in line
