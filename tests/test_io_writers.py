@@ -12,6 +12,7 @@ from hapid import io
 from hapid.control import Compensator, analyze_loop
 from hapid.fit._pd import Scale, n_params
 from hapid.io import load_samples
+from hapid.io._common import _atomic_write
 from hapid.tune import load_design
 from hapid.uncertainty import PosteriorSamples
 from hapid.uncertainty._likelihood import param_names
@@ -74,7 +75,7 @@ def test_failed_write_leaves_nothing(tmp_path):
         raise RuntimeError("disk full")
 
     with pytest.raises(RuntimeError):
-        io._atomic_write(target, boom)
+        _atomic_write(target, boom)
     assert json.loads(target.read_text()) == {"old": True}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.json"]
 
