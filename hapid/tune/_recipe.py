@@ -27,115 +27,53 @@ from __future__ import annotations
 import dataclasses
 import time
 
-import jax
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
-from .._grids import NYQUIST_F_MIN_HZ, below_nyquist_grid, log_grid_hz, nyquist_grid
+from .._grids import below_nyquist_grid, nyquist_grid
 from .._grids import continuous_grid as posterior_grid
 from ..control import Compensator
 from ._check import FRF_FLOOR, design_check, loop_label
 from ._evidence import KAPPA, beyond_grid, certificate, evidence_from_frf, measured_plant
 from ._objective import Family, Requirements
-from ._params import ParamMap
 from ._progress import note
+from ._recipe_decision import (
+    _certified_fallback,
+    _meets_chance,
+    certified_gain,
+    no_worse,
+    pick_fallback,
+    training_no_worse,
+)
+from ._recipe_plants import (
+    HOLDOUT_OFFSETS,
+    TRAIN_OFFSETS,
+    _has_error_term,
+    _n_models,
+    _sample_models,
+    count_grid,
+    posterior_plants,
+    predictive_scenario_plants,
+)
 from ._scenarios import make_scenarios
-from ._tune import largest_gain, scale_gain, tune
+from ._tune import tune
 from ._validate import device_grid, table_row, validate
 
-TRAIN_OFFSETS = (
-    (0.04, 0, 0),
-    (-0.04, 0, 0),
-    (0, 0.04, 0),
-    (0, -0.04, 0),
-    (0, 0, 0.04),
-    (0, 0, -0.04),
-)
-PREDICTIVE_TAPER = 0.1  # ln-ω width of the model-error taper beyond the fit band
-HOLDOUT_OFFSETS = ((0.03, 0.03, 0), (-0.03, -0.03, 0), (0.03, 0, 0.03), (0, -0.03, -0.03))
-
-
-def _sample_models(samples, idx):
-    from ..uncertainty import PosteriorSamples
-
-    if isinstance(samples, PosteriorSamples):
-        return samples.models(np.asarray(idx))
-    return jax.tree.map(lambda a: a[np.asarray(idx)], samples)
-
-
-def _n_models(samples) -> int:
-    from ..uncertainty import PosteriorSamples
-
-    return (
-        samples.n_samples
-        if isinstance(samples, PosteriorSamples)
-        else int(np.shape(samples.hand.M)[0])
-    )
-
-
-def _subset(samples, idx):
-    return dataclasses.replace(samples, samples=samples.samples[np.asarray(idx)],
-                               log_prob=np.asarray(samples.log_prob)[np.asarray(idx)])  # fmt: skip
-
-
-def _has_error_term(samples) -> bool:
-    from ..uncertainty import PosteriorSamples
-
-    return (isinstance(samples, PosteriorSamples) and samples.error_kind != "none"
-            and samples.predictive is not None)  # fmt: skip
-
-
-def predictive_scenario_plants(samples, idx, omega, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """``(P (S, N, n, n), RHP poles)``: posterior-*predictive* plants of draws ``idx`` on ω —
-    the second-order model of each draw plus its model-error term
-    (:func:`hapid.uncertainty.predictive_plants`), so the tuner and the re-check see the
-    misfit the data show (delay, unmodeled modes) and not only parameter uncertainty. The
-    error term is confined to the fit band (``error_band``, taper ``PREDICTIVE_TAPER`` in
-    ln ω): outside it the data say nothing about the error, and the GP's extrapolation (its
-    prior, ~τ_H ≈ 0.45 relative on cu5) is a random perturbation the data do not support
-    that flips the Nyquist count of loops crossing over just above the band (measured on
-    cu5, paper g, 40 draws, 2000-point grid: P(stable) 0.95 / 0.93 / 0.85 / 0.45 / 0.30 for
-    taper widths 0.1 / 0.25 / 0.5 / 1 / 2); there the draw is its second-order model. The
-    RHP poles are those of the draw's model (0 for PD matrices)."""
-    from ..uncertainty import predictive_plants
-
-    sub = _subset(samples, idx)
-    om_fit = np.asarray(samples.predictive["omega"])
-    P = predictive_plants(
-        sub,
-        omega,
-        max_samples=None,
-        seed=seed,
-        error_band=(om_fit[0], om_fit[-1]),
-        taper_width=PREDICTIVE_TAPER,
-    )["P"]
-    _, pol = posterior_plants(sub.models(), omega)
-    return P, pol
-
-
-def posterior_plants(models, omega) -> tuple[np.ndarray, np.ndarray]:
-    """``(P (S, N, n, n), RHP poles of each P̂_s)`` of a batched model on ω (rad/s)."""
-
-    @jax.jit
-    def one(m):
-        r = m.total.roots()
-        return m.P(1j * omega), np.int64(0) + jax.numpy.sum(jax.numpy.real(r) > 0)
-
-    P, n = jax.vmap(one)(models)
-    return np.asarray(P), np.asarray(n)
-
-
-def count_grid(fs_hz: float, dense_factor: int, n_freq: int) -> np.ndarray:
-    """The device family's dense grid (rad/s, sorted, ``(dense_factor + 1) · n_freq``
-    points): :func:`below_nyquist_grid` with ``dense_factor · n_freq`` points (0.1 Hz to
-    0.499 f_s), a low tail from the analysis grid's 10⁻³ Hz up to 0.1 Hz and the Nyquist
-    frequency itself — so that its Nyquist count closes at both ends as the analysis'
-    (:func:`hapid._grids.nyquist_grid`) does: measured on cu5 with 3 samples of delay,
-    ``det(I + L)`` is at −90° at 0.1 Hz."""
-    band = below_nyquist_grid(fs_hz, dense_factor * n_freq)
-    tail = log_grid_hz(NYQUIST_F_MIN_HZ, 0.1, n_freq)[:-1]
-    return np.sort(np.concatenate([tail, band, [np.pi * float(fs_hz)]]))
+__all__ = [
+    "FRF_FLOOR",
+    "HOLDOUT_OFFSETS",
+    "TRAIN_OFFSETS",
+    "certified_gain",
+    "count_grid",
+    "no_worse",
+    "pick_fallback",
+    "posterior_grid",
+    "posterior_plants",
+    "predictive_scenario_plants",
+    "robust_design",
+    "training_no_worse",
+]
 
 
 def robust_design(
@@ -439,171 +377,3 @@ def robust_design(
         out["result"] = dataclasses.replace(out["result"], check=ck)
         out["check"], out["loop"] = ck, loop_label(evidence_ts)
     return out
-
-
-def certified_gain(
-    g: Compensator, ev, model, floor: float = 0.5, alpha_min: float = 1e-3, iters: int = 14
-) -> float | None:
-    """Largest ``α ≤ 1`` (bisection in log α) at which ``g`` with its gain ``k`` scaled by
-    ``α`` is certified by the evidence (:func:`._evidence.certificate`: nominal loop stable,
-    measured loci ``min |1 + λ| ≥ floor``, loop gain beyond the FRF ≤ κ); ``None`` if not even
-    ``alpha_min`` is. Lower gain shrinks the loop everywhere, so the certificate's figures
-    improve monotonically in practice (not assumed: the bisection keeps the last certified α)."""
-    certified = lambda gg: certificate(ev, model, gg, floor=floor)["certified"]  # noqa: E731
-    if certified(g):
-        return 1.0
-    return largest_gain(g, certified, alpha_min, iters)
-
-
-def _certified_fallback(out, g0, res, ev, model, hold_models, device, variants, omega_c, req,
-                        quantile, *, with_tuned: bool = True, chosen: dict | None = None,
-                        ts: float | None = None):  # fmt: skip
-    """The chosen design is not certified by the evidence, or fails the held-out draws'
-    chance level (``quantile`` of them meeting the margins): the start and the tuned g, each
-    with its gain scaled down to the largest value the evidence certifies
-    (:func:`certified_gain`), re-checked like the others. A candidate certified *and* at the
-    chance level is preferred (the better of two by :func:`no_worse`); when none is, a
-    certified ``chosen`` design is kept (``None``: lowering the gain trades one failed
-    figure for another — it can move the crossover below the lowest measured frequency,
-    where the certificate sees nothing), else the better certified candidate is returned.
-    The tuned g only with ``with_tuned`` (it passed :func:`training_no_worse`); a candidate
-    that makes the nominal true plant unstable where the ``chosen`` design's row has it
-    stable is dropped. ``ts``: the held-out draws' controller rate (:func:`.validate`).
-    ``(result, row, decision)`` or ``None``."""
-    cands = []
-    pairs = (("start", g0), ("tuned", out["candidate"].g)) if with_tuned else (("start", g0),)
-    for name, g in pairs:
-        a = certified_gain(g, ev, model, floor=FRF_FLOOR)
-        if a is None:
-            continue
-        gs = scale_gain(g, a)
-        v = validate(gs, model, samples=hold_models, device=device, variants=variants,
-                     omega_c=omega_c, gm_db=req.gm_db, pm_deg=req.pm_deg, p_required=quantile,
-                     ts=ts)  # fmt: skip
-        row = table_row(v) | certificate(ev, model, gs, floor=FRF_FLOOR)
-        if (chosen or {}).get("true_stable") and not row.get("true_stable", True):
-            continue
-        cands.append((name, a, gs, row))
-    best = pick_fallback(cands, chosen, quantile)
-    if best is None:
-        return None
-    name, a, gs, row = best
-    pm = ParamMap.from_template(gs)
-    head = ("neither the start nor the tuned g is certified by the evidence"
-            if not (chosen or {}).get("certified", False)
-            else "the chosen g fails the held-out draws' chance level")  # fmt: skip
-    why = (f"{head}: returned the "
-           f"{name} g with its gain scaled by {a:.3g}, the largest the evidence certifies "
-           f"(measured min |1 + λ| {row['frf_min_loci_distance']:.3g}, loop gain beyond "
-           f"{row['evidence_hz']:.3g} Hz {row['beyond_loop_gain']:.3g})")  # fmt: skip
-    return dataclasses.replace(res, g=gs, x=np.asarray(pm.vector(gs))), row, why
-
-
-def pick_fallback(cands: list, chosen: dict | None, quantile: float):
-    """The fallback's choice among certified candidates ``(name, α, g, row)`` (rows of
-    :func:`.table_row` plus the certificate): those whose held-out draws meet the margins at
-    the chance level first (of two, the later one when :func:`no_worse` prefers it); none
-    such and a certified ``chosen`` row: ``None`` (keep it); else the better of all."""
-    good = [c for c in cands if _meets_chance(c[3], quantile)]
-    if not good and (chosen or {}).get("certified", False):
-        return None
-    cands = good or cands
-    if not cands:
-        return None
-    if len(cands) == 2 and no_worse(cands[0][3], cands[1][3])[0]:
-        return cands[1]
-    return cands[0]
-
-
-def _meets_chance(row: dict, quantile: float) -> bool:
-    """Do the held-out posterior draws of a :func:`.table_row` meet the margins at the
-    chance level (True when the row has no posterior draws)?"""
-    return row.get("posterior_frac_meeting_margins", 1.0) >= quantile - 1e-9
-
-
-FRF_KEY = "frf_min_loci_distance"  # the measured-FRF figure rows are compared on (certificate)
-
-
-def training_no_worse(res) -> tuple[bool, str]:
-    """``(ok, why)``: is the tuned g (``res.training``) stable on at least as many training
-    loops as the start (``res.training0``), and on all it must be wherever the start is?
-    Counted by the analysis' Nyquist rule (:func:`hapid.tune.training_verdict`)."""
-    tot = lambda d: sum(v[0] for v in d.values())  # noqa: E731
-    enough = lambda d: all(v[0] >= v[1] for v in d.values())  # noqa: E731
-    a, b = tot(res.training0), tot(res.training)
-    if enough(res.training0) and not enough(res.training):
-        return False, (f"kept the start: the tuned g leaves training loops unstable "
-                       f"({b} stable against the start's {a})")  # fmt: skip
-    if b < a:
-        return False, f"kept the start: {b} stable training loops against the start's {a}"
-    if not enough(res.training):
-        return True, (f"no g found that is stable on the training loops ({b} stable, start "
-                      f"{a}): not a valid design")  # fmt: skip
-    return True, "stable on the training loops"
-
-
-def no_worse(start: dict, tuned: dict) -> tuple[bool, str]:
-    """Is the tuned design no worse than the start on the held-out evidence of two
-    :func:`.table_row` rows? ``(verdict, one-line reason)``. Evidence, in order: the nominal
-    true plant stays stable (when present); for each family (posterior, variants) the
-    fraction of plants meeting the margins does not drop, and it either rises or, equal, the
-    median isotropic bandwidth rises — a tuned g that improves nothing is not returned. With
-    ``frf_min_loci_distance`` in both rows (:func:`._evidence.certificate`, the measured FRF)
-    the tuned g may not bring the loop on the data closer to −1 than the start when it falls
-    below ``FRF_FLOOR``. With ``certified`` in both rows (:func:`._evidence.certificate`:
-    evidence) the evidence decides first: a certified start is never traded for an
-    uncertified g, and a certified tuned g replaces an uncertified start. When *neither* is
-    certified, both are judged on the same evidence figures: the tuned g must be no worse on
-    each (stable on the model's own plant if the start is, measured return difference not
-    lower, beyond-band gain bound not above ``max(start, κ)``) and then better on the held-out
-    draws; otherwise the start is kept and the reason says which figure decided."""
-    if start.get("true_stable") and not tuned.get("true_stable", True):
-        return False, "kept the start: the tuned g makes the nominal true plant unstable"
-    c = "certified"
-    if c in start and c in tuned:
-        if start[c] and not tuned[c]:
-            return False, ("kept the start: it holds on the evidence (measured FRF, small gain "
-                           "beyond it) and the tuned g does not")  # fmt: skip
-        if tuned[c] and not start[c]:
-            return True, ("tuned g kept: it holds on the evidence (measured FRF min |1 + λ| "
-                          f"{tuned[FRF_KEY]:.3g}, loop gain beyond "
-                          f"{tuned['evidence_hz']:.3g} Hz ≤ {tuned['beyond_loop_gain']:.3g}) and the "
-                          f"start does not (min |1 + λ| {start[FRF_KEY]:.3g}, gain "
-                          f"beyond {start['beyond_loop_gain']:.3g})")  # fmt: skip
-        if not tuned[c]:  # neither certified: the tuned g must be no worse on each figure
-            if start.get("nominal_stable", True) and not tuned.get("nominal_stable", True):
-                return False, ("kept the start: neither is certified, and the tuned g is not stable "
-                               "on the model's own plant while the start is")  # fmt: skip
-            if tuned["beyond_loop_gain"] > max(start["beyond_loop_gain"], KAPPA) + 1e-9:
-                return False, (f"kept the start: neither is certified, and beyond the evidence "
-                               f"({tuned['evidence_hz']:.3g} Hz) the tuned loop gain bound "
-                               f"{tuned['beyond_loop_gain']:.3g} exceeds the start's "
-                               f"{start['beyond_loop_gain']:.3g}")  # fmt: skip
-            k = FRF_KEY
-            if tuned[k] < start[k] - 1e-9:
-                return False, (f"kept the start: neither is certified, and on the measured FRF the "
-                               f"tuned loop comes closer to −1 (min |1 + λ| {tuned[k]:.3g} against "
-                               f"{start[k]:.3g})")  # fmt: skip
-    k = FRF_KEY
-    if k in start and k in tuned and tuned[k] < min(start[k], FRF_FLOOR) - 1e-9:
-        return False, (f"kept the start: on the data's own FRF the tuned g brings the loop closer to "
-                       f"−1 (min |1 + λ| {tuned[k]:.3g} against {start[k]:.3g} for the start)")  # fmt: skip
-    gains = []
-    for fam in ("posterior", "variants"):
-        key = f"{fam}_frac_meeting_margins"
-        if key not in start:
-            continue
-        a, b = start[key], tuned[key]
-        if b < a - 1e-9:
-            return False, (f"kept the start: on held-out {fam} plants the tuned g meets the margins "
-                           f"on {100 * b:.1f} % against {100 * a:.1f} % for the start")  # fmt: skip
-        bw_a, bw_b = start[f"{fam}_iso_bandwidth_hz_q50"], tuned[f"{fam}_iso_bandwidth_hz_q50"]
-        if b <= a + 1e-9 and not bw_b > bw_a + 1e-6:
-            return False, (f"kept the start: no improvement on held-out {fam} plants (margins met on "
-                           f"{100 * b:.1f} % vs {100 * a:.1f} %, median bandwidth {bw_b:.3g} vs "
-                           f"{bw_a:.3g} Hz)")  # fmt: skip
-        gains.append(f"{fam}: margins met {100 * a:.1f} → {100 * b:.1f} %, median bandwidth "
-                     f"{bw_a:.3g} → {bw_b:.3g} Hz")  # fmt: skip
-    if not gains:
-        return True, "no held-out evidence to compare on: tuned g returned unchecked"
-    return True, "tuned g kept (no worse than the start on held-out plants): " + "; ".join(gains)

@@ -1,0 +1,111 @@
+"""The plants ``robust_design`` trains on and holds out: posterior draws as batched models
+or sampled on a grid, posterior-*predictive* draws (model plus its model-error term, confined
+to the fit band) and the device family's dense grid; and the stylus offsets of the device
+family's training (``TRAIN_OFFSETS``, ±4 cm along x, y, z) and held-out (``HOLDOUT_OFFSETS``,
+diagonal) poses, in metres.
+
+Plants are frequency-first, ``(S, N, n, n)`` complex, on ω in rad/s.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+
+from .. import _config  # noqa: F401  (float64)
+from .._grids import NYQUIST_F_MIN_HZ, below_nyquist_grid, log_grid_hz
+
+TRAIN_OFFSETS = (
+    (0.04, 0, 0),
+    (-0.04, 0, 0),
+    (0, 0.04, 0),
+    (0, -0.04, 0),
+    (0, 0, 0.04),
+    (0, 0, -0.04),
+)
+PREDICTIVE_TAPER = 0.1  # ln-ω width of the model-error taper beyond the fit band
+HOLDOUT_OFFSETS = ((0.03, 0.03, 0), (-0.03, -0.03, 0), (0.03, 0, 0.03), (0, -0.03, -0.03))
+
+
+def _sample_models(samples, idx):
+    from ..uncertainty import PosteriorSamples
+
+    if isinstance(samples, PosteriorSamples):
+        return samples.models(np.asarray(idx))
+    return jax.tree.map(lambda a: a[np.asarray(idx)], samples)
+
+
+def _n_models(samples) -> int:
+    from ..uncertainty import PosteriorSamples
+
+    return (
+        samples.n_samples
+        if isinstance(samples, PosteriorSamples)
+        else int(np.shape(samples.hand.M)[0])
+    )
+
+
+def _subset(samples, idx):
+    return dataclasses.replace(samples, samples=samples.samples[np.asarray(idx)],
+                               log_prob=np.asarray(samples.log_prob)[np.asarray(idx)])  # fmt: skip
+
+
+def _has_error_term(samples) -> bool:
+    from ..uncertainty import PosteriorSamples
+
+    return (isinstance(samples, PosteriorSamples) and samples.error_kind != "none"
+            and samples.predictive is not None)  # fmt: skip
+
+
+def predictive_scenario_plants(samples, idx, omega, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``(P (S, N, n, n), RHP poles)``: posterior-*predictive* plants of draws ``idx`` on ω —
+    the second-order model of each draw plus its model-error term
+    (:func:`hapid.uncertainty.predictive_plants`), so the tuner and the re-check see the
+    misfit the data show (delay, unmodeled modes) and not only parameter uncertainty. The
+    error term is confined to the fit band (``error_band``, taper ``PREDICTIVE_TAPER`` in
+    ln ω): outside it the data say nothing about the error, and the GP's extrapolation (its
+    prior, ~τ_H ≈ 0.45 relative on cu5) is a random perturbation the data do not support
+    that flips the Nyquist count of loops crossing over just above the band (measured on
+    cu5, paper g, 40 draws, 2000-point grid: P(stable) 0.95 / 0.93 / 0.85 / 0.45 / 0.30 for
+    taper widths 0.1 / 0.25 / 0.5 / 1 / 2); there the draw is its second-order model. The
+    RHP poles are those of the draw's model (0 for PD matrices)."""
+    from ..uncertainty import predictive_plants
+
+    sub = _subset(samples, idx)
+    om_fit = np.asarray(samples.predictive["omega"])
+    P = predictive_plants(
+        sub,
+        omega,
+        max_samples=None,
+        seed=seed,
+        error_band=(om_fit[0], om_fit[-1]),
+        taper_width=PREDICTIVE_TAPER,
+    )["P"]
+    _, pol = posterior_plants(sub.models(), omega)
+    return P, pol
+
+
+def posterior_plants(models, omega) -> tuple[np.ndarray, np.ndarray]:
+    """``(P (S, N, n, n), RHP poles of each P̂_s)`` of a batched model on ω (rad/s)."""
+
+    @jax.jit
+    def one(m):
+        r = m.total.roots()
+        return m.P(1j * omega), np.int64(0) + jax.numpy.sum(jax.numpy.real(r) > 0)
+
+    P, n = jax.vmap(one)(models)
+    return np.asarray(P), np.asarray(n)
+
+
+def count_grid(fs_hz: float, dense_factor: int, n_freq: int) -> np.ndarray:
+    """The device family's dense grid (rad/s, sorted, ``(dense_factor + 1) · n_freq``
+    points): :func:`below_nyquist_grid` with ``dense_factor · n_freq`` points (0.1 Hz to
+    0.499 f_s), a low tail from the analysis grid's 10⁻³ Hz up to 0.1 Hz and the Nyquist
+    frequency itself — so that its Nyquist count closes at both ends as the analysis'
+    (:func:`hapid._grids.nyquist_grid`) does: measured on cu5 with 3 samples of delay,
+    ``det(I + L)`` is at −90° at 0.1 Hz."""
+    band = below_nyquist_grid(fs_hz, dense_factor * n_freq)
+    tail = log_grid_hz(NYQUIST_F_MIN_HZ, 0.1, n_freq)[:-1]
+    return np.sort(np.concatenate([tail, band, [np.pi * float(fs_hz)]]))
