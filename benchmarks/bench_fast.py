@@ -305,7 +305,7 @@ def loop_draws_row(sec: Section, S: int):
     from calibrate_robust import draws, setup
 
     import hapid.control._metrics as M
-    import hapid.uncertainty._robust as R
+    import hapid.uncertainty._robust_chunks as R
     from hapid.control import Compensator, controller_unstable_poles, inverse_model_response
     from hapid.device import cu5
     from hapid.uncertainty import robust_check

@@ -33,42 +33,12 @@ per-plant arrays, listed in :attr:`RobustReport.not_computed`, ``None`` in
 :meth:`~RobustReport.summary` / :meth:`~RobustReport.rows`, and asking for its quantile
 raises; :attr:`RobustReport.worst` then ranks on the computed fields.
 
-Summary statistics. An unstable sample counts as the worst possible value of every margin
-(``−inf`` dB/deg, disk margin 0) and of the bandwidth (0 Hz), so a 5 % quantile is only
-finite when fewer than 5 % of the samples are unstable. ``passed``: ``P(stable) ≥
-p_stable_required`` and the 5 % quantiles of GM and PM meet ``gm_db`` / ``pm_deg``;
-:meth:`RobustReport.reasons` says which requirement failed and by how much.
-
-**Margin sign convention** (the same as :func:`hapid.control.max_siso_gain`). The raw
-``gm_db``/``pm_deg`` of a plant are *signed* (``pm = ∠λ + 180°`` wrapped to [−180°, 180°) at
-the gain crossing nearest −1; a negative value means the locus crosses beyond −180°, a
-conditionally stable crossing that a phase *lead* or gain *decrease* would destabilize).
-Stability is decided by the generalized Nyquist count, not by the sign; on a loop that count
-calls stable, the margin is the size of the smallest perturbation that reaches −1, i.e.
-``|GM|`` and ``|PM|``. Quantiles and ``passed`` therefore use ``|GM|``, ``|PM|`` of stable
-plants (unstable: ``−inf``); :meth:`RobustReport.rows` keeps the signed values.
-
-Compute path. ``backend="metrics"`` (the default): every plant is analysed by
-:func:`hapid.control.loop_metrics`'s program (XLA small-matrix kernels for det/inverse/σ̄ and
-the eigenvalues of the loci, no LAPACK inside; exact values only where the cheap bounds do
-not decide; refined crossings) in its two passes (:mod:`hapid.control._metrics`): the
-grid pass (every frequency) once per plant — the plain jitted program, no ``vmap`` — and the
-refinement pass (a few small sequential root-finding steps per plant) once per chunk of
-``chunk`` plants, ``vmap``-ed, so its step count is paid once per chunk instead of once per
-plant (``vectorize=False``, the default); or the whole analysis ``vmap``-ed over chunks
-(``vectorize=True``; the last chunk padded, ``p_ol`` an array: one compile). Measured on the
-2-core machine, the grid pass per plant is the faster: under ``vmap`` the batch axis sits in
-front of the kernels' entry-major ``(n, n, N)`` layout and the grid kernels cost 2–3× more
-per plant (det/inverse 7.3 vs 2.6 ms per plant at 8 plants × 1000 frequencies). Same
-verdicts as the reference on 1000 cu5 posterior draws
-(benchmarks/bench_fast.py, tests/test_control_metrics.py). ``backend="reference"``:
-:func:`hapid.control.analyze_loop` (the LAPACK reference, grid values) once per plant.
+The result, its summary statistics and the margin sign convention:
+:mod:`hapid.uncertainty._robust_report`. The compute path (``backend``, ``vectorize``,
+``chunk``): :mod:`hapid.uncertainty._robust_chunks`.
 """
 
 from __future__ import annotations
-
-import dataclasses
-from functools import partial
 
 import equinox as eqx
 import jax
@@ -78,286 +48,24 @@ import numpy as np
 from .. import _config, _distributed  # noqa: F401  (float64)
 from .._grids import continuous_grid as posterior_omega
 from .._grids import sampled_grid as robust_omega
-from ..control import Compensator, MetricsSpec, analyze_loop
-from ..control._metrics import grid_pass, metrics_screened, refine_many
+from ..control import Compensator
 from ..defaults import GM_DB, PM_DEG
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
-from ..verdict import Check, Verdict
-from ._cover import EvidenceCover, cover_check
+from ._robust_chunks import _analyze_chunk, _pad, _reference_chunk, _spec
+from ._robust_report import FIELDS, METRICS, RobustReport
 from ._samples import PosteriorSamples
 
-FIELDS = (
-    "gm_db",
-    "pm_deg",
-    "disk_margin",
-    "disk_gm_db",
-    "disk_pm_deg",
-    "iso_bandwidth_hz",
-    "t_peak_db",
-)
-# robust_check(metrics=...) name → the report fields it fills
-METRICS = {"disk": ("disk_margin", "disk_gm_db", "disk_pm_deg"), "t_peak": ("t_peak_db",)}
-_WORST = {"gm_db": -np.inf, "pm_deg": -np.inf, "disk_margin": 0.0, "disk_gm_db": 0.0,
-          "disk_pm_deg": 0.0, "iso_bandwidth_hz": 0.0, "t_peak_db": np.inf}  # fmt: skip
-
-
-@dataclasses.dataclass(frozen=True)
-class RobustReport:
-    """Per-plant results (arrays ``(S,)``) and their summary.
-
-    ``stable``, ``n_closed_loop_rhp``, ``gm_db``, ``pm_deg``, ``disk_margin``, ``disk_gm_db``,
-    ``disk_pm_deg``, ``iso_bandwidth_hz``, ``t_peak_db`` (raw values of
-    :class:`hapid.control.LoopReport`); ``labels`` (optional names per plant);
-    requirements ``gm_req_db``, ``pm_req_deg``, ``p_stable_required``; ``computed``: the
-    fields of :data:`FIELDS` that were computed (the others are NaN and not reported — see
-    "What is computed" in the module docstring; default: all).
-    """
-
-    stable: np.ndarray
-    n_closed_loop_rhp: np.ndarray
-    gm_db: np.ndarray
-    pm_deg: np.ndarray
-    disk_margin: np.ndarray
-    disk_gm_db: np.ndarray
-    disk_pm_deg: np.ndarray
-    iso_bandwidth_hz: np.ndarray
-    t_peak_db: np.ndarray
-    gm_req_db: float = 6.0
-    pm_req_deg: float = 30.0
-    p_stable_required: float = 0.95
-    labels: tuple | None = None
-    computed: tuple = FIELDS
-    gm_freq_hz: np.ndarray | None = None
-    pm_freq_hz: np.ndarray | None = None
-    cover: EvidenceCover | None = None
-    loop: str = ""
-    uncovered: tuple = ()
-
-    @property
-    def check(self) -> Check:
-        """The three-valued verdict (:class:`hapid.verdict.Check`): ``failed`` when the
-        requirements fail on the plants (:meth:`reasons`); with :attr:`cover` (draws
-        conditioned on a measured band) ``not established`` when the evidence does not cover
-        the frequencies that decide it (:func:`hapid.uncertainty._cover.cover_check`); else
-        ``passed``; ``uncovered`` ``(reason, remedy)``: what the plants do not cover (e.g.
-        parameter draws of a model class that may be wrong) — then a check the plants pass
-        is ``not established``. Its ``name`` states the requirements and :attr:`loop`."""
-        name = f"GM ≥ {self.gm_req_db:g} dB, PM ≥ {self.pm_req_deg:g}°" + (
-            f" ({self.loop})" if self.loop else "")  # fmt: skip
-        if self.cover is not None:
-            return cover_check(self, self.cover, name)
-        why = self.reasons()
-        if why:
-            return Check(Verdict.FAILED, reason="; ".join(why), name=name)
-        if self.uncovered:
-            return Check(Verdict.NOT_ESTABLISHED, reason=self.uncovered[0],
-                         remedy=self.uncovered[1], name=name)  # fmt: skip
-        return Check(Verdict.PASSED, name=name)
-
-    @property
-    def not_computed(self) -> tuple:
-        """Fields of :data:`FIELDS` that were not computed (NaN arrays, ``None`` in
-        :meth:`summary` and :meth:`rows`)."""
-        return tuple(f for f in FIELDS if f not in self.computed)
-
-    def _require(self, name: str):
-        if name not in self.computed:
-            ask = next(k for k, v in METRICS.items() if name in v)
-            raise ValueError(f"RobustReport: {name} was not computed "
-                             f"(robust_check(..., metrics=({ask!r},)))")  # fmt: skip
-
-    @property
-    def n(self) -> int:
-        return int(self.stable.shape[0])
-
-    @property
-    def p_stable(self) -> float:
-        return float(np.mean(self.stable))
-
-    def penalized(self, name: str) -> np.ndarray:
-        """Field ``name`` with unstable plants set to the worst value; GM and PM as
-        magnitudes ``|GM|``, ``|PM|`` (module docstring, "Margin sign convention").
-        Raises ``ValueError`` for a field that was not computed."""
-        self._require(name)
-        v = np.asarray(getattr(self, name), dtype=float)
-        if name in ("gm_db", "pm_deg"):
-            v = np.abs(v)
-        return np.where(self.stable, v, _WORST[name])
-
-    def quantile(self, name: str, q: float) -> float:
-        v = self.penalized(name)
-        # inverted-CDF quantiles: no interpolation between ±inf (which would give NaN)
-        if name == "t_peak_db":  # larger is worse: the q-quantile of badness
-            return float(np.quantile(v, 1.0 - q, method="inverted_cdf"))
-        return float(np.quantile(v, q, method="inverted_cdf"))
-
-    @property
-    def worst(self) -> int:
-        """Index of the worst plant: unstable first, then smallest disk margin, then |GM|;
-        without the disk margin (not computed): unstable first, then smallest |GM|, then |PM|."""
-        if "disk_margin" in self.computed:
-            keys = (self.penalized("gm_db"), self.penalized("disk_margin"), self.stable)
-        else:
-            keys = (self.penalized("pm_deg"), self.penalized("gm_db"), self.stable)
-        return int(np.lexsort(keys)[0])
-
-    @property
-    def passed(self) -> bool:
-        """:attr:`check` passed (a failed or not-established check is not passed)."""
-        return self.check.ok
-
-    def reasons(self) -> list[str]:
-        """Why the check did not pass — one line per failed requirement, with how far the
-        5 % quantile (or ``P(stable)``) is from the requirement and what fraction of plants
-        miss it; empty when it passed."""
-        out = []
-        if self.p_stable < self.p_stable_required:
-            n_bad = int(np.sum(~np.asarray(self.stable, bool)))
-            out.append(f"P(stable) {self.p_stable:.3f} < required {self.p_stable_required:.3f} "
-                       f"({n_bad} of {self.n} plants unstable)")  # fmt: skip
-        for name, req, unit, label in (("gm_db", self.gm_req_db, "dB", "|GM|"),
-                                       ("pm_deg", self.pm_req_deg, "°", "|PM|")):  # fmt: skip
-            q = self.quantile(name, 0.05)
-            if not q >= req:
-                frac = float(np.mean(self.penalized(name) < req))
-                short = (
-                    "unstable plants" if not np.isfinite(q) else f"short by {req - q:.3g} {unit}"
-                )
-                out.append(f"{label} 5 % quantile {q:.4g} {unit} < required {req:g} {unit} ({short}; "
-                           f"{100 * frac:.1f} % of plants below {req:g} {unit})")  # fmt: skip
-        return out
-
-    @property
-    def ok(self) -> bool:
-        """The check passed (:attr:`check`): the requirements are met on the plants *and*
-        the evidence covers them."""
-        return self.check.ok
-
-    @property
-    def status(self) -> Verdict:
-        """The verdict of :attr:`check`: passed / failed / not established."""
-        return self.check.verdict
-
-    def summary(self) -> dict:
-        """Plain-python summary: P(stable), 5 %/50 % quantiles, worst plant, pass/fail;
-        fields not computed are ``None`` and listed under ``not_computed``."""
-        w = self.worst
-        out = {"n": self.n, "p_stable": self.p_stable}
-        for f in FIELDS:
-            ok = f in self.computed
-            out[f"{f}_q05"] = self.quantile(f, 0.05) if ok else None
-            out[f"{f}_q50"] = self.quantile(f, 0.50) if ok else None
-        out["worst_index"] = w
-        out["worst_label"] = None if self.labels is None else self.labels[w]
-        out["worst"] = {f: self._value(f, w) for f in FIELDS} | {"stable": bool(self.stable[w])}
-        out["not_computed"] = list(self.not_computed)
-        out["requirements"] = {"gm_db": self.gm_req_db, "pm_deg": self.pm_req_deg,
-                               "p_stable": self.p_stable_required}  # fmt: skip
-        out["passed"] = self.passed
-        out["reasons"] = self.reasons()
-        ck = self.check
-        out |= {"verdict": ck.verdict.value, "reason": ck.reason, "remedy": ck.remedy,
-                "check": ck.name, "loop": self.loop}  # fmt: skip
-        out["evidence"] = None if self.cover is None else self.cover.summary()
-        return out
-
-    def rows(self) -> list[dict]:
-        """One dict per plant (label, stable, margins, bandwidth; ``None``: not computed)."""
-        rows = []
-        for i in range(self.n):
-            r = {
-                "label": None if self.labels is None else self.labels[i],
-                "stable": bool(self.stable[i]),
-            }
-            r |= {f: self._value(f, i) for f in FIELDS}
-            rows.append(r)
-        return rows
-
-    def _value(self, name: str, i: int):
-        return float(getattr(self, name)[i]) if name in self.computed else None
-
-
-_KEYS = ("stable", "n_closed_loop_rhp") + FIELDS + ("gm_freq_hz", "pm_freq_hz")
-
-
-def _spec(metrics: tuple) -> MetricsSpec:
-    """The :class:`~hapid.control.MetricsSpec` of a robust check: verdict, bandwidth and
-    margins always; the peak of σ̄(T) and the disk margin when ``metrics`` asks for them."""
-    return MetricsSpec(bandwidth=True, margins=True, t_peak="t_peak" in metrics,
-                       disk="disk" in metrics)  # fmt: skip
-
-
-def _fields(m: dict, spec: MetricsSpec) -> dict:
-    keys = ("stable", "n_closed_loop_rhp", "gm_db", "pm_deg", "iso_bandwidth_hz", "gm_freq_hz",
-            "pm_freq_hz")  # fmt: skip
-    out = {k: m[k] for k in keys}
-    nan = jnp.full_like(m["gm_db"], jnp.nan)
-    out["t_peak_db"] = m["t_peak_db"] if spec.t_peak else nan
-    if spec.disk:  # loop_metrics fills the disk margin's GM/PM (0 when not stable)
-        out |= {k: m[k] for k in ("disk_margin", "disk_gm_db", "disk_pm_deg")}
-    else:
-        out["disk_margin"] = out["disk_gm_db"] = out["disk_pm_deg"] = nan
-    return out
-
-
-@eqx.filter_jit
-def _reference_one(P, p_ol, G, omega):
-    r = analyze_loop(P, G, omega, p_ol)
-    return {k: getattr(r, k) for k in _KEYS}
-
-
-def _reference_chunk(P, p_ol, G, omega):
-    """The LAPACK reference, one plant per call of a jitted ``analyze_loop`` (grid values)."""
-    outs = [_reference_one(P[i], p_ol[i], G, omega) for i in range(P.shape[0])]
-    return {k: np.stack([np.asarray(o[k]) for o in outs]) for k in _KEYS}
-
-
-@eqx.filter_jit
-def _metrics_chunk(P, p_ol, G, omega, spec):
-    def one(P_, p_):
-        return _fields(metrics_screened(P_, G, omega, p_, None, spec), spec)
-
-    return jax.vmap(one)(P, p_ol)
-
-
-def grid_pass_one(P, i, p_ol, G, omega, spec):
-    """The grid pass of plant ``i`` of a chunk (the chunk stays on the device: no slice is
-    dispatched from Python)."""
-    return grid_pass(P[i], G, omega, p_ol[i], spec)
-
-
-_grid_one = partial(jax.jit, static_argnames="spec")(grid_pass_one)
-
-
-@partial(jax.jit, static_argnames="spec")
-def _refine_chunk(grids, spec):
-    """The refinement pass of every plant of a chunk at once (vmapped: its sequential steps
-    are shared by the chunk instead of paid per plant)."""
-    out, tasks = jax.tree.map(lambda *x: jnp.stack(x), *grids)
-    return _fields(refine_many(out, tasks, None, spec), spec)
-
-
-def _analyze_chunk(P, p_ol, G, omega, vectorize, spec):
-    """Per-plant fields of a (padded) chunk: :func:`~hapid.control.loop_metrics`'s program
-    vmapped over the chunk (``vectorize=True``), or its grid pass once per plant and its
-    refinement pass vmapped over the chunk (default)."""
-    if vectorize:
-        return {k: np.asarray(v) for k, v in _metrics_chunk(P, p_ol, G, omega, spec).items()}
-    # the grid pass per plant, not vmapped: a vmapped program keeps the batch axis in front
-    # of the kernels' entry-major layout (measured ~2-3x slower per plant); the refinement
-    # is a few small sequential steps, whose cost is their count, so it is shared
-    grids = [_grid_one(P, np.int32(i), p_ol, G, omega, spec) for i in range(P.shape[0])]
-    return {k: np.asarray(v) for k, v in _refine_chunk(grids, spec).items()}
-
-
-def _pad(x, size):
-    """Pad the leading axis to ``size`` with copies of the last row (no recompile for the
-    last chunk)."""
-    m = x.shape[0]
-    if m == size:
-        return x
-    return jnp.concatenate([x, jnp.broadcast_to(x[-1:], (size - m,) + x.shape[1:])])
+__all__ = [
+    "FIELDS",
+    "METRICS",
+    "RobustReport",
+    "controller_response",
+    "device_plants",
+    "posterior_omega",
+    "robust_check",
+    "robust_omega",
+]
 
 
 @eqx.filter_jit
