@@ -218,7 +218,8 @@ def main(argv=None) -> None:
         print(f"before: {a.before} (git archive → {before}); after: {ROOT}", flush=True)
         if a.data:
             for f in ("run.npz", "frf.npz", "nls.npz", "samples.npz"):
-                shutil.copy(Path(a.data) / f, tmp / f)
+                if (Path(a.data) / f).exists():  # a command whose input is absent fails alone
+                    shutil.copy(Path(a.data) / f, tmp / f)
         else:
             make_data(tmp, a.quick)
         md = ["## Route (whole processes, `python -m hapid …`)", "",

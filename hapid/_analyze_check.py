@@ -14,9 +14,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .tune._check import loop_label
-from .tune._evidence import KAPPA
+from ._constants import KAPPA
 from .verdict import Check, Verdict
+
+
+def loop_label(ts: float | None) -> str:
+    """``"continuous-time controller"`` or ``"controller sampled at F Hz"``."""
+    return "continuous-time controller" if ts is None else f"controller sampled at {1.0 / ts:g} Hz"
 
 
 def margin_words(gm_db: float, pm_deg: float) -> str:

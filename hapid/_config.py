@@ -25,10 +25,17 @@ jax.config.update("jax_enable_x64", True)
 _cache = os.environ.get(
     "HAPID_JAX_CACHE", os.path.join(os.path.expanduser("~"), ".cache", "hapid", "jax")
 )
+
+
+def jax_cache_dir() -> str:
+    """The persistent-cache folder in use (``""``: caching switched off, or not creatable)."""
+    return _cache
+
+
 if _cache:
     try:
         os.makedirs(_cache, exist_ok=True)
         jax.config.update("jax_compilation_cache_dir", _cache)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     except OSError:  # read-only home: run without the persistent cache
-        pass
+        _cache = ""

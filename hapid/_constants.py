@@ -16,6 +16,10 @@ BELOW_NYQUIST = 0.49999
 #: Coherence γ² below this is reported as low (H1 estimates: noise, leakage or nonlinearity).
 COHERENCE_LOW = 0.9
 
+#: Small-gain level κ: beyond the measured band a loop with σ̄(L) ≤ κ has |1 + λ| ≥ 1 − κ, so
+#: GM ≥ 6 dB at any crossing there (κ = 1/2); used by the tuner's evidence and analyze's check.
+KAPPA = 0.5
+
 #: Wall time (s) of ``hapid tune`` with its defaults on cu5 (150 training / 200 held-out draws,
 #: 3 continuation stages, re-check): 340–454 s measured through the CLI on a 2-core machine
 #: (``benchmarks/bench_route.py`` times it): the "expected" time of its progress report and

@@ -330,9 +330,8 @@ def cmd_analyze(a):
     import numpy as np
 
     from . import io, pipeline, scene
-    from ._analyze_check import loop_check, margin_words
+    from ._analyze_check import loop_check, loop_label, margin_words
     from .control import max_siso_gain
-    from .tune._check import loop_label
 
     model = io.load_model(a.model)
     cfg = scene.merge({})

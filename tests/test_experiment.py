@@ -194,3 +194,14 @@ def test_h1_estimator_on_noise_excitation():
         Z_H, Z_T = dev.sampled_impedances(frf.omega)
         assert rel_err(frf.Z_H, Z_H) < 1e-2 and rel_err(frf.Z_T, Z_T) < 1e-2
         assert np.all(np.asarray(frf.Z_H_std) > 0)
+
+
+def test_hann_window_is_scipys_periodic_hann_bit_for_bit():
+    """The segment window is built without importing scipy.signal (start-up time): it must be
+    scipy's periodic Hann exactly, so every FRF estimate is unchanged."""
+    import scipy.signal
+
+    from hapid.experiment._estimate import window_array
+
+    for n in (1, 2, 3, 8, 255, 256, 1000, 4097):
+        assert np.array_equal(window_array("hann", n), scipy.signal.get_window("hann", n)), n

@@ -51,6 +51,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
+from .._aot import cached_jit
 from . import _kernels as K
 from ._lapack import after, lu_det_solve
 from ._loop import loop_arrays, scalar_fields
@@ -870,7 +871,7 @@ def metrics_screened(P, G, omega, p_ol, L_fn, spec):
     return refine_pass(out, tasks, L_fn, spec)
 
 
-_metrics_jit = eqx.filter_jit(metrics_screened)
+_metrics_jit = cached_jit(metrics_screened)
 
 
 def _loop_metrics(P, G, omega, p_ol, L_fn, spec):

@@ -26,6 +26,7 @@ import numpy as np
 from jaxtyping import Array, Complex, Float, Int
 
 from .. import _config  # noqa: F401  (float64)
+from .._aot import cached_jit
 from .._constants import TWO_PI
 from ..control import MetricsSpec, loop_metrics
 from ..control import nyquist_verdict as verdict  # noqa: F401  (re-exported: the one stability rule)
@@ -72,14 +73,14 @@ def _sampled_device_response(device, sys=None) -> SystemResponse:
     return SystemResponse(sys, int(device.n), int(device.delay_samples))
 
 
-@eqx.filter_jit
+@cached_jit
 def _sampled_device(device, omega):
     """``(device.sampled_P(omega), device.discrete())`` as one compiled program (op by op,
     the small matrix algebra of the realization compiles a program per operation)."""
     return device.sampled_P(omega), device.discrete()
 
 
-@eqx.filter_jit
+@cached_jit
 def _controller_parts(controller, omega):
     """``(G on omega, open-loop RHP poles of G, sampled realization or None)`` of a
     :class:`hapid.pipeline.Controller` as one compiled program."""

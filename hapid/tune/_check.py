@@ -23,15 +23,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._analyze_check import loop_label  # noqa: F401  (re-exported)
+from .._constants import KAPPA
 from ..verdict import Check, Verdict
-from ._evidence import KAPPA
 
 FRF_FLOOR = 0.5  # min |1 + λ_i| ≥ 0.5 on the measured loop ⇒ loci GM ≥ 6 dB, PM ≥ 29° there
-
-
-def loop_label(ts: float | None) -> str:
-    """``"continuous-time controller"`` or ``"controller sampled at F Hz"``."""
-    return "continuous-time controller" if ts is None else f"controller sampled at {1.0 / ts:g} Hz"
 
 
 def design_check(row: dict, *, gm_db: float, pm_deg: float, quantile: float, ts=None,

@@ -45,11 +45,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from .._constants import KAPPA  # noqa: F401  (re-exported: σ̄(L) ≤ κ beyond the evidence)
 from ..control import Compensator
 from ..impedance import plant
 from ._response import g_response
 
-KAPPA = 0.5  # σ̄(L) ≤ κ beyond the evidence: |1 + λ| ≥ 1/2 ⇒ GM ≥ 6 dB at crossings there
 TOP_BAND = 2.0**-0.5  # the mismatch bound is read over [ω_e / √2, ω_e] (top half-octave)
 BEYOND_DECADES = 1.5  # the small-gain grid spans ω_e … ω_e · 10^1.5
 BEYOND_N = 120
