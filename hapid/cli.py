@@ -8,19 +8,17 @@ import argparse
 import os
 import sys
 import warnings
-from pathlib import Path
 
-from ._cli_device import add_device_args, describe, device_from_args
-from ._cli_kw import (  # noqa: F401  (uncertified_warning: part of the CLI's API)
-    device_or_none,
-    posterior_kw,
-    robust_metrics,
-    tune_kw,
-    uncertified_warning,
-)
-from ._cli_verdict import check_line, verdict_lines
+from ._cli_analyze import FEW_FRF_FREQUENCIES, cmd_analyze  # noqa: F401  (the command's API)
+from ._cli_device import add_device_args
+from ._cli_errors import CLIError
+from ._cli_kw import uncertified_warning  # noqa: F401  (part of the CLI's API)
+from ._cli_measure import cmd_demo, cmd_fit, cmd_frf, cmd_simulate
+from ._cli_processes import _PROCESSES_HELP
+from ._cli_scene import cmd_paper, cmd_run, cmd_sweep
+from ._cli_uq import cmd_posterior, cmd_robust, cmd_tune
 from ._constants import TUNE_EXPECTED_S
-from .defaults import DRAWS, FIT_BAND_HZ, FS_HZ, GM_DB, N_DRAWS, NLS_MAX_STEPS, NPERSEG, PM_DEG
+from .defaults import DRAWS, FIT_BAND_HZ, FS_HZ, GM_DB, N_DRAWS, NLS_MAX_STEPS, PM_DEG
 
 EXAMPLES = """examples:
   hapid simulate --device cu5 --out run.npz            # the paper's protocol on cu5
@@ -36,10 +34,6 @@ EXAMPLES = """examples:
   hapid run scenes/zh_only.toml                        # a scene: only the stages it needs
   hapid design run.npz --out out/design                # fits, robust check, tuned g, verdict, report.html
 """
-
-
-class CLIError(Exception):
-    pass
 
 
 def _protocol_args(p):
@@ -63,129 +57,6 @@ def _protocol_args(p):
     g.add_argument(
         "--encoder-res", type=float, default=2e-6, help="encoder resolution (m), 0 = off"
     )
-
-
-def _protocol(a):
-    from .experiment import Protocol, paper_frequencies
-
-    freqs = paper_frequencies() if a.freqs == "paper" else [float(x) for x in a.freqs.split(",")]
-    return Protocol(
-        freq_hz=tuple(freqs), fs_hz=a.fs, period_samples=a.period, n_periods=a.periods,
-        transient_periods=a.transient, pattern=a.pattern, amplitude=a.amplitude,
-        phases=a.phases, seed=a.seed, force_noise=a.noise, position_noise=a.position_noise,
-        encoder_resolution=a.encoder_res,
-    )  # fmt: skip
-
-
-def cmd_simulate(a):
-    from . import io
-    from .experiment import periodic_run, time_domain_run
-
-    dev, prot = device_from_args(a, fs_hz=a.fs), _protocol(a)
-    if a.time_domain or a.friction:
-        run = time_domain_run(dev, prot, friction=a.friction)
-        how = "time-domain" + (" with Coulomb friction" if a.friction else "")
-    else:
-        run = periodic_run(dev, prot)
-        how = "periodic steady state"
-    out = io.save_run(a.out, run)
-    E, T, n = run.R_A.shape
-    print(f"simulated {describe(a)} ({how}): E={E} experiments × {T} samples × n={n} rods, "
-          f"{len(run.freq_hz)} frequencies {run.freq_hz.min():g}–{run.freq_hz.max():g} Hz → {out}")  # fmt: skip
-
-
-def _run_frf(a, run, estimate_frf, estimate_frf_h1):
-    """The haptic pair from a run file: periodic estimate, or H1 with ``--h1``."""
-    if a.h1:
-        frf = estimate_frf_h1(run.fs_hz, run.R_A, run.R_I, run.L, nperseg=a.nperseg or NPERSEG,
-                              f_band_hz=(a.f_min_hz or 0.0, a.f_max_hz or run.fs_hz / 2),
-                              window=a.window)  # fmt: skip
-    else:
-        frf = estimate_frf(run, cond_warn=a.cond_warn)
-    return frf
-
-
-def cmd_frf(a):
-    import numpy as np
-
-    from . import io
-    from .experiment import estimate_frf, estimate_frf_h1, low_coherence_note
-
-    kind = (
-        "timeseries"
-        if a.add or a.force_key != "force"
-        else io.file_kind(a.run, "a run file or a time-series file")
-    )
-    if kind in ("timeseries", "unknown"):  # unknown: the reader names the arrays it found
-        from ._cli_lab import run_frf_lab
-
-        return run_frf_lab(a)  # lab records → single impedance Z = F/x
-    if kind != "run":
-        raise CLIError(f"{a.run}: holds a {kind} file; hapid frf takes a run file (R_A, R_I, L) "
-                       "or a time series (fs_hz, force, response)")  # fmt: skip
-    run = io.load_run(a.run)
-    if a.h1 and a.f_max_hz is not None and a.f_max_hz > run.fs_hz / 2:
-        print(f"note: --f-max-hz {a.f_max_hz:g} is above the Nyquist frequency: the FRF ends at "
-              f"fs/2 = {run.fs_hz / 2:g} Hz")  # fmt: skip
-    for opt, v in (
-        ("--estimate", a.estimate != "auto"),
-        ("--force-window", a.force_window),
-        ("--exp-tau", a.exp_tau),
-    ):
-        if v:
-            raise CLIError(f"{opt} is for lab time series (force, response); {a.run} is a run file")
-    try:
-        frf = _run_frf(a, run, estimate_frf, estimate_frf_h1)
-    except ValueError as e:
-        raise CLIError(f"{a.run}: {e}") from None
-    out = io.save_frf(a.out, frf)
-    rel = np.asarray(frf.Z_H_std) / np.abs(np.asarray(frf.Z_H)) if frf.Z_H_std is not None else None
-    print(f"FRF (haptic pair Z_H, Z_T in N/m{', H1' if a.h1 else ''}): {frf.Z_H.shape[0]} "
-          f"frequencies, n={frf.n}; cond(𝓛) "
-          f"{float(np.min(frf.cond_L)):.3g}–{float(np.max(frf.cond_L)):.3g}" +
-          (f"; median relative std of Z_H {np.median(rel):.2e}" if rel is not None else "") +
-          f" → {out}")  # fmt: skip
-    if a.h1 and frf.coherence_H is None:
-        print("note: no coherence: no more Welch segments (over all experiments) than rods, "
-              "where γ² is identically 1; give longer records or a smaller --nperseg")  # fmt: skip
-    elif a.h1:
-        f = np.asarray(frf.freq_hz)
-        for name, g, sig in (("Z_H", frf.coherence_H, "R_I"), ("Z_T", frf.coherence_T, "R_A")):
-            g = np.asarray(g)
-            print(f"coherence γ² of {name} ({sig} on L): median {np.median(g):.3f}, "
-                  f"min {g.min():.3f}")  # fmt: skip
-            if low := low_coherence_note(f, g):
-                warnings.warn(f"{name}: {low} (noise, leakage or nonlinearity there)",
-                              stacklevel=1)  # fmt: skip
-    if a.plot:
-        from . import plot
-
-        fig, _ = plot.frf_overview(frf)
-        plot.save(fig, a.plot)
-        print(f"figure → {a.plot}")
-
-
-def cmd_demo(a):
-    import numpy as np
-
-    from . import io, plot
-    from .experiment import Protocol, estimate_frf, periodic_run
-    from .impedance import span_db
-
-    out = Path(a.out)
-    dev = device_from_args(a)
-    run = periodic_run(dev, Protocol())
-    frf = estimate_frf(run)
-    io.save_run(out / "run.npz", run)
-    io.save_frf(out / "frf.npz", frf)
-    fig, _ = plot.frf_overview(frf, title_prefix=f"{describe(a)}: ")
-    plot.save(fig, out / "frf_singular_values.png")
-    span = np.asarray(span_db(frf.P))
-    f = np.asarray(frf.freq_hz)
-    band = f <= 30
-    print(f"{describe(a)}: plant singular-value span over {f[band].min():g}–{f[band].max():g} Hz: "
-          f"{span[band].min():.1f}–{span[band].max():.1f} dB (paper: 25–50 dB)")  # fmt: skip
-    print(f"wrote {out / 'run.npz'}, {out / 'frf.npz'}, {out / 'frf_singular_values.png'}")
 
 
 def _register_lab_frf_args(f):
@@ -244,54 +115,6 @@ def build_parser() -> argparse.ArgumentParser:
     return annotate(p)  # missing help texts; every option's default in its help
 
 
-def cmd_paper(a):
-    import time
-
-    from . import scene
-
-    cfg = scene.load_scene(a.scene) if a.scene else scene.merge({})
-    want = ["fig5", "fig6", "fig7", "fig8", "fig9", "fig10", "summary", "frf_file", "model_files"]
-    t0 = time.perf_counter()
-    _, log = scene.run_scene(cfg, want, out_dir=a.out, cache_dir=None if a.no_cache else a.cache,
-                             progress=lambda name: print(f"  … {name}", flush=True))  # fmt: skip
-    out = Path(a.out)
-    print((out / "summary.md").read_text())
-    print(f"computed {len(log['computed'])} stages ({len(log['cached'])} from cache) in "
-          f"{time.perf_counter() - t0:.1f} s")  # fmt: skip
-    print("per stage: " + ", ".join(f"{k} {v:.1f} s" + (" (cache)" if k in log["cached"] else "")
-                                     for k, v in log["seconds"].items()))  # fmt: skip
-    print(f"figures: {', '.join(str(out / f'fig{i}.png') for i in range(5, 11))}")
-    print(f"summary: {out / 'summary.md'}, {out / 'summary.json'}")
-
-
-def cmd_run(a):
-    import time
-
-    from . import scene
-
-    cfg = scene.load_scene(a.scene)
-    for kv in a.set or []:
-        key, _, val = kv.partition("=")
-        cfg = scene.set_option(cfg, key, _parse_value(val))
-    want = a.outputs.split(",") if a.outputs else None
-    t0 = time.perf_counter()
-    res, log = scene.run_scene(cfg, want, out_dir=a.out, cache_dir=None if a.no_cache else a.cache,
-                               progress=lambda name: print(f"  … {name}", flush=True))  # fmt: skip
-    print(f"computed: {', '.join(log['computed']) or '—'}; from cache: {', '.join(log['cached']) or '—'} "
-          f"({time.perf_counter() - t0:.1f} s)")  # fmt: skip
-    print("per stage: " + ", ".join(f"{k} {v:.1f} s" for k, v in log["seconds"].items()))
-    print(f"outputs in {a.out or cfg['outputs']['dir']}")
-
-
-def _parse_value(val: str):
-    import json
-
-    try:
-        return json.loads(val)
-    except json.JSONDecodeError:
-        return val
-
-
 def _register_scene(sub):
     p = sub.add_parser("paper", help="reproduce the paper's figures 5–10 and summary table",
                        description="Reproduce Lee, Lawrence & Pao's figures 5–10 on the simulated "
@@ -314,210 +137,6 @@ def _register_scene(sub):
     r.add_argument("--cache", default=".hapid_cache/stages", help="stage cache folder")
     r.add_argument("--no-cache", action="store_true")
     r.set_defaults(func=cmd_run)
-
-
-def cmd_fit(a):
-    from ._cli_fit import run_fit
-
-    run_fit(a)
-
-
-FEW_FRF_FREQUENCIES = 200  # an FRF with fewer points may leave the Nyquist count unresolved
-
-
-def cmd_analyze(a):
-
-    import numpy as np
-
-    from . import io, pipeline, scene
-    from ._analyze_check import loop_check, loop_label, margin_words
-    from .control import max_siso_gain
-
-    model = io.load_model(a.model)
-    cfg = scene.merge({})
-    note = ""
-    if a.design:
-        from .tune import load_design
-
-        g, _ = load_design(a.design)  # --k with --design: refused by hapid._cli_checks
-    else:
-        g = scene.compensator(cfg["controller"] | ({"k": a.k} if a.k is not None else {}))
-    if a.frf:
-        frf = io.load_frf(a.frf)
-        ts = None if a.continuous else 1.0 / a.fs
-        plant = pipeline.frf_plant(frf, ts)
-        if ts is not None and float(np.max(frf.freq_hz)) > 0.5 * a.fs:
-            raise CLIError(f"{a.frf} extends to {float(np.max(frf.freq_hz)):g} Hz, beyond the sampled "
-                           f"controller's Nyquist frequency fs/2 = {0.5 * a.fs:g} Hz (--fs {a.fs:g}); "
-                           "give the FRF's real sampling rate with --fs, or use --continuous")  # fmt: skip
-        f_hz = np.asarray(frf.freq_hz, dtype=float)
-        note = (f"note: the measured FRF has {f_hz.size} frequencies, {f_hz[0]:g}–{f_hz[-1]:g} Hz: "
-                "the Nyquist count runs over that band only; margins and bandwidth are read on the "
-                "FRF grid")  # fmt: skip
-        if f_hz.size < FEW_FRF_FREQUENCIES:
-            note += " (few frequencies: the count needs a dense grid and may be unresolved)"
-    else:
-        dev = device_from_args(a)
-        if dev.n != model.n:
-            raise CLIError(f"model has n = {model.n} rods but device {a.device} has {dev.n}")
-        if a.continuous:
-            omega = pipeline.analysis_grid(5e-3, int(cfg["analysis"]["n_freq"]), f_max_hz=5e3)
-        else:
-            omega = scene.analysis_grid(cfg["analysis"], dev.fs_hz)
-        plant = pipeline.device_plant(dev, omega, continuous=a.continuous)
-        ts = None if a.continuous else dev.ts
-    if plant.n != model.n:
-        raise CLIError(f"model has n = {model.n} rods but the plant has {plant.n}")
-    c = None
-    if a.controller == "mimo":
-        ctrl = pipeline.controller(model, g, ts=ts)
-    else:
-        if a.siso_gain is None:
-            gs = pipeline.controller(None, g, kind="siso", n=model.n, ts=ts)
-            gd = np.asarray(gs.response(plant.omega))[:, 0, 0]
-            c = float(max_siso_gain(np.asarray(plant.P), np.asarray(plant.omega), gd))
-        else:
-            c = a.siso_gain
-        ctrl = pipeline.controller(None, g, kind="siso", c=c, n=model.n, ts=ts)
-    rep = pipeline.loop(ctrl, plant)
-    s = rep.summary()
-    out = {"controller": a.controller, "siso_gain": c, "continuous": bool(a.continuous),
-           "design": a.design, "controller_rhp_poles": int(ctrl.p_rhp),
-           "loop": loop_label(ts), **s}  # fmt: skip
-    if a.gm_db is not None or a.pm_deg is not None:  # the requirement check, printed first
-        band = top = None
-        if a.frf:
-            band = (float(frf.freq_hz[0]), float(frf.freq_hz[-1]))
-            w = np.asarray(plant.omega)[-1:]
-            L = np.asarray(plant.P)[-1:] @ np.asarray(ctrl.response(w))
-            top = float(np.linalg.svd(L, compute_uv=False)[0, 0])
-        ck = loop_check(s, gm_db=6.0 if a.gm_db is None else a.gm_db,
-                        pm_deg=30.0 if a.pm_deg is None else a.pm_deg, ts=ts,
-                        frf_band_hz=band, top_loop_gain=top)  # fmt: skip
-        out |= {"verdict": ck.verdict.value, "reason": ck.reason, "remedy": ck.remedy,
-                "check": ck.name}  # fmt: skip
-        print(check_line(ck))
-    if note:
-        print(note)
-    if a.out:
-        io.save_json(a.out, out)
-    verdict = (
-        "STABLE"
-        if s["stable"]
-        else ("UNSTABLE" if s.get("nyquist_resolved", True) else "UNDECIDED (grid too coarse)")
-    )
-    kind = f"sampled at {1 / ts:g} Hz" if ts else "continuous-time"
-    print(f"closed loop ({kind} controller): {verdict} (generalized Nyquist, {s['n_encirclements']} "
-          f"encirclements, {int(ctrl.p_rhp)} open-loop RHP pole(s) of the controller)")  # fmt: skip
-    if s["stable"]:
-        print(f"isotropic bandwidth {s['iso_bandwidth_hz']:.2f} Hz (paper-literal "
-              f"{s['iso_bandwidth_literal_hz']:.2f} Hz); {margin_words(s['gm_db'], s['pm_deg'])}, "
-              f"disk margin α {s['disk_margin']:.3f}; peak σ̄(T) {s['t_peak_db']:.1f} dB at "
-              f"{s['t_peak_hz']:.1f} Hz")  # fmt: skip
-    else:
-        print("no bandwidth reported for a loop that is not stable")
-    if c is not None:
-        print(f"SISO gain c = {c:.4g}")
-    if a.out:
-        print(f"report → {a.out}")
-
-
-def cmd_posterior(a):
-    from .fit import FitFailedError
-    from .uncertainty import posterior_from_files
-
-    try:
-        ps = posterior_from_files(a.frf, a.out, **posterior_kw(a))
-    except FitFailedError as e:
-        raise CLIError(f"{a.frf}: the NLS fit the posterior is built around did not converge "
-                       f"({e}); no samples written: give more steps (--max-steps, default "
-                       f"{NLS_MAX_STEPS}) or check the fit with hapid fit {a.frf} --method nls") from e  # fmt: skip
-    eps = float(ps.diagnostics.get("fit_pd_eps", 0.0))
-    if eps > 0:  # the same note and metadata as hapid fit (diag_fit_pd_eps in the file)
-        print(f"note: fit refitted with pd_eps = {eps:g}: the PSD-boundary fit put a root of "
-              "det Ẑ_H at ∞ or on the imaginary axis (--keep-boundary keeps that fit); the "
-              "posterior is built around the refitted model, as hapid fit writes it")  # fmt: skip
-    print(ps.summary())
-    print(f"samples → {a.out}")
-
-
-_PROCESSES_HELP = (
-    "split the work over N local processes joined by jax.distributed (results "
-    "identical to one process); on a cluster set HAPID_COORDINATOR, "
-    "HAPID_NUM_PROCESSES, HAPID_PROCESS_ID instead (docs/distributed.md); default: one process"
-)
-
-
-def _is_main() -> bool:
-    from ._distributed import is_main
-
-    return is_main()
-
-
-def cmd_robust(a):
-    if not _is_main():  # jax.distributed: compute this process's share, process 0 reports
-        _robust_worker(a)
-        return
-
-    from .io import to_json
-    from .robust import robust_from_files, side_by_side
-
-    dev = device_or_none(a)
-    if len(a.model) == 1:
-        res = robust_from_files(a.samples, a.model[0], a.out, **_robust_kw(a, dev))
-        for line in verdict_lines(res):
-            print(line)
-        print(to_json(res)[:4000])
-        print(_draws_line(res["posterior"]["draws"]))
-    else:
-        res = {
-            Path(m).stem: robust_from_files(a.samples, m, None, **_robust_kw(a, dev))
-            for m in a.model
-        }
-        for name, r in res.items():
-            for line in verdict_lines(r):
-                print(f"{name}: {line}")
-        print(side_by_side(res))
-        for name, r in res.items():
-            print(f"{name}: {_draws_line(r['posterior']['draws'])}")
-        if a.out:
-            from .io import save_json
-
-            save_json(a.out, res)
-    if not a.all_metrics:
-        print("disk margin and peak of σ̄(T): not computed (null; add --all-metrics)")
-    if a.out:
-        print(f"report → {a.out}")
-
-
-def _robust_kw(a, dev) -> dict:
-    """The options of ``hapid robust`` for :func:`hapid.robust.robust_from_files`
-    (``dev``: the device of the ``--device`` options, or None)."""
-    return {"frf_path": a.frf, "draws": a.draws, "gm_db": a.gm_db, "pm_deg": a.pm_deg,
-            "max_samples": a.max_samples, "device": dev, "n_subjects": a.subjects,
-            "metrics": robust_metrics(a), "ts": None if a.fs is None else 1.0 / a.fs}  # fmt: skip
-
-
-def _draws_line(d: dict) -> str:
-    """One line saying which draws the posterior check used and what they cover."""
-    if d["draws"] != "loop_gp":
-        return "draws: " + d["note"]
-    lo, hi = d["measured_hz"]
-    return (f"draws: loop GP conditioned on the measured FRF {lo:g}–{hi:g} Hz "
-            f"(ℓ = {d['ell']:.2g} in ln ω), {d['loop']}; loop gain above {hi:g} Hz ≤ "
-            f"{d['beyond_loop_gain']:.3g} (covered by the draws only when ≤ 0.5: see the verdict)"
-            + (f"; isotropic bandwidth {d['iso_bandwidth_nominal_hz']:.2f} Hz (measured-FRF-"
-               f"conditioned loop), draws 5–95 % {d['iso_bandwidth_interval_hz'][0]:.2f}–"
-               f"{d['iso_bandwidth_interval_hz'][1]:.2f} Hz"
-               if d.get("iso_bandwidth_nominal_hz") and d.get("iso_bandwidth_interval_hz") else ""))  # fmt: skip
-
-
-def _robust_worker(a):
-    from .robust import robust_from_files
-
-    dev = device_or_none(a)
-    for m in a.model:
-        robust_from_files(a.samples, m, None, **_robust_kw(a, dev))
 
 
 def _register_stages(sub):
@@ -634,39 +253,6 @@ def _register_stages(sub):
     ro.set_defaults(func=cmd_robust)
 
 
-def cmd_sweep(a):
-    import time
-
-    import numpy as np
-
-    from . import scene, sweep
-
-    cfg = scene.load_scene(a.scene)
-    vary = {}
-    for item in a.vary:
-        key, _, vals = item.partition("=")
-        if not vals:
-            raise CLIError(f"--vary needs key=v1,v2,…; got {item!r}")
-        try:
-            vary[key] = [float(v) for v in vals.split(",")]
-        except ValueError:
-            raise CLIError(f"--vary {key}: values must be numbers, got {vals!r}") from None
-    t0 = time.perf_counter()
-    keys, rows, metrics = sweep.run_sweep(cfg, vary, chunk=a.chunk, estimator=a.estimator)
-    if not _is_main():
-        return  # jax.distributed: process 0 writes the results (all processes hold them)
-    out = Path(a.out)
-    csv_path = sweep.write_csv(out / "sweep.csv", keys, rows, metrics)
-    fig_path = sweep.plot_sweep(keys, rows, metrics, out / "sweep.png")
-    ok = np.asarray(metrics["stable"], bool)
-    print(f"{rows.shape[0]} configurations in {time.perf_counter() - t0:.1f} s; stable: {ok.sum()}; "
-          f"iso-bandwidth {np.nanmin(metrics['iso_bandwidth_hz']):.2f}–{np.nanmax(metrics['iso_bandwidth_hz']):.2f} Hz"
-          if ok.any() else f"{rows.shape[0]} configurations; none stable")  # fmt: skip
-    print(sweep.STAND_IN_NOTE)
-    (out / "sweep_note.txt").write_text(sweep.STAND_IN_NOTE + "\n")
-    print(f"table → {csv_path}; figure → {fig_path}; note → {out / 'sweep_note.txt'}")
-
-
 def _register_sweep(sub):
     sw = sub.add_parser("sweep", help="batched sweep over numeric scene options (one compiled vmap)",
                         description="Evaluate a scene's pipeline over the Cartesian product of "
@@ -688,50 +274,6 @@ def _register_sweep(sub):
     sw.add_argument("--processes", type=int, default=None, help=_PROCESSES_HELP)
     sw.add_argument("--out", default="out/sweep")
     sw.set_defaults(func=cmd_sweep)
-
-
-def cmd_tune(a):
-
-    import time
-
-    from .tune import tune_from_files
-    from .tune._progress import TuneProgress
-
-    t = time.perf_counter()
-    bar = TuneProgress(enabled=not a.quiet)
-    try:
-        res = tune_from_files(a.model, a.samples, a.out, **tune_kw(a), progress=bar)
-    finally:
-        bar.close()
-    r = res["result"]
-    if r.check is not None:  # the verdict first: passed / failed / not established, for which loop
-        print(check_line(r.check))
-    print(res.get("decision", ""))
-    print(f"tuned in {r.wall_s:.1f} s: claimed robust bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, "
-          f"smooth constraints {'met' if r.feasible else 'NOT met'} on the training scenarios")  # fmt: skip
-    if r.gain_backoff < 1.0:  # a gain back-off: the first sign of a collapse
-        print(f"  the tuner started from g with its gain scaled by {r.gain_backoff:.3g}: at full gain it "
-              "left more training loops unstable than the quantile allows (hapid.tune.gain_backoff)")  # fmt: skip
-    for p in r.parameters():
-        print(f"  {p['name']:16s} {p['start']:10.4g} → {p['tuned']:10.4g}")
-    tab = res.get("table", {})
-    if tab:
-        from ._cli_predict import recheck_table
-
-        print("non-smooth re-check (held-out samples / true plant / time domain):")
-        print(recheck_table(tab["start"], tab["tuned"]))
-        ret = tab.get("returned") or tab["start" if res.get("kept_start") else "tuned"]
-        warn = uncertified_warning(ret)
-        if warn:
-            print(warn)
-    if a.report:
-        from .io import save_json
-
-        save_json(a.report, {"start": tab.get("start"), "tuned": tab.get("tuned"), "constraints": r.constraints,
-                             "history": r.history, "parameters": r.parameters(), "loop": res.get("loop")}
-                  | ({} if r.check is None else {"verdict": r.check.verdict.value, "reason": r.check.reason,
-                                                 "remedy": r.check.remedy}))  # fmt: skip
-    print(f"design → {a.out} ({time.perf_counter() - t:.1f} s)")
 
 
 def _register_tune(sub):

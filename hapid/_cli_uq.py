@@ -1,0 +1,142 @@
+"""The commands of ``hapid`` that work over uncertainty: ``posterior`` (samples of M, B, K),
+``robust`` (the margins of a nominal controller over draws) and ``tune`` (a robust g by
+gradients). Library imports stay inside the commands (start-up time)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ._cli_errors import CLIError
+from ._cli_kw import device_or_none, posterior_kw, robust_metrics, tune_kw, uncertified_warning
+from ._cli_processes import _is_main
+from ._cli_verdict import check_line, verdict_lines
+from .defaults import NLS_MAX_STEPS
+
+
+def cmd_posterior(a):
+    from .fit import FitFailedError
+    from .uncertainty import posterior_from_files
+
+    try:
+        ps = posterior_from_files(a.frf, a.out, **posterior_kw(a))
+    except FitFailedError as e:
+        raise CLIError(f"{a.frf}: the NLS fit the posterior is built around did not converge "
+                       f"({e}); no samples written: give more steps (--max-steps, default "
+                       f"{NLS_MAX_STEPS}) or check the fit with hapid fit {a.frf} --method nls") from e  # fmt: skip
+    eps = float(ps.diagnostics.get("fit_pd_eps", 0.0))
+    if eps > 0:  # the same note and metadata as hapid fit (diag_fit_pd_eps in the file)
+        print(f"note: fit refitted with pd_eps = {eps:g}: the PSD-boundary fit put a root of "
+              "det Ẑ_H at ∞ or on the imaginary axis (--keep-boundary keeps that fit); the "
+              "posterior is built around the refitted model, as hapid fit writes it")  # fmt: skip
+    print(ps.summary())
+    print(f"samples → {a.out}")
+
+
+def cmd_robust(a):
+    if not _is_main():  # jax.distributed: compute this process's share, process 0 reports
+        _robust_worker(a)
+        return
+
+    from .io import to_json
+    from .robust import robust_from_files, side_by_side
+
+    dev = device_or_none(a)
+    if len(a.model) == 1:
+        res = robust_from_files(a.samples, a.model[0], a.out, **_robust_kw(a, dev))
+        for line in verdict_lines(res):
+            print(line)
+        print(to_json(res)[:4000])
+        print(_draws_line(res["posterior"]["draws"]))
+    else:
+        res = {
+            Path(m).stem: robust_from_files(a.samples, m, None, **_robust_kw(a, dev))
+            for m in a.model
+        }
+        for name, r in res.items():
+            for line in verdict_lines(r):
+                print(f"{name}: {line}")
+        print(side_by_side(res))
+        for name, r in res.items():
+            print(f"{name}: {_draws_line(r['posterior']['draws'])}")
+        if a.out:
+            from .io import save_json
+
+            save_json(a.out, res)
+    if not a.all_metrics:
+        print("disk margin and peak of σ̄(T): not computed (null; add --all-metrics)")
+    if a.out:
+        print(f"report → {a.out}")
+
+
+def _robust_kw(a, dev) -> dict:
+    """The options of ``hapid robust`` for :func:`hapid.robust.robust_from_files`
+    (``dev``: the device of the ``--device`` options, or None)."""
+    return {"frf_path": a.frf, "draws": a.draws, "gm_db": a.gm_db, "pm_deg": a.pm_deg,
+            "max_samples": a.max_samples, "device": dev, "n_subjects": a.subjects,
+            "metrics": robust_metrics(a), "ts": None if a.fs is None else 1.0 / a.fs}  # fmt: skip
+
+
+def _draws_line(d: dict) -> str:
+    """One line saying which draws the posterior check used and what they cover."""
+    if d["draws"] != "loop_gp":
+        return "draws: " + d["note"]
+    lo, hi = d["measured_hz"]
+    return (f"draws: loop GP conditioned on the measured FRF {lo:g}–{hi:g} Hz "
+            f"(ℓ = {d['ell']:.2g} in ln ω), {d['loop']}; loop gain above {hi:g} Hz ≤ "
+            f"{d['beyond_loop_gain']:.3g} (covered by the draws only when ≤ 0.5: see the verdict)"
+            + (f"; isotropic bandwidth {d['iso_bandwidth_nominal_hz']:.2f} Hz (measured-FRF-"
+               f"conditioned loop), draws 5–95 % {d['iso_bandwidth_interval_hz'][0]:.2f}–"
+               f"{d['iso_bandwidth_interval_hz'][1]:.2f} Hz"
+               if d.get("iso_bandwidth_nominal_hz") and d.get("iso_bandwidth_interval_hz") else ""))  # fmt: skip
+
+
+def _robust_worker(a):
+    from .robust import robust_from_files
+
+    dev = device_or_none(a)
+    for m in a.model:
+        robust_from_files(a.samples, m, None, **_robust_kw(a, dev))
+
+
+def cmd_tune(a):
+
+    import time
+
+    from .tune import tune_from_files
+    from .tune._progress import TuneProgress
+
+    t = time.perf_counter()
+    bar = TuneProgress(enabled=not a.quiet)
+    try:
+        res = tune_from_files(a.model, a.samples, a.out, **tune_kw(a), progress=bar)
+    finally:
+        bar.close()
+    r = res["result"]
+    if r.check is not None:  # the verdict first: passed / failed / not established, for which loop
+        print(check_line(r.check))
+    print(res.get("decision", ""))
+    print(f"tuned in {r.wall_s:.1f} s: claimed robust bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, "
+          f"smooth constraints {'met' if r.feasible else 'NOT met'} on the training scenarios")  # fmt: skip
+    if r.gain_backoff < 1.0:  # a gain back-off: the first sign of a collapse
+        print(f"  the tuner started from g with its gain scaled by {r.gain_backoff:.3g}: at full gain it "
+              "left more training loops unstable than the quantile allows (hapid.tune.gain_backoff)")  # fmt: skip
+    for p in r.parameters():
+        print(f"  {p['name']:16s} {p['start']:10.4g} → {p['tuned']:10.4g}")
+    tab = res.get("table", {})
+    if tab:
+        from ._cli_predict import recheck_table
+
+        print("non-smooth re-check (held-out samples / true plant / time domain):")
+        print(recheck_table(tab["start"], tab["tuned"]))
+        ret = tab.get("returned") or tab["start" if res.get("kept_start") else "tuned"]
+        warn = uncertified_warning(ret)
+        if warn:
+            print(warn)
+    if a.report:
+        from .io import save_json
+
+        save_json(a.report, {"start": tab.get("start"), "tuned": tab.get("tuned"), "constraints": r.constraints,
+                             "history": r.history, "parameters": r.parameters(), "loop": res.get("loop")}
+                  | ({} if r.check is None else {"verdict": r.check.verdict.value, "reason": r.check.reason,
+                                                 "remedy": r.check.remedy}))  # fmt: skip
+    print(f"design → {a.out} ({time.perf_counter() - t:.1f} s)")
