@@ -183,7 +183,7 @@ def _why(bd, budget, what, whole="loop_metrics: everything"):
             f"(L, det/inverse, eigenvalues {fs(eig)}, pairing, σ̄ bounds, each timed on its own), "
             "and the loci rules (resolution of every 1 + λᵢ, the margin candidates) need the "
             "eigenvalues of L on every interval they can act on: the exact disc screen "
-            "(_metrics._loci_screen) leaves out 66 % of the intervals on the default loop draws "
+            "(_metrics_loci._loci_screen) leaves out 66 % of the intervals on the default loop draws "
             "(section 3) and 7 % on these parameter draws, whose loci spread about their mean; "
             "other screens decide less (benchmarks/study_loci_screen.py: Gershgorin discs in a "
             "neighbour's eigenbasis leave > 75 % undecided; root counts of the characteristic "
@@ -304,7 +304,7 @@ def loop_draws_row(sec: Section, S: int):
     per-draw loop and the per-plant reference's verdicts, on the same plant arrays."""
     from calibrate_robust import draws, setup
 
-    import hapid.control._metrics as M
+    import hapid.control._metrics_loci as M
     import hapid.uncertainty._robust_chunks as R
     from hapid.control import Compensator, controller_unstable_poles, inverse_model_response
     from hapid.device import cu5

@@ -214,7 +214,7 @@ def test_illinois_returns_the_root_where_false_position_converges_from_one_side(
     import jax
     from scipy.optimize import brentq
 
-    from hapid.control._metrics import _illinois
+    from hapid.control._metrics_local import _illinois
 
     shifts = np.array([0.1, 0.37, 0.5, 0.93])
 

@@ -1,4 +1,4 @@
-"""The loci screen of loop_metrics (``_metrics._loci_screen``): an interval it leaves out has no
+"""The loci screen of loop_metrics (``_metrics_loci._loci_screen``): an interval it leaves out has no
 unresolved locus step and no margin candidate for ANY pairing of numpy's eigenvalues, and the
 analysis with the screen equals the analysis with eigenvalues at every frequency."""
 
@@ -11,6 +11,7 @@ import pytest
 
 import hapid  # noqa: F401  (float64)
 import hapid.control._metrics as M
+import hapid.control._metrics_loci as ML
 from hapid.control import MetricsSpec
 from hapid.control import _kernels as K
 
@@ -47,7 +48,7 @@ def _np_crossings(a, b):
 def test_left_out_intervals_have_nothing_for_any_pairing(n, spread, seed):
     L = _clustered_loops(n, 800, spread, seed)
     spec = MetricsSpec()
-    keep = np.asarray(M._loci_screen(K.to_entries(jnp.asarray(L)), spec))
+    keep = np.asarray(ML._loci_screen(K.to_entries(jnp.asarray(L)), spec))
     out = np.flatnonzero(~keep)
     assert out.size >= 0.3 * keep.size, out.size  # the screen has work to skip here
     e = np.linalg.eigvals(L)  # the independent reference's eigenvalues
@@ -65,7 +66,7 @@ def test_left_out_intervals_have_nothing_for_any_pairing(n, spread, seed):
 def test_nan_and_spread_loops_keep_everything():
     L = _clustered_loops(3, 200, 0.05, 0)
     L[50, 0, 0] = np.nan
-    keep = np.asarray(M._loci_screen(K.to_entries(jnp.asarray(L)), MetricsSpec()))
+    keep = np.asarray(ML._loci_screen(K.to_entries(jnp.asarray(L)), MetricsSpec()))
     assert keep[49] and keep[50]
     # loci spread over decades about their mean: nothing can be left out
     rng = np.random.default_rng(0)
@@ -75,7 +76,7 @@ def test_nan_and_spread_loops_keep_everything():
         np.broadcast_to(V @ D @ np.linalg.inv(V), (50, 3, 3))
         * np.exp(-1j * np.linspace(0, 3, 50))[:, None, None]
     )
-    assert np.all(np.asarray(M._loci_screen(K.to_entries(jnp.asarray(L)), MetricsSpec())))
+    assert np.all(np.asarray(ML._loci_screen(K.to_entries(jnp.asarray(L)), MetricsSpec())))
 
 
 @pytest.mark.slow  # two compiles of the whole analysis
@@ -86,7 +87,7 @@ def test_screened_analysis_equals_eigenvalues_everywhere(monkeypatch):
     spec = MetricsSpec(disk=True)
     res = {}
     for flag in (True, False):
-        monkeypatch.setattr(M, "SCREEN_LOCI", flag)
+        monkeypatch.setattr(ML, "SCREEN_LOCI", flag)
         f = jax.jit(lambda P, w, p: M.metrics_screened(P, eye, w, p, None, spec))  # fresh trace
         res[flag] = {k: np.asarray(v) for k, v in f(L, w, jnp.asarray(0.0)).items()}
     for k, v in res[True].items():
