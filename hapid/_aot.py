@@ -29,9 +29,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
-import os
 import pickle
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -42,6 +40,7 @@ import numpy as np
 from jax import export
 
 from . import _config
+from ._atomic import atomic_write
 
 SUBDIR = "export"
 """Sub-folder of the persistent cache that holds the exported programs."""
@@ -112,13 +111,8 @@ def _load(path: Path) -> _Program | None:
 
 def _save(path: Path, exp, skeleton) -> None:
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
         data = pickle.dumps({"exported": exp, "skeleton": skeleton})
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
+        atomic_write(path, lambda fh: fh.write(data))
     except Exception:  # noqa: BLE001  (unwritable cache: run from memory)
         return
 

@@ -12,11 +12,11 @@
 from __future__ import annotations
 
 import io as _io
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from .._atomic import atomic_write as _atomic_write  # noqa: F401  (the io writers' name)
 
 
 class FileFormatError(ValueError):
@@ -28,33 +28,6 @@ def _fmt(path) -> str:
     if ext in (".npz", ".csv", ".mat"):
         return ext[1:]
     raise FileFormatError(f"{path}: unknown file type {ext!r}; use .npz, .csv or .mat")
-
-
-def _umask() -> int:
-    """The process umask (read without changing it for longer than the two calls)."""
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def _atomic_write(path, write) -> Path:
-    """Write ``path`` through ``write(fh)`` on a temporary file in the same directory, then
-    rename it over ``path``: readers see the old file or the new one, never half of one. The
-    file gets the mode an ordinary ``open(path, "w")`` would give (``0o666 & ~umask``), not
-    ``mkstemp``'s 0600."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
 
 
 def _write_arrays(path, arrays: dict) -> Path:
