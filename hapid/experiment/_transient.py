@@ -127,7 +127,8 @@ def impact_segments(
     for e, peak, k in clipped:
         notes.append(f"record {e} dropped: its force is clipped ({k} samples at its peak "
                      f"{peak:.4g}; an overloaded hammer or ADC)")  # fmt: skip
-    keep = [e for e in range(F.shape[0]) if e not in {c[0] for c in clipped}]
+    dropped = {c[0] for c in clipped}
+    keep = [e for e in range(F.shape[0]) if e not in dropped]
     F, Y = F[keep], Y[keep]
     E, T, _ = F.shape
     onsets = [impact_onsets(F[e], fs_hz) for e in range(E)]
@@ -136,9 +137,9 @@ def impact_segments(
             raise ValueError(f"record {keep[e]} has no impact (its force is zero)")
     # several impacts in a record: separate hits when the response decays before each next one
     split = []
+    w = max(1, int(round(IMPACT_MERGE_S * fs_hz)))
     for e, o in enumerate(onsets):
         if o.size > 1:
-            w = max(1, int(round(IMPACT_MERGE_S * fs_hz)))
             decays = [
                 _decay_before(Y[e], int(a), int(b), w) for a, b in zip(o[:-1], o[1:], strict=True)
             ]
@@ -175,12 +176,9 @@ def impact_segments(
 def _decay_before(y: np.ndarray, a: int, b: int, w: int) -> float:
     """dB from the response's largest mean square over ``w`` samples in ``[a, b)`` to its mean
     square over the last ``w`` samples before ``b`` (``y`` ``(T, n)``)."""
-    ms = np.convolve(np.sum(y[a:b] ** 2, axis=-1), np.ones(w) / w, mode="valid")
-    if ms.size == 0:
+    if b - a < w:
         return 0.0
-    return float(
-        10 * np.log10(max(ms.max(), np.finfo(float).tiny) / max(ms[-1], np.finfo(float).tiny))
-    )
+    return float(_peak_to_end_db(np.sum(y[a:b] ** 2, axis=-1), w))
 
 
 def apply_windows(
@@ -207,16 +205,21 @@ def apply_windows(
     return F, Y
 
 
+def _peak_to_end_db(power: np.ndarray, w: int) -> np.ndarray:
+    """dB from the largest mean of ``power`` over any ``w`` consecutive samples (axis 0) to its
+    mean over the last ``w``: ``(T, ...)`` → ``(...)`` (``T ≥ w``)."""
+    c = np.cumsum(np.concatenate([np.zeros((1,) + power.shape[1:]), power]), axis=0)
+    ms = (c[w:] - c[:-w]) / w  # moving mean (T-w+1, ...)
+    tiny = np.finfo(float).tiny
+    return 10 * np.log10(np.maximum(ms.max(axis=0), tiny) / np.maximum(ms[-1], tiny))
+
+
 def decay_db(Y: np.ndarray) -> float:
     """How far (dB) the response's RMS over the last 5 % of each segment lies below its largest
     RMS over any 5 % window; the smallest over segments and channels (``Y`` ``(S, L, n)``)."""
     Y = np.asarray(Y, dtype=np.float64)
     w = max(1, Y.shape[1] // 20)
-    c = np.cumsum(np.concatenate([np.zeros((Y.shape[0], 1, Y.shape[2])), Y**2], axis=1), axis=1)
-    ms = (c[:, w:] - c[:, :-w]) / w  # moving mean square (S, L-w+1, n)
-    peak = np.maximum(ms.max(axis=1), np.finfo(float).tiny)
-    tail = np.maximum(ms[:, -1], np.finfo(float).tiny)
-    return float(np.min(10 * np.log10(peak / tail)))
+    return float(np.min(_peak_to_end_db(np.moveaxis(Y**2, 1, 0), w)))
 
 
 def coherence(XF: np.ndarray, XY: np.ndarray) -> np.ndarray:
