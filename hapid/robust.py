@@ -20,11 +20,11 @@ from .control import Compensator
 from .defaults import GM_DB, N_DRAWS, PM_DEG
 from .device import preset
 from .io import load_frf, load_model, load_samples, save_json
-from .tune._evidence import certificate, evidence_from_frf, measured_plant
+from .tune._evidence import certificate, evidence_from_frf
 from .tune._response import g_response
 from .uncertainty._cover import EvidenceCover
 from .uncertainty._files import DRAWS, resolve_draws
-from .uncertainty._loopgp import fit_loop_gp, loop_gp_plants, measured_data
+from .uncertainty._loopgp import fit_loop_gp, loop_gp_plants, measured_data, measured_plant
 from .uncertainty._robust import FIELDS, device_plants, posterior_omega, robust_check
 
 

@@ -48,6 +48,7 @@ from .. import _config  # noqa: F401  (float64)
 from .._constants import KAPPA  # noqa: F401  (re-exported: σ̄(L) ≤ κ beyond the evidence)
 from ..control import Compensator
 from ..impedance import plant
+from ..uncertainty._loopgp import measured_data, measured_plant
 from ._response import g_response
 
 TOP_BAND = 2.0**-0.5  # the mismatch bound is read over [ω_e / √2, ω_e] (top half-octave)
@@ -82,11 +83,6 @@ class Evidence:
         return float(self.kappa / self.mismatch)
 
 
-def measured_plant(Z_H, Z_T) -> np.ndarray:
-    """``P = Z_H Z_T⁻¹`` of measured impedances ``(N, n, n)``."""
-    return np.asarray(plant(jnp.asarray(Z_H), jnp.asarray(Z_T)))
-
-
 def mismatch_sigma(P, model, omega) -> np.ndarray:
     """``σ̄(P P̂⁻¹)`` per frequency ``(N,)``: how far the measured plant is from the model
     the controller inverts."""
@@ -109,8 +105,6 @@ def evidence_from_frf(frf, model, *, f_max_hz: float | None = None, mismatch: fl
                       kappa: float = KAPPA, source: str = "frf", ts: float | None = None) -> Evidence:  # fmt: skip
     """:class:`Evidence` of an FRF (anything with ``omega``, ``Z_H``, ``Z_T``; a dict such as
     :attr:`PosteriorSamples.predictive` too), optionally cut at ``f_max_hz``."""
-    from ..uncertainty._loopgp import measured_data
-
     d = measured_data(frf)
     om = np.asarray(d["omega"], dtype=float)
     P = measured_plant(d["Z_H"], d["Z_T"])

@@ -259,6 +259,13 @@ def loop_gp_plants(gp: LoopGP, model, omega, n_draws: int, seed: int = 0, *,
     return Q @ Ph[None]
 
 
+def measured_plant(Z_H, Z_T) -> np.ndarray:
+    """``P = Z_H Z_T⁻¹`` of measured impedances ``(N, n, n)``."""
+    import jax.numpy as jnp
+
+    return np.asarray(plant(jnp.asarray(Z_H), jnp.asarray(Z_T)))
+
+
 def measured_data(frf) -> dict:
     """``{"omega" (K,) rad/s, "Z_H", "Z_T" (K, n, n)}`` (numpy) of an FRF: anything with
     those attributes (:class:`hapid.experiment.FRF`) or keys (a samples file's ``measured``)."""
