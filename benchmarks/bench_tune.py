@@ -154,8 +154,82 @@ def devices_table(specs, n_train: int = 60, n_holdout: int = 100, seed: int = 0)
     return "\n".join(lines + [""] + notes)
 
 
+def objective_forms(S: int = 150, N: int = 300, n: int = 5, repeat: int = 7) -> str:
+    """The design objective's σ̄(S) bound and its gradient, two layouts side by side: a batched
+    ``matmul`` of ``(S, N, n, n)`` complex matrices (before) and the entry-major broadcast
+    sums of :func:`hapid.tune.scenario_constraints` (now), on random diagonalized loops; the
+    median of ``repeat`` interleaved calls after a warm-up, and the largest relative gradient
+    difference. ``python benchmarks/bench_tune.py --objective``."""
+    import time
+
+    from hapid.tune import _objective as O
+    from hapid.tune._response import smooth_sigma_max_entries
+    from hapid.tune._scenarios import Scenarios
+
+    rng = np.random.default_rng(0)
+    cplx = lambda *sh: rng.normal(size=sh) + 1j * rng.normal(size=sh)  # noqa: E731
+    om = TWO_PI * np.geomspace(0.01, 500.0, N)
+    sc = Scenarios(jnp.asarray(om), jnp.asarray(cplx(S, N, n)), jnp.asarray(cplx(S, N, n, n)),
+                   jnp.asarray(cplx(S, N, n, n)), jnp.zeros(S), 0.0)  # fmt: skip
+    req = Requirements()
+
+    def before(g, u):  # the batched-matmul form
+        d = 1.0 + g[None, :, None] * sc.lam
+        X = (sc.V * (1.0 / d)[..., None, :]) @ sc.Vi
+        A = jnp.swapaxes(jnp.conj(X), -1, -2) @ X  # the products as batched matmuls
+        t0 = jnp.real(jnp.trace(A, axis1=-2, axis2=-1))
+        B, acc = A / t0[..., None, None], jnp.log(t0)
+        for i in range(1, 7):
+            B = B @ B
+            c = jnp.real(jnp.trace(B, axis1=-2, axis2=-1))
+            B, acc = B / c[..., None, None], acc + jnp.log(c) / 2.0**i
+        hS = 0.5 * acc
+        lw = jnp.log(sc.omega)
+        log_w = jax.nn.log_sigmoid((u - lw) / req.tau + 5.0)
+        return jnp.sum(jax.nn.logsumexp(req.beta * (hS + log_w), axis=-1))
+
+    g = Compensator.paper()
+    gam = jnp.asarray(g.at_omega(jnp.asarray(om)))
+    u = jnp.log(TWO_PI * 5.0)
+    f_before = jax.jit(jax.grad(lambda gr, gi: before(gr + 1j * gi, u), argnums=(0, 1)))
+
+    # both differentiated in g(jω) (g enters the objective only through it)
+    def now_g(gr, gi):
+        gg = gr + 1j * gi
+        d = 1.0 + gg[None, :, None] * sc.lam
+        r = jnp.moveaxis(1.0 / d, -1, 0)
+        Ve, Vie = O._entries(sc.V), O._entries(sc.Vi)
+        hS = smooth_sigma_max_entries(
+            jnp.sum(Ve[:, :, None] * r[None, :, None] * Vie[None], axis=1)
+        )
+        lw = jnp.log(sc.omega)
+        log_w = jax.nn.log_sigmoid((u - lw) / req.tau + 5.0)
+        return jnp.sum(jax.nn.logsumexp(req.beta * (hS + log_w), axis=-1))
+
+    f_now = jax.jit(jax.grad(now_g, argnums=(0, 1)))
+    args = (jnp.real(gam), jnp.imag(gam))
+    a, b = jax.block_until_ready(f_before(*args)), jax.block_until_ready(f_now(*args))
+    diff = max(
+        float(jnp.max(jnp.abs(x - y)) / jnp.max(jnp.abs(x))) for x, y in zip(a, b, strict=True)
+    )
+    tb, tn = [], []
+    for _ in range(repeat):
+        for f, acc in ((f_before, tb), (f_now, tn)):
+            t = time.perf_counter()
+            jax.block_until_ready(f(*args))
+            acc.append(time.perf_counter() - t)
+    mb, mn = float(np.median(tb)), float(np.median(tn))
+    return table([{"σ̄(S) bound + gradient": f"{S} plants × {N} freqs × n = {n}",
+                   "batched matmul (before)": fs(mb), "entry-major (now)": fs(mn),
+                   "ratio": f"{mb / mn:.2f}×", "gradient rel. diff": f"{diff:.1e}"}])  # fmt: skip
+
+
 def main(argv=None) -> Section | str:
     argv = sys.argv[1:] if argv is None else list(argv)
+    if "--objective" in argv:
+        txt = objective_forms()
+        print(txt)
+        return txt
     if "--devices" in argv:
         i = argv.index("--devices")
         specs = [a for a in argv[i + 1 :] if not a.startswith("--")]

@@ -32,10 +32,15 @@ from ..control import MetricsSpec, loop_metrics
 from ..control import nyquist_verdict as verdict  # noqa: F401  (re-exported: the one stability rule)
 
 #: What each caller asks for (one spec per use; the verdict is always computed).
+#: A single loop is analysed once per process, so its program's compile (or cache load)
+#: is most of the cost: single loops use LAPACK's ``eigvals``/``svd``/LU, whose program
+#: compiles ≈ 4× faster than the unrolled XLA kernels and loads faster from the cache
+#: (benchmarks/README.md, "Single loops on LAPACK"). Batches of loops (sweeps, robust
+#: checks) keep the XLA kernels, which run faster per loop.
 SPEC_SWEEP = MetricsSpec(disk=True)  # the sweep table has the disk margin column
-SPEC_REPORT = MetricsSpec(disk=True, literal=True)  # analyze's printout, paper summary
-SPEC_FIGURES = MetricsSpec(disk=True, literal=True, arrays=True, full_sv=True)  # figs 5, 9, 10
-SPEC_VALIDATE = MetricsSpec(disk=True)  # tune's re-check
+SPEC_REPORT = MetricsSpec(disk=True, literal=True, kernels="lapack")  # analyze, paper summary
+SPEC_FIGURES = MetricsSpec(disk=True, literal=True, arrays=True, full_sv=True, kernels="lapack")
+SPEC_VALIDATE = MetricsSpec(disk=True, kernels="lapack")  # tune's re-check on the true plant
 
 
 class SystemResponse(eqx.Module):

@@ -53,7 +53,7 @@ from .._constants import TWO_PI
 from ..control import ISO_THRESHOLD
 from ..defaults import GM_DB, PM_DEG
 from ._params import ParamMap
-from ._response import g_response, smooth_sigma_max
+from ._response import g_response, smooth_sigma_max_entries
 from ._scenarios import Scenarios
 
 
@@ -128,22 +128,32 @@ def _lse(a, axis, beta, log_w=None):
     return jax.nn.logsumexp(beta * a, axis=axis) / beta
 
 
+def _entries(A):
+    """``(..., n, n)`` → ``(n, n, ...)``."""
+    return jnp.moveaxis(A, (-2, -1), (0, 1))
+
+
 def scenario_constraints(g, sc: Scenarios, u, req: Requirements) -> dict[str, jax.Array]:
     """Per-scenario smooth constraint values ``(S,)`` (≤ 0 when met): ``bw``, ``ms`` and, with
     ``disk_alpha``, ``disk``. ``g`` is a Compensator, ``u = log ω_b``."""
     gam = g_response(g, sc.omega, sc.ts)
     gl = gam[None, :, None] * sc.lam
     d = 1.0 + gl
-    Smat = (sc.V * (1.0 / d)[..., None, :]) @ sc.Vi
-    hS = smooth_sigma_max(Smat)  # (S, N) log of the σ̄(S) bound
+    # S = V diag(1/d) V⁻¹, entry-major (n, n, S, N): see smooth_sigma_max_entries
+    Ve, Vie = _entries(sc.V), _entries(sc.Vi)
+    r = jnp.moveaxis(1.0 / d, -1, 0)
+    hS = smooth_sigma_max_entries(jnp.sum(Ve[:, :, None] * r[None, :, None] * Vie[None], axis=1))
     lw = jnp.log(sc.omega)
     log_w = jax.nn.log_sigmoid((u - lw) / req.tau + 5.0)
     out = {"bw": _lse(hS - np.log(req.threshold) + log_w[None, :], -1, req.beta)}
     loc = -jnp.log(jnp.abs(d))
     out["ms"] = _lse(loc.reshape(loc.shape[0], -1), -1, req.beta) - np.log(req.ms)
     if req.disk_alpha is not None:
-        SmT = (sc.V * ((1.0 - gl) / d)[..., None, :]) @ sc.Vi
-        out["disk"] = _lse(smooth_sigma_max(SmT), -1, req.beta) - np.log(2.0 / req.disk_alpha)
+        rd = jnp.moveaxis((1.0 - gl) / d, -1, 0)
+        SmT = jnp.sum(Ve[:, :, None] * rd[None, :, None] * Vie[None], axis=1)
+        out["disk"] = _lse(smooth_sigma_max_entries(SmT), -1, req.beta) - np.log(
+            2.0 / req.disk_alpha
+        )
     return out
 
 
