@@ -52,6 +52,7 @@ def _verdicts(dev, model, omega, P, k):
     return rep, bool(closed_loop(dev, ctrl).is_stable())
 
 
+@pytest.mark.slow  # CI budget (~19 s with its route); test_quad4_is_four_dof_… stays fast
 def test_quad4_paper_route_wls_verdict_equals_closed_loop_eigenvalues(route):
     dev, frf, omega, P = route
     assert frf.n == 4 and float(np.max(frf.cond_L)) < 20  # the paper pattern excites all 4

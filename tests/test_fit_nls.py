@@ -30,7 +30,7 @@ def _psd_and_olhp(model):
         assert np.all(np.real(np.asarray(so.roots())) < 0)
 
 
-@pytest.mark.parametrize("n", [3, 5, 6])
+@pytest.mark.parametrize("n", [3, pytest.param(5, marks=pytest.mark.slow), 6])  # 5: CI budget
 def test_nls_recovers_truth_psd_and_stable(n):
     truth = random_truth(n, seed=30 + n)
     frf = synthetic_frf(truth, PAPER_FREQ_HZ, rel_noise=1e-4, seed=n)
@@ -98,6 +98,7 @@ def test_fit_band_masks_high_frequencies():
     assert np.asarray(model_relative_errors(res.model, truth)).max() < 5e-3
 
 
+@pytest.mark.slow  # CI budget (~13 s); test_uncertainty.py::test_laplace_coverage_and_mean keeps Laplace fast
 def test_laplace_covariance_matches_scatter():
     truth = random_truth(3, seed=11)
     batch = batch_frfs(truth, 60, rel_noise=1e-3, seed=1000)
@@ -123,6 +124,7 @@ def test_laplace_covariance_matches_scatter():
     np.testing.assert_allclose(np.asarray(res.std[0]) ** 2, np.diag(np.asarray(res.covariance[0])))
 
 
+@pytest.mark.slow  # CI budget (~12 s); test_fit_batch.py keeps batch = singles fast
 def test_jit_vmap_batch_equals_singles():
     truth = random_truth(3, seed=12)
     batch = batch_frfs(truth, 5, rel_noise=1e-3, seed=50)

@@ -55,6 +55,7 @@ def test_eigvals_equal_lapack_within_backward_error(name, n):
     assert np.all(np.abs(got - ref) <= tol), np.max(np.abs(got - ref) / tol)
 
 
+@pytest.mark.slow  # CI budget (~12 s); the random/near-scalar/spread families stay fast
 def test_eigvals_of_a_jordan_block_within_its_conditioning():
     """A 5 × 5 Jordan block perturbed by δ = 1e-12 has eigenvalues ~δ^(1/5) ≈ 4e-3 from g,
     as sensitive as that: both solvers agree on the centre to rounding and on the spread

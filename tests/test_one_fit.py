@@ -40,6 +40,7 @@ def boundary_frf():
     return synthetic_frf(_subspace_hand_truth(), rel_noise=1e-2, seed=15)
 
 
+@pytest.mark.slow  # CI budget (~20 s); test_keep_boundary_… keeps fit → posterior fast
 def test_posterior_is_built_around_the_model_hapid_fit_writes(tmp_path, boundary_frf):
     """``hapid posterior`` fits what ``hapid fit`` writes (refit included, said in its output
     and file) and holds the refit's strictly PD matrices where the fit's L Lᵀ part is on the

@@ -70,6 +70,9 @@ def test_samples_file_round_trips_the_measured_frf(tmp_path):
         load_samples(save_samples(tmp_path / "u.npz", dataclasses.replace(ps, measured=bad)))
 
 
+# CI budget (~70 s: compiles the check on 1 and on 40 draws); the rule itself is
+# tested fast in test_verdict_one_answer.py::test_design_verdict_fails_on_any_evidence_and_names_the_loop
+@pytest.mark.slow
 def test_passed_only_when_the_measured_band_covers_the_loop():
     """A controller whose true loop (the model with a 4 ms delay) is unstable passes the margins
     on draws conditioned on an FRF measured to 10 Hz — above it the draws are the model's own

@@ -91,6 +91,7 @@ def _check(cfg, vary, estimator, chunk, margins=True):
     return keys, rows, m
 
 
+@pytest.mark.slow  # CI budget (~30 s); test_scene_sweep.py keeps the sweep route fast
 def test_sweep_with_crhp_wls_positize_models_matches_closed_loop_eigenvalues():
     """tripod3, 4 N force noise, ω_c = 3 Hz: positizing leaves two CRHP roots of det Ẑ_H
     (two unstable controller poles). Seed 1: det(I + L) does not encircle 0 — the old sweep

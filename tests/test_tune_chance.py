@@ -3,6 +3,7 @@ that decides which scenarios it counts against the non-smooth Nyquist verdict.""
 
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from hapid.control import Compensator, analyze_loop
 from hapid.tune import Family, make_scenarios
@@ -28,6 +29,7 @@ def test_masked_cvar_is_the_mean_of_the_worst_counted_values():
     )
 
 
+@pytest.mark.slow  # CI budget (~11 s); …_count_open_loop_rhp_poles_as_the_analysis stays fast
 def test_stable_scenarios_agree_with_the_nyquist_verdict():
     """Scaled, delayed plants ``c·e^{−jωτ}·P̂``: the continuous loop ``c·e^{−jωτ}·g`` is
     stable for small ``c`` and unstable once the gain crosses its gain margin; ``stable_scenarios`` agrees with
