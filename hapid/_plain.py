@@ -29,3 +29,13 @@ def jsonable(obj):
         if a.dtype.kind in "biuf":
             return jsonable(a.tolist())
     return str(obj)
+
+
+def enum_members(values, enum_cls):
+    """``enum_cls`` member of a scalar (or 0-d array) value, else an object array of members
+    of the same shape — a batched result's ``status``: elementwise ``== "stable"`` works."""
+    values = np.asarray(values)
+    flat = np.empty(values.size, dtype=object)
+    for i, v in enumerate(values.ravel().tolist()):
+        flat[i] = enum_cls(v)
+    return flat[0] if values.ndim == 0 else flat.reshape(values.shape)
