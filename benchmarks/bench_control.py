@@ -76,7 +76,7 @@ def run(
             "inverse-model controller designed on a perturbed model (`hapid.control._examples`).\n\n"
             + table(rows))  # fmt: skip
     rep = single(Pj[0], Gj[0])
-    summ = {k: round(v, 3) if isinstance(v, float) else v for k, v in rep.summary().items()}
+    summ = {k: round(v, 3) if isinstance(v, float) else v for k, v in rep.numbers().items()}
     sec.add(f"example summary: {summ}")
     return sec
 

@@ -144,7 +144,7 @@ def loop_row(sec: Section, nls, N: int = 3000):
         f"### 1. One loop: cu5 posterior draw under the NLS design, n = 5, N = {N}\n\n"
         + table(rows)
     )
-    a, b, c = r.summary(), q.summary(), ql.summary()
+    a, b, c = r.numbers(), q.numbers(), ql.numbers()
     agree = [{"field": k, "analyze_loop (grid)": fg(a[k], 10), "loop_metrics xla": fg(b[k], 12),
               "loop_metrics lapack": fg(c[k], 12)}
              for k in ("stable", "iso_bandwidth_hz", "gm_db", "pm_deg", "t_peak_db", "disk_margin")]  # fmt: skip

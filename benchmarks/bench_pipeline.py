@@ -280,7 +280,7 @@ def run(quick: bool = False, out: str = "out/bench") -> Section:
     rep_j, _, t_j = measure(lambda: al(P, Gh), repeat=rep)
     ln = numpy_loop(P, Gh, omega)
     t_n = timeit(lambda: numpy_loop(P, Gh, omega), repeat=1 if quick else 3)
-    sh = rep_j.summary()
+    sh = rep_j.numbers()
     agree = (f"stable {sh['stable']}/{ln['stable']}, iso-bw {sh['iso_bandwidth_hz']:.3g}/{ln['iso_bandwidth_hz']:.3g} Hz, "
              f"GM {sh['gm_db']:.2f}/{ln['gm_db']:.2f} dB, PM {sh['pm_deg']:.1f}/{ln['pm_deg']:.1f}°, "
              f"disk {sh['disk_margin']:.3f}/{ln['disk_margin']:.3f} (hapid/numpy)")  # fmt: skip

@@ -469,7 +469,7 @@ def robust_throughput(sec: Section, quick: bool, frf, nls, dev):
     t = time.perf_counter()
     rep = robust_check(samples, (nls.model, g), omega, max_samples=S, chunk=chunk)
     dt = time.perf_counter() - t
-    s = rep.summary()
+    s = rep.numbers()
     sec.rows["robust_per_sample_s"] = dt / S
     sec.add("### 4. Robust check (NLS-designed inverse-model controller, paper g, Laplace samples; "
             "default metrics: verdict, bandwidth, loci GM/PM — no disk margin or σ̄(T) peak)\n\n"

@@ -63,7 +63,7 @@ def _body():
     t = time.perf_counter()
     frf = estimate_frf(periodic_run(dev, Protocol(), noise_seed=0))
     nls = fit_nls(frf, weight="relative").raise_if_failed()
-    print(f"\ncu5 FRF + NLS (relative, 40 Hz): {time.perf_counter() - t:.1f} s; {nls.summary()}")
+    print(f"\ncu5 FRF + NLS (relative, 40 Hz): {time.perf_counter() - t:.1f} s; {nls.report()}")
     post = make_log_posterior(frf, nls.scale)
     x0 = initial_point(post, nls)
     t = time.perf_counter()
@@ -148,7 +148,7 @@ def _body():
         dt = time.perf_counter() - t
         devrep = robust_check(Pdev, (m, g), omega, labels=labels, metrics="all")
         for what, r, tt in (("posterior (1000)", rep, dt), ("device (17)", devrep, None)):
-            s = r.summary()
+            s = r.numbers()
             rows.append({"design": name, "plants": what, "P(stable)": fmt(s["p_stable"]),
                          "GM q05/q50 dB": f"{fmt(s['gm_db_q05'])}/{fmt(s['gm_db_q50'])}",
                          "PM q05/q50 deg": f"{fmt(s['pm_deg_q05'])}/{fmt(s['pm_deg_q50'])}",

@@ -41,7 +41,7 @@ def margin_words(gm_db: float, pm_deg: float) -> str:
 
 def loop_check(summary: dict, *, gm_db: float, pm_deg: float, ts: float | None,
                frf_band_hz=None, top_loop_gain: float | None = None) -> Check:  # fmt: skip
-    """The :class:`~hapid.verdict.Check` of a loop summary (:meth:`LoopMetrics.summary`)
+    """The :class:`~hapid.verdict.Check` of a loop's numbers (:meth:`LoopMetrics.numbers`)
     against ``gm_db`` / ``pm_deg``. ``frf_band_hz`` ``(f₁, f_e)`` and ``top_loop_gain``
     (``σ̄(L)`` at ``f_e``): the plant is a measured FRF (module docstring); ``None``: a
     simulated plant on a full grid."""

@@ -66,7 +66,7 @@ def cmd_analyze(a):
             c = a.siso_gain
         ctrl = pipeline.controller(None, g, kind="siso", c=c, n=model.n, ts=ts)
     rep = pipeline.loop(ctrl, plant)
-    s = rep.summary()
+    s = rep.numbers()
     out = {"controller": a.controller, "siso_gain": c, "continuous": bool(a.continuous),
            "design": a.design, "controller_rhp_poles": int(ctrl.p_rhp),
            "loop": loop_label(ts), **s}  # fmt: skip

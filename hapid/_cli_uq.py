@@ -28,7 +28,7 @@ def cmd_posterior(a):
         print(f"note: fit refitted with pd_eps = {eps:g}: the PSD-boundary fit put a root of "
               "det Ẑ_H at ∞ or on the imaginary axis (--keep-boundary keeps that fit); the "
               "posterior is built around the refitted model, as hapid fit writes it")  # fmt: skip
-    print(ps.summary())
+    print(ps.report())
     print(f"samples → {a.out}")
 
 

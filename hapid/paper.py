@@ -86,7 +86,7 @@ def _f(x):
 def loop_numbers(rep) -> dict:
     if rep is None:
         return {"stable": False}
-    s = rep.summary()
+    s = rep.numbers()
     keys = ("stable", "iso_bandwidth_hz", "iso_bandwidth_literal_hz", "gm_db", "gm_freq_hz",
             "pm_deg", "pm_freq_hz", "disk_margin", "disk_gm_db", "disk_pm_deg", "t_peak_db",
             "t_peak_hz", "nyquist_resolved")  # fmt: skip

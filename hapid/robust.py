@@ -170,14 +170,14 @@ def robust_from_files(
             ts = (preset(device) if isinstance(device, str) else device).ts
         rep, info = loop_gp_check(measured, model, g, n_draws=max_samples, seed=seed, gm_db=gm_db,
                                   pm_deg=pm_deg, metrics=metrics, ts=ts)  # fmt: skip
-        post = rep.summary() | {"draws": info}
+        post = rep.numbers() | {"draws": info}
     else:
         if ps is None:
             raise ValueError("the robust check on parameter draws needs a samples file")
         rep = robust_check(ps, (model, g), posterior_omega(), gm_db=gm_db, pm_deg=pm_deg,
                            max_samples=max_samples, metrics=metrics, seed=seed)  # fmt: skip
         post = dataclasses.replace(rep, loop="continuous-time controller, second-order parameter draws",
-                                   uncovered=PARAMS_UNCOVERED).summary()  # fmt: skip
+                                   uncovered=PARAMS_UNCOVERED).numbers()  # fmt: skip
         post["draws"] = {"draws": "params", "note": PARAMS_NOTE}
     out = {"posterior": post, "device": None}
     if device is not None:
@@ -193,7 +193,7 @@ def robust_from_files(
                            controller_rhp=int(ctrl.p_rhp), gm_db=gm_db, pm_deg=pm_deg,
                            labels=labels, backend="metrics", metrics=metrics)  # fmt: skip
         out["device"] = dataclasses.replace(rep, loop=f"controller sampled at {dev.fs_hz:g} Hz, "
-                                            "the device's true plants").summary()  # fmt: skip
+                                            "the device's true plants").numbers()  # fmt: skip
     if out_json is not None:
         save_json(out_json, out)
     return out

@@ -57,9 +57,10 @@ class Check:
         return self.verdict
 
     def summary(self) -> dict:
-        """Strict-JSON dict: ``verdict`` (str), ``reason``, ``remedy``, ``name``."""
+        """Strict-JSON dict: ``verdict`` (str), ``reason``, ``remedy``, ``name``, and
+        ``status`` (the verdict again, as every result's summary has it) and ``ok``."""
         return {"verdict": self.verdict.value, "reason": self.reason, "remedy": self.remedy,
-                "name": self.name}  # fmt: skip
+                "name": self.name, "status": self.verdict.value, "ok": self.ok}  # fmt: skip
 
     def line(self) -> str:
         """One line for the CLI, verdict first: ``passed``, ``failed: …``, ``not established: … (…)``."""

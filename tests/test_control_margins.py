@@ -66,6 +66,6 @@ def test_no_crossings_give_inf_margins():
     assert bool(r.stable)
     assert np.isinf(float(r.gm_db)) and np.isinf(float(r.pm_deg))
     assert np.isnan(float(r.gm_freq_hz)) and np.isnan(float(r.pm_freq_hz))
-    s_ = r.summary()
+    s_ = r.numbers()
     assert list(s_)[0] == "stable" and s_["stable"] is True
     assert isinstance(s_["gm_db"], float) and isinstance(s_["n_encirclements"], int)

@@ -102,8 +102,8 @@ def _assert_same(a: dict, b: dict, where="", rtol_margin=1e-9):
 def test_xla_kernels_equal_the_lapack_path():
     on, _ = _loop(n=4, eps=0.05, seed=3)
     P, G, w = on(1200)
-    a = loop_metrics(P, G, w, spec=SPEC).summary()
-    b = loop_metrics(P, G, w, spec=MetricsSpec(disk=True, kernels="lapack")).summary()
+    a = loop_metrics(P, G, w, spec=SPEC).numbers()
+    b = loop_metrics(P, G, w, spec=MetricsSpec(disk=True, kernels="lapack")).numbers()
     _assert_same(a, b)
 
 
@@ -124,7 +124,7 @@ def test_stress_loops_near_minus_one_equal_the_lapack_path_and_the_reference():
         a = loop_metrics(P, G, w, spec=SPEC)
         assert bool(a.stable) == bool(ref.stable), delta
         assert bool(a.nyquist_resolved) == bool(ref.nyquist_resolved), delta
-        _assert_same(a.summary(), loop_metrics(P, G, w, spec=lap).summary(), f"δ={delta}")
+        _assert_same(a.numbers(), loop_metrics(P, G, w, spec=lap).numbers(), f"δ={delta}")
 
 
 @pytest.mark.slow
@@ -171,7 +171,7 @@ def test_nyquist_family_verdicts_equal_the_reference():
             assert bool(q.stable) == bool(ref.stable[i]) == (Z[i] == 0)
             assert int(q.n_closed_loop_rhp) == int(ref.n_closed_loop_rhp[i])
             ql = loop_metrics(Pj[i], Gj[i], W[i], p_ol=pol[i], spec=lap)
-            _assert_same(q.summary(), ql.summary(), f"loop {n_loops}")
+            _assert_same(q.numbers(), ql.numbers(), f"loop {n_loops}")
             n_loops += 1
     assert n_loops >= 25
 
@@ -203,7 +203,7 @@ def test_cu5_posterior_draws_xla_equal_lapack_and_reference_verdicts():
     for i in range(S):
         a = loop_metrics(Ps[i], G, w, p_ol=p_ol, spec=SPEC)
         assert bool(a.stable) == bool(ref(Ps[i])), i
-        _assert_same(a.summary(), loop_metrics(Ps[i], G, w, p_ol=p_ol, spec=lap).summary(), i)
+        _assert_same(a.numbers(), loop_metrics(Ps[i], G, w, p_ol=p_ol, spec=lap).numbers(), i)
 
 
 def test_illinois_returns_the_root_where_false_position_converges_from_one_side():
@@ -241,7 +241,7 @@ def test_refinement_windows_give_the_whole_grid_interpolant(monkeypatch):
     on, _ = _loop(n=2, eps=0.05, seed=4)
     P, G, w = on(16, -1.0, 3.5)
     spec = MetricsSpec(disk=True, literal=True)
-    a = loop_metrics(P, G, w, spec=spec).summary()
+    a = loop_metrics(P, G, w, spec=spec).numbers()
     monkeypatch.setattr(Mx, "_W", 10**6)
     b = jax.jit(lambda P, G, w: Mx.metrics_screened(P, G, w, 0.0, None, spec))(P, G, w)
     for k in ("gm_db", "pm_deg", "pm_freq_hz", "iso_bandwidth_hz", "iso_bandwidth_literal_hz",

@@ -88,7 +88,7 @@ def test_report_of_an_unstable_loop_is_strict_json(tmp_path):
     L = 50.0 / (s + 1.0) ** 3
     P = L[:, None, None] * np.eye(n)
     G = np.broadcast_to(np.eye(n, dtype=complex), P.shape)
-    summary = analyze_loop(P, G, omega).summary()
+    summary = analyze_loop(P, G, omega).numbers()
     assert summary["stable"] is False
     assert any(isinstance(v, float) and not np.isfinite(v) for v in summary.values()), summary
     with pytest.raises(ValueError, match="non-JSON"):

@@ -299,7 +299,7 @@ def test_robust_aggressive_vs_conservative(case):
     for rep, k in ((bad, 40.0), (good, 0.5)):
         full = robust_check(ps, (nls.model, _lowpass_g(k)), omega, metrics="all")
         _assert_default_equals_full(rep, full)
-    s = good.summary()
+    s = good.numbers()
     assert s["gm_db_q05"] > 20.0 and s["pm_deg_q05"] > 60.0
     # a few verdicts against a direct, non-vmapped call
     models = ps.models(np.arange(0, 300, 60))

@@ -48,3 +48,5 @@ from ._nyquist import characteristic_loci as characteristic_loci
 from ._nyquist import nyquist_encirclements as nyquist_encirclements
 from ._nyquist import nyquist_verdict as nyquist_verdict
 from ._nyquist import track_loci as track_loci
+from ._status import ControllerStatus as ControllerStatus
+from ._status import LoopStatus as LoopStatus

@@ -30,6 +30,7 @@ from ._compensator import Compensator
 from ._lapack import after
 from ._margins import _gain_crossings, _phase_crossings
 from ._nyquist import characteristic_loci, nyquist_encirclements
+from ._status import ControllerStatus
 
 
 class ControllerWarning(UserWarning):
@@ -127,18 +128,19 @@ class ControllerCheck(eqx.Module):
         return bool(self.stable) and bool(self.minimum_phase)
 
     @property
-    def status(self) -> str:
-        """``"ok"``, ``"unstable"``, ``"non-minimum-phase"`` or ``"unstable, non-minimum-phase"``."""
+    def status(self) -> ControllerStatus:
+        """:class:`ControllerStatus`: ``OK``, ``UNSTABLE``, ``NON_MINIMUM_PHASE`` or
+        ``UNSTABLE_NON_MINIMUM_PHASE``."""
         bad = [
             w
             for w, good in (("unstable", self.stable), ("non-minimum-phase", self.minimum_phase))
             if not good
         ]
-        return ", ".join(bad) or "ok"
+        return ControllerStatus(", ".join(bad) or "ok")
 
     def summary(self) -> dict:
-        """Plain-python verdict: ``ok``, ``status`` and the closed-RHP root counts."""
-        return {"ok": self.ok, "status": self.status, "stable": bool(self.stable),
+        """Strict-JSON dict: ``status``, ``ok`` and the closed-RHP root counts."""
+        return {"status": self.status.value, "ok": self.ok, "stable": bool(self.stable),
                 "minimum_phase": bool(self.minimum_phase), "n_crhp_hand_roots": int(self.n_crhp_hand_roots),
                 "n_crhp_total_roots": int(self.n_crhp_total_roots)}  # fmt: skip
 

@@ -25,9 +25,11 @@ from jaxtyping import Array, Bool, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
+from .._plain import enum_members, jsonable
 from ._lapack import after, lu_det_solve
 from ._margins import disk_margin_from_peak, loci_margins
 from ._nyquist import characteristic_loci, nyquist_encirclements, nyquist_verdict
+from ._status import LoopStatus
 
 ISO_THRESHOLD = 1.0 - 1.0 / np.sqrt(2.0)
 """``1 − 1/√2 ≈ 0.293``: the paper's isotropic-bandwidth threshold on σ̄(T − I)."""
@@ -109,19 +111,25 @@ class LoopReport(eqx.Module):
 
     @property
     def status(self):
-        """``"stable"``, ``"unstable"`` or ``"undecided"`` (the grid did not resolve the
-        Nyquist count); a numpy array of them for a batch."""
+        """:class:`LoopStatus` ``STABLE``, ``UNSTABLE`` or ``UNRESOLVED`` (not stable and the
+        grid did not resolve the Nyquist count); an object array of them for a batch."""
         st, res = np.asarray(self.stable), np.asarray(self.nyquist_resolved)
-        names = np.where(st, "stable", np.where(res, "unstable", "undecided"))
-        return str(names) if names.ndim == 0 else names
+        return enum_members(np.where(st, "stable", np.where(res, "unstable", "unresolved")),
+                            LoopStatus)  # fmt: skip
+
+    def numbers(self) -> dict:
+        """The scalar fields as python ``bool``/``int``/``float`` (lists for a batched report),
+        ``stable`` first, then ``status`` (its value) and ``ok``; non-finite values stay
+        ``nan``/``inf`` (for arithmetic; :meth:`summary` is the JSON form)."""
+        st = self.status
+        return scalar_fields(self, _SCALARS) | {
+            "status": st.value if isinstance(st, LoopStatus) else jsonable(st.tolist()),
+            "ok": np.asarray(self.ok).tolist(),
+        }
 
     def summary(self) -> dict:
-        """The scalar fields as python ``bool``/``int``/``float`` (lists for a batched report).
-
-        ``stable`` comes first. Non-finite values stay ``nan``/``inf`` here; the JSON writer
-        (:func:`hapid.io.save_json`) writes them as ``null``.
-        """
-        return scalar_fields(self, _SCALARS)
+        """Strict-JSON dict: :meth:`numbers` with non-finite values as ``None``."""
+        return jsonable(self.numbers())
 
 
 def loop_matrices(P, G):

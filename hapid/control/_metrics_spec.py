@@ -12,7 +12,9 @@ import numpy as np
 from jaxtyping import Array, Bool, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
+from .._plain import enum_members, jsonable
 from ._loop import scalar_fields
+from ._status import LoopStatus
 
 TWO_PI = 2.0 * np.pi
 ISO_THRESHOLD = 1.0 - 1.0 / np.sqrt(2.0)
@@ -115,20 +117,27 @@ class LoopMetrics(eqx.Module):
 
     @property
     def status(self):
-        """``"stable"``, ``"unstable"``, ``"singular"`` (closed-loop pole on the axis) or
-        ``"unresolved"`` (grid too coarse / not reaching the ends); numpy array if batched."""
+        """:class:`LoopStatus` ``STABLE``, ``UNSTABLE``, ``SINGULAR`` (closed-loop pole on the
+        axis) or ``UNRESOLVED`` (grid too coarse / not reaching the ends); an object array of
+        them when batched."""
         st = np.asarray(self.stable)
         sg = np.asarray(self.singular)
         rs = np.asarray(self.nyquist_resolved)
         out = np.where(
             sg, "singular", np.where(~rs, "unresolved", np.where(st, "stable", "unstable"))
         )
-        return str(out) if out.ndim == 0 else out
+        return enum_members(out, LoopStatus)
+
+    def numbers(self) -> dict:
+        """Scalar fields as python ``bool``/``int``/``float`` (lists when batched), then
+        ``status`` (its value) and ``ok``. Non-finite values stay ``nan``/``inf`` (for
+        arithmetic; :meth:`summary` is the JSON form)."""
+        st = self.status
+        return scalar_fields(self, _SCALARS) | {
+            "status": st.value if isinstance(st, LoopStatus) else jsonable(st.tolist()),
+            "ok": np.asarray(self.ok).tolist(),
+        }
 
     def summary(self) -> dict:
-        """Scalar fields as python ``bool``/``int``/``float`` (lists when batched), plus
-        ``status``. Non-finite values stay ``nan``/``inf``."""
-        out = scalar_fields(self, _SCALARS)
-        s = self.status
-        out["status"] = s if isinstance(s, str) else s.tolist()
-        return out
+        """Strict-JSON dict: :meth:`numbers` with non-finite values as ``None``."""
+        return jsonable(self.numbers())

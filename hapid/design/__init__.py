@@ -12,6 +12,7 @@ from ._commands import STAGES as STAGES
 from ._commands import DesignOptions as DesignOptions
 from ._commands import commands as commands
 from ._design import DesignReport as DesignReport
+from ._design import DesignStatus as DesignStatus
 from ._design import delivered as delivered
 from ._design import run_design as run_design
 from ._graph import EXPECTED_S as EXPECTED_S

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import enum
 import platform
 from collections.abc import Callable
 from pathlib import Path
@@ -23,6 +24,16 @@ from ._verdict import TUNED, robust_check, tuned_check, tuned_row
 BAND_HZ = 30.0  # the P P̂⁻¹ band's upper edge, as hapid fit reports it (--band-hz default)
 
 
+class DesignStatus(enum.StrEnum):
+    """Outcome of :func:`run_design` (:class:`DesignReport`): the delivered controller's
+    :class:`~hapid.verdict.Verdict`, or ``NO_CONTROLLER``; ``ok`` means ``PASSED``."""
+
+    PASSED = Verdict.PASSED.value
+    FAILED = Verdict.FAILED.value
+    NOT_ESTABLISHED = Verdict.NOT_ESTABLISHED.value
+    NO_CONTROLLER = "no controller"
+
+
 @dataclasses.dataclass(frozen=True)
 class DesignReport:
     """What ``hapid design`` made.
@@ -40,19 +51,24 @@ class DesignReport:
     files: tuple[str, ...]
 
     @property
-    def status(self) -> str:
-        """The verdict on the controller the design delivers (:func:`delivered`), or ``"no
-        controller"`` (a single impedance, or the controller stages skipped)."""
-        return delivered(self.checks).value if self.checks else "no controller"
+    def status(self) -> DesignStatus:
+        """:class:`DesignStatus`: the verdict on the controller the design delivers
+        (:func:`delivered`), or ``NO_CONTROLLER`` (a single impedance, or the controller
+        stages skipped)."""
+        return (
+            DesignStatus(delivered(self.checks).value)
+            if self.checks
+            else DesignStatus.NO_CONTROLLER
+        )
 
     @property
     def ok(self) -> bool:
         """The delivered controller passed (False without checks)."""
-        return bool(self.checks) and delivered(self.checks) is Verdict.PASSED
+        return self.status is DesignStatus.PASSED
 
     def summary(self) -> dict:
-        """``report.json``'s content (strict JSON)."""
-        return self.numbers
+        """Strict-JSON dict: ``status``, ``ok`` and ``report.json``'s content."""
+        return {"status": self.status.value, "ok": self.ok} | self.numbers
 
 
 def delivered(checks) -> Verdict:

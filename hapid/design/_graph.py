@@ -97,7 +97,7 @@ def _posterior(parse, o, frf):
         io.save_frf(files[FILES["frf"]], frf)
         a = parse(resolve(o["argv"], files, files[FILES["frf"]]))
         ps = posterior_from_files(a.frf, a.out, **posterior_kw(a))
-        return {"samples": load_samples(a.out), "summary": ps.summary()}
+        return {"samples": load_samples(a.out), "summary": ps.report()}
 
 
 def _robust(parse, o, frf, *fits):

@@ -11,6 +11,7 @@ from ._excitation import patterns as patterns
 from ._excitation import schroeder_phases as schroeder_phases
 from ._fast import simulate_frf as simulate_frf
 from ._impedance import RESPONSE_KINDS as RESPONSE_KINDS
+from ._impedance import EstimateStatus as EstimateStatus
 from ._impedance import EstimateUndecided as EstimateUndecided
 from ._impedance import ImpedanceEstimate as ImpedanceEstimate
 from ._impedance import TimeSeries as TimeSeries

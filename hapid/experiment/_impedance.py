@@ -21,6 +21,7 @@ at each frequency (one chirp on all channels in phase excites only one).
 from __future__ import annotations
 
 import dataclasses
+import enum
 
 import numpy as np
 
@@ -98,6 +99,13 @@ class EstimateUndecided(ValueError):
     """The records do not say which estimate fits them; the message names the options."""
 
 
+class EstimateStatus(enum.StrEnum):
+    """Outcome of :func:`estimate_impedance` (:class:`ImpedanceEstimate`); both are ``ok``."""
+
+    OK = "ok"
+    NOTES = "notes"
+
+
 @dataclasses.dataclass(frozen=True)
 class ImpedanceEstimate:
     """Outcome of :func:`estimate_impedance`.
@@ -120,21 +128,26 @@ class ImpedanceEstimate:
     notes: tuple[str, ...] = ()
 
     @property
-    def status(self) -> str:
-        return "ok" if not self.notes else "notes"
+    def status(self) -> EstimateStatus:
+        """:class:`EstimateStatus`: ``OK``, or ``NOTES`` when :attr:`notes` has lines for the
+        user (still a usable estimate)."""
+        return EstimateStatus.NOTES if self.notes else EstimateStatus.OK
 
     @property
     def ok(self) -> bool:
+        """Always true: an estimate that cannot be made raises instead."""
         return True
 
     def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, method, segments, energy share, decay (``None``
+        for Welch), window, frequency count and notes."""
         f = np.asarray(self.frf.freq_hz)
         return {"method": self.method, "n_segments": int(self.n_segments),
                 "segment_samples": int(self.segment_samples),
                 "energy_share": float(self.energy_share),
                 "decay_db": None if not np.isfinite(self.decay_db) else float(self.decay_db),
                 "window": self.window, "n_freq": int(f.size), "notes": list(self.notes),
-                "status": self.status}  # fmt: skip
+                "status": self.status.value, "ok": self.ok}  # fmt: skip
 
 
 ESTIMATES = ("auto", "impact", "welch")

@@ -43,6 +43,7 @@ from ._pd import theta_to_model as theta_to_model
 from ._physics import correct_exponential as correct_exponential
 from ._physics import physics_warnings as physics_warnings
 from ._positize import CRHPReport as CRHPReport
+from ._positize import CRHPStatus as CRHPStatus
 from ._positize import crhp_report as crhp_report
 from ._positize import positize as positize
 from ._positize import positize_matrix as positize_matrix
@@ -52,10 +53,12 @@ from ._problem import Problem as Problem
 from ._problem import data_scale as data_scale
 from ._problem import make_problem as make_problem
 from ._quality import FitQuality as FitQuality
+from ._quality import QualityStatus as QualityStatus
 from ._quality import fit_quality as fit_quality
 from ._quality import impedance_quality as impedance_quality
 from ._quality import pair_quality as pair_quality
 from ._result import FitFailedError as FitFailedError
+from ._result import FitStatus as FitStatus
 from ._result import NLSResult as NLSResult
 from ._single import ImpedanceFit as ImpedanceFit
 from ._single import fit_impedance as fit_impedance

@@ -23,6 +23,7 @@ issue by construction (PD parameterization).
 
 from __future__ import annotations
 
+import enum
 from typing import NamedTuple
 
 import jax.numpy as jnp
@@ -55,6 +56,16 @@ def positize(model: ImpedanceModel, mode: str = "modulus") -> ImpedanceModel:
     return ImpedanceModel(hand=pos(model.hand), total=pos(model.total))
 
 
+class CRHPStatus(enum.StrEnum):
+    """Outcome of :class:`CRHPReport`: which determinant has closed-right-half-plane roots.
+    Roots of det Ẑ_H are poles of the inverse-model controller, roots of det Ẑ_T its zeros."""
+
+    OK = "ok"
+    HAND = "det Ẑ_H has CRHP roots"
+    TOTAL = "det Ẑ_T has CRHP roots"
+    BOTH = "det Ẑ_H and det Ẑ_T have CRHP roots"
+
+
 class CRHPReport(NamedTuple):
     """Number of roots of ``det Ẑ_H(s)`` and ``det Ẑ_T(s)`` with ``Re s ≥ −tol`` (of 2n each)."""
 
@@ -67,20 +78,17 @@ class CRHPReport(NamedTuple):
         return (self.hand == 0) & (self.total == 0)
 
     @property
-    def status(self) -> str:
-        """``"ok"`` or which impedance has closed-RHP roots (concrete counts only)."""
-        bad = [
-            f"det Ẑ_{k} has {int(v)} CRHP root(s)"
-            for k, v in (("H", self.hand), ("T", self.total))
-            if int(v)
-        ]
-        return "; ".join(bad) or "ok"
+    def status(self) -> CRHPStatus:
+        """:class:`CRHPStatus` (concrete, unbatched counts only)."""
+        h, t = int(self.hand) > 0, int(self.total) > 0
+        return {(False, False): CRHPStatus.OK, (True, False): CRHPStatus.HAND,
+                (False, True): CRHPStatus.TOTAL, (True, True): CRHPStatus.BOTH}[(h, t)]  # fmt: skip
 
     def summary(self) -> dict:
-        """Plain-python counts and verdict."""
+        """Strict-JSON dict: ``status``, ``ok`` and the counts ``hand``, ``total``."""
         return {
+            "status": self.status.value,
             "ok": bool(self.ok),
-            "status": self.status,
             "hand": int(self.hand),
             "total": int(self.total),
         }

@@ -29,12 +29,14 @@ model file with the rest.
 from __future__ import annotations
 
 import dataclasses
+import enum
 
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from .._constants import TWO_PI
+from .._plain import jsonable
 
 #: warn when the median data-fit relative error exceeds this (dB; −6 dB ≈ 50 %)
 MEDIAN_WARN_DB = -6.0
@@ -85,6 +87,13 @@ def _db(x):
     return np.where(np.isnan(x), np.nan, 20.0 * np.log10(np.maximum(np.nan_to_num(x), 1e-300)))
 
 
+class QualityStatus(enum.StrEnum):
+    """Outcome of :class:`FitQuality`: ``ok`` (no warning) or ``warnings``."""
+
+    OK = "ok"
+    WARNINGS = "warnings"
+
+
 @dataclasses.dataclass(frozen=True)
 class FitQuality:
     """Data-fit quality of one fit over the band it used (see the module docstring).
@@ -116,9 +125,9 @@ class FitQuality:
         return not self.warnings
 
     @property
-    def status(self) -> str:
-        """``"ok"`` or the warnings, joined by ``"; "``."""
-        return "; ".join(self.warnings) or "ok"
+    def status(self) -> QualityStatus:
+        """:class:`QualityStatus`: ``OK``, or ``WARNINGS`` (listed in :attr:`warnings`)."""
+        return QualityStatus.WARNINGS if self.warnings else QualityStatus.OK
 
     @property
     def worst_median_db(self) -> float:
@@ -132,8 +141,10 @@ class FitQuality:
         return dataclasses.replace(self, warnings=self.warnings + (text,))
 
     def summary(self) -> dict:
-        """Plain dict of Python floats/strings (NaN allowed)."""
+        """Strict-JSON dict: ``status``, ``ok``, the band, per-block errors, ``warnings`` and the
+        extra lines; non-finite numbers (``inside_fraction`` without std) as ``None``."""
         out = {
+            "status": self.status.value,
             "method": self.method,
             "band_hz": [float(b) for b in self.band_hz],
             "n_freq": int(np.size(self.freq_hz)),
@@ -151,7 +162,7 @@ class FitQuality:
                 "inside_fraction": float(self.inside_fraction[k]),
             }
         out.update({name: text for name, text in self.lines})
-        return out
+        return jsonable(out)
 
     def report(self) -> list[str]:
         """The printed report: one line per block, extra lines, then the warnings."""

@@ -3,16 +3,32 @@
 
 from __future__ import annotations
 
+import enum
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from .._plain import enum_members, jsonable
 from ..impedance import ImpedanceModel, SecondOrder
 from ._pd import MATRIX_NAMES, Scale, boundary_names, theta_to_model
 
-STATUS_NAMES = ("converged", "max_steps", "failed")
+
+class FitStatus(enum.StrEnum):
+    """Outcome of a fit: the status of :class:`NLSResult`, :class:`~hapid.fit.MLResult`,
+    :class:`~hapid.fit.ImpedanceFit` and :class:`hapid.pipeline.Fit`. The value is the word
+    the CLI and the model files use. ``ok`` means ``CLOSED_FORM`` or ``CONVERGED``."""
+
+    CLOSED_FORM = "closed form"
+    CONVERGED = "converged"
+    MAX_STEPS = "max_steps"
+    FAILED = "failed"
+
+
+FIT_OK = (FitStatus.CLOSED_FORM, FitStatus.CONVERGED)
+STATUS_NAMES = ("converged", "max_steps", "failed")  # by status_code
 CONVERGED, MAX_STEPS, FAILED = 0, 1, 2
 
 
@@ -57,10 +73,9 @@ class NLSResult(eqx.Module):
 
     @property
     def status(self):
-        """``"converged"``, ``"max_steps"`` or ``"failed"`` (a numpy array of them for a batch)."""
-        codes = np.asarray(self.status_code)
-        names = np.asarray(STATUS_NAMES)[codes]
-        return str(names) if names.ndim == 0 else names
+        """:class:`FitStatus` ``CONVERGED``, ``MAX_STEPS`` or ``FAILED`` (an object array of
+        them for a batch). Not under ``jit`` (use ``status_code``)."""
+        return enum_members(np.asarray(STATUS_NAMES)[np.asarray(self.status_code)], FitStatus)
 
     @property
     def ok(self):
@@ -111,7 +126,21 @@ class NLSResult(eqx.Module):
             hand=SecondOrder(sd[0], sd[1], sd[2]), total=SecondOrder(sd[3], sd[4], sd[5])
         )
 
-    def summary(self) -> str:
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, ``solver``, ``weight``, ``n_steps``, ``cost``,
+        ``sigma2``, ``n_residuals``, ``boundary`` (matrix names); lists for a batch,
+        non-finite numbers as ``None``."""
+        batched = np.ndim(self.status_code) > 0
+        st = self.status
+        return jsonable({
+            "status": st.tolist() if batched else st,
+            "ok": np.asarray(self.ok), "solver": self.solver, "weight": self.weight,
+            "n_steps": np.asarray(self.n_steps), "cost": np.asarray(self.cost),
+            "sigma2": np.asarray(self.sigma2), "n_residuals": np.asarray(self.n_residuals),
+            "boundary": None if batched else self.boundary,
+        })  # fmt: skip
+
+    def report(self) -> str:
         """One line: solver, weights, status, steps, cost, boundary flags (unbatched)."""
         b = self.boundary
         return (
@@ -121,4 +150,4 @@ class NLSResult(eqx.Module):
         )
 
 
-__all__ = ["NLSResult", "FitFailedError", "STATUS_NAMES", "MATRIX_NAMES"]
+__all__ = ["NLSResult", "FitFailedError", "FitStatus", "FIT_OK", "STATUS_NAMES", "MATRIX_NAMES"]

@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
 
+from .._plain import jsonable
 from ..impedance import SecondOrder
 from ..impedance_frf import ImpedanceFRF
 from ._nls import _run_solver, laplace_covariance
@@ -32,7 +33,7 @@ from ._pd import Scale, _project_matrix
 from ._physics import CHI2_SCALE_ABOVE, chi2_note, correct_exponential, physics_warnings
 from ._positize import positize_matrix
 from ._quality import FitQuality, impedance_quality
-from ._result import STATUS_NAMES
+from ._result import FIT_OK, STATUS_NAMES, FitStatus
 
 SINGLE_WEIGHTS = ("relative", "noise")
 SINGLE_METHODS = ("wls", "nls")
@@ -180,8 +181,9 @@ def _flat(m: SecondOrder):
 class ImpedanceFit:
     """Outcome of :func:`fit_impedance`.
 
-    ``model`` (M, B, K in ``model_units(unit)``); ``method`` text; ``status`` ("closed form",
-    "converged", "max_steps", "failed"); ``ok``; ``n_steps``; ``cost`` (½‖r‖², NaN for WLS);
+    ``model`` (M, B, K in ``model_units(unit)``); ``method`` text; ``status`` a
+    :class:`~hapid.fit.FitStatus` (a string is converted: "closed form", "converged",
+    "max_steps", "failed"); ``ok`` (closed form or converged); ``n_steps``; ``cost`` (½‖r‖², NaN for WLS);
     ``model_std`` Laplace std of every entry (NLS; ``None`` for WLS); ``theta``, ``scale``,
     ``covariance``, ``sigma2`` (NLS: the variance scale of the std — the reduced χ² for relative
     weights, 1 for noise weights unless the reduced χ² exceeds ``CHI2_SCALE_ABOVE``);
@@ -193,7 +195,7 @@ class ImpedanceFit:
 
     model: SecondOrder
     method: str
-    status: str
+    status: FitStatus
     unit: str
     quality: FitQuality
     n_steps: int = 0
@@ -207,13 +209,25 @@ class ImpedanceFit:
     reduced_chi2: float = float("nan")
     exp_tau_s: float = 0.0
 
+    def __post_init__(self):
+        object.__setattr__(self, "status", FitStatus(self.status))
+
     @property
     def ok(self) -> bool:
-        return self.status in ("closed form", "converged")
+        return self.status in FIT_OK
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, ``method``, ``unit``, ``n_steps``, ``cost``,
+        ``reduced_chi2``, ``boundary``, ``exp_tau_s`` and ``quality`` (its summary);
+        non-finite numbers as ``None``."""
+        return jsonable({"status": self.status, "ok": self.ok, "method": self.method,
+                         "unit": self.unit, "n_steps": self.n_steps, "cost": self.cost,
+                         "reduced_chi2": self.reduced_chi2, "boundary": self.boundary,
+                         "exp_tau_s": self.exp_tau_s, "quality": self.quality.summary()})  # fmt: skip
 
     def metadata(self) -> dict:
         """Arrays for the model file (method, status, cost, std, covariance, quality)."""
-        d = {"method": np.asarray(self.method), "status": np.asarray(self.status),
+        d = {"method": np.asarray(self.method), "status": np.asarray(self.status.value),
              "unit": np.asarray(self.unit), "cost": np.float64(self.cost),
              "steps": np.int64(self.n_steps)}  # fmt: skip
         if self.model_std is not None:

@@ -12,30 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._plain import jsonable
 from ._common import _atomic_write
-
-
-def jsonable(obj):
-    """``obj`` as strict-JSON-ready Python values: numpy/JAX scalars and arrays → numbers and
-    lists, NaN and ±inf → ``None`` (JSON ``null``), tuples → lists, dict keys → ``str``;
-    anything else (e.g. a complex number) → its ``str``."""
-    if obj is None or isinstance(obj, bool | str):
-        return obj
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, int | np.integer):
-        return int(obj)
-    if isinstance(obj, float | np.floating):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray) or hasattr(obj, "__array__"):
-        a = np.asarray(obj)
-        if a.dtype.kind in "biuf":
-            return jsonable(a.tolist())
-    return str(obj)
 
 
 def to_json(obj, indent: int | None = 2) -> str:

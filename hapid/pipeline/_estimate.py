@@ -28,6 +28,8 @@ from jaxtyping import Array, Bool, Int
 
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
+from .._plain import jsonable
+from ..fit._result import FitStatus
 
 
 class Fit(eqx.Module):
@@ -50,9 +52,20 @@ class Fit(eqx.Module):
     estimator: str = eqx.field(static=True, default="")
 
     @property
-    def status(self) -> str:
-        """``"closed form"`` or the NLS status name (outside ``jit``)."""
-        return "closed form" if self.result is None else self.result.status
+    def status(self) -> FitStatus:
+        """:class:`~hapid.fit.FitStatus`: ``CLOSED_FORM``, or the iterative fit's status
+        (outside ``jit``)."""
+        return FitStatus.CLOSED_FORM if self.result is None else self.result.status
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, ``estimator``, the closed-RHP root counts
+        (``crhp_hand``, ``crhp_total`` and before positizing ``crhp_hand_raw``,
+        ``crhp_total_raw``) and the iterative fit's own summary (``result``, or ``None``)."""
+        out = {"status": self.status, "ok": self.ok, "estimator": self.estimator}
+        out |= {k: getattr(self, k) for k in ("crhp_hand", "crhp_total", "crhp_hand_raw",
+                                              "crhp_total_raw")}  # fmt: skip
+        out["result"] = None if self.result is None else self.result.summary()
+        return jsonable(out)
 
     @classmethod
     def closed_form(cls, model, raw=None, estimator: str = "") -> Fit:

@@ -37,6 +37,7 @@ from ._scenarios import concat as concat
 from ._scenarios import make_scenarios as make_scenarios
 from ._scenarios import matrix_part as matrix_part
 from ._tune import TuneResult as TuneResult
+from ._tune import TuneStatus as TuneStatus
 from ._tune import phase_counts as phase_counts
 from ._tune import smooth_bandwidth as smooth_bandwidth
 from ._tune import tune as tune

@@ -14,6 +14,7 @@ result is still *not* the verdict: re-check it with :func:`.validate`.
 from __future__ import annotations
 
 import dataclasses
+import enum
 import time
 
 import equinox as eqx
@@ -24,6 +25,7 @@ import optimistix as optx
 
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
+from .._plain import jsonable
 from ..control import Compensator, MetricsSpec, nyquist_encirclements, nyquist_verdict
 from ..verdict import Check
 from ._exchange import exchange
@@ -31,6 +33,14 @@ from ._objective import Box, Requirements, aggregate, penalized, penalized_parts
 from ._params import ParamMap
 from ._progress import TuneProgress, note
 from ._response import g_response
+
+
+class TuneStatus(enum.StrEnum):
+    """Outcome of :func:`tune` (:class:`TuneResult`); ``ok`` means ``FEASIBLE``."""
+
+    FEASIBLE = "feasible"
+    INFEASIBLE = "infeasible"
+    UNSTABLE_ON_TRAINING = "unstable on training plants"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,25 +86,30 @@ class TuneResult:
         of a strict family; a chance-constrained one's quantile) — :attr:`training`."""
         return all(st >= req for st, req, _ in self.training.values())
 
-    ok = property(
-        lambda self: self.feasible and self.stable_on_training,
-        doc="The smooth constraints are met and every training loop is stable.",
-    )
-    status = property(
-        lambda self: "feasible" if self.ok else (
-            "infeasible" if self.stable_on_training else "unstable on training plants"),
-        doc="``feasible``/``infeasible``/``unstable on training plants``.",
-    )  # fmt: skip
+    @property
+    def ok(self) -> bool:
+        """The smooth constraints are met and every training loop is stable."""
+        return self.feasible and self.stable_on_training
+
+    @property
+    def status(self) -> TuneStatus:
+        """:class:`TuneStatus`: ``FEASIBLE`` (:attr:`ok`), ``INFEASIBLE`` (a smooth constraint
+        not met) or ``UNSTABLE_ON_TRAINING``."""
+        if self.ok:
+            return TuneStatus.FEASIBLE
+        return TuneStatus.INFEASIBLE if self.stable_on_training else TuneStatus.UNSTABLE_ON_TRAINING
 
     def summary(self) -> dict:
-        """Plain-python summary: verdict, claimed bandwidths (Hz), constraints, parameters."""
-        return {"ok": self.ok, "status": self.status, "bandwidth_hz": float(self.bandwidth_hz),
+        """Strict-JSON dict: ``status``, ``ok``, claimed bandwidths (Hz), constraints,
+        parameters, the training counts and, when re-checked, the check (``verdict``,
+        ``reason``, ``remedy``, ``check``); non-finite numbers as ``None``."""
+        return jsonable({"ok": self.ok, "status": self.status, "bandwidth_hz": float(self.bandwidth_hz),
                 "training_stable": {k: list(v) for k, v in self.training.items()},
                 "bandwidth0_hz": float(self.bandwidth0_hz), "gain_backoff": float(self.gain_backoff),
                 "constraints": {k: float(v) for k, v in self.constraints.items()},
                 "parameters": self.parameters(), "wall_s": float(self.wall_s)} | (
                     {} if self.check is None else {"verdict": self.check.verdict.value,
-                    "reason": self.check.reason, "remedy": self.check.remedy, "check": self.check.name})  # fmt: skip
+                    "reason": self.check.reason, "remedy": self.check.remedy, "check": self.check.name}))  # fmt: skip
 
     def parameters(self) -> list[dict]:
         """Rows ``{name, start, tuned}`` (frequencies in Hz)."""

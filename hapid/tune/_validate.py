@@ -51,7 +51,7 @@ def true_plant_loop(g: Compensator, model, device, omega=None, spec=None) -> dic
         pipeline.device_plant(device, omega),
         pipeline.SPEC_VALIDATE if spec is None else spec,
     )
-    s = rep.summary()
+    s = rep.numbers()
     return _clean({k: s[k] for k in _LOOP_KEYS}) | {"report": rep}
 
 
@@ -142,7 +142,7 @@ def validate(
             ctrl = pipeline.controller(model, g, ts=ts)
             rep = robust_check(np.asarray(samples), np.asarray(ctrl.response(omc)), omc,
                                controller_rhp=int(ctrl.p_rhp), **kw)  # fmt: skip
-        out["posterior"] = rep.summary() | {"report": rep}
+        out["posterior"] = rep.numbers() | {"report": rep}
     if device is not None:
         omd = device_grid(device.fs_hz) if omega_d is None else np.asarray(omega_d, dtype=float)
         out["true_plant"] = true_plant_loop(g, model, device, omd)
@@ -153,7 +153,7 @@ def validate(
             rep = robust_check(np.asarray(P), G, omd, controller_rhp=int(ctrl.p_rhp),
                                gm_db=gm_db, pm_deg=pm_deg, p_stable_required=p_required, labels=labels,
                                backend="metrics", metrics="all")  # fmt: skip
-            out["variants"] = rep.summary() | {"report": rep}
+            out["variants"] = rep.numbers() | {"report": rep}
         if time_domain:
             out["time_domain"] = step_response(g, model, device)
     return out

@@ -38,6 +38,7 @@ from ._loopgp import loop_gp_plants as loop_gp_plants
 from ._loopgp import measured_data as measured_data
 from ._mode import check_initial_state as check_initial_state
 from ._mode import initial_point as initial_point
+from ._plant_draws import DrawsStatus as DrawsStatus
 from ._plant_draws import PlantDraws as PlantDraws
 from ._plant_draws import plant_draws as plant_draws
 from ._poses import identify as identify
@@ -58,3 +59,4 @@ from ._sampler import MOVES as MOVES
 from ._sampler import ShortChainWarning as ShortChainWarning
 from ._sampler import sample_posterior as sample_posterior
 from ._samples import PosteriorSamples as PosteriorSamples
+from ._samples import SamplesStatus as SamplesStatus

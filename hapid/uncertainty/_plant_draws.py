@@ -12,17 +12,26 @@ construction (``hapid predict --draws``): :func:`plant_draws` → :class:`PlantD
 from __future__ import annotations
 
 import dataclasses
+import enum
 
 import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
+from .._plain import jsonable
 from ..fit._pd import theta_to_model
 from ._files import resolve_draws
 from ._loopgp import fit_loop_gp, loop_gp_plants, measured_data, measured_plant
 from ._predictive import predictive_plants
 from ._samples import PosteriorSamples
+
+
+class DrawsStatus(enum.StrEnum):
+    """Outcome of :func:`plant_draws` (:class:`PlantDraws`); ``ok`` means ``OK``."""
+
+    OK = "ok"
+    NON_FINITE = "non-finite draws"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,9 +62,9 @@ class PlantDraws:
         return all(bool(np.all(np.isfinite(a))) for a in arrays)
 
     @property
-    def status(self) -> str:
-        """``"ok"`` or ``"non-finite draws"``."""
-        return "ok" if self.ok else "non-finite draws"
+    def status(self) -> DrawsStatus:
+        """:class:`DrawsStatus`: ``OK`` (:attr:`ok`) or ``NON_FINITE``."""
+        return DrawsStatus.OK if self.ok else DrawsStatus.NON_FINITE
 
     @property
     def arrays(self) -> dict[str, np.ndarray]:
@@ -66,10 +75,10 @@ class PlantDraws:
     def summary(self) -> dict:
         """Strict-JSON summary: status, family, draw count, grid (Hz), ``info``."""
         f = np.asarray(self.omega) / TWO_PI
-        return {"status": self.status, "ok": self.ok, "draws": self.draws,
+        return jsonable({"status": self.status, "ok": self.ok, "draws": self.draws,
                 "model_error": self.model_error, "n_draws": int(self.P.shape[0]),
                 "n_freq": int(f.size), "f_min_hz": float(f[0]), "f_max_hz": float(f[-1]),
-                "quantities": list(self.arrays), **self.info}  # fmt: skip
+                "quantities": list(self.arrays), **self.info})  # fmt: skip
 
 
 def nominal_model(ps: PosteriorSamples):

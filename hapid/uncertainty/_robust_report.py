@@ -25,6 +25,7 @@ import dataclasses
 
 import numpy as np
 
+from .._plain import jsonable
 from ..verdict import Check, Verdict
 from ._cover import EvidenceCover, cover_check
 
@@ -180,9 +181,12 @@ class RobustReport:
         """The verdict of :attr:`check`: passed / failed / not established."""
         return self.check.verdict
 
-    def summary(self) -> dict:
-        """Plain-python summary: P(stable), 5 %/50 % quantiles, worst plant, pass/fail;
-        fields not computed are ``None`` and listed under ``not_computed``."""
+    def numbers(self) -> dict:
+        """Plain-python summary: P(stable), 5 %/50 % quantiles, worst plant, pass/fail, the
+        check (``verdict``, ``reason``, ``remedy``), ``status`` (its value) and ``ok``; fields
+        not computed are ``None`` and listed under ``not_computed``. Non-finite quantiles (an
+        unstable plant's ``-inf`` margin) stay ``±inf`` (for arithmetic; :meth:`summary` is
+        the JSON form)."""
         w = self.worst
         out = {"n": self.n, "p_stable": self.p_stable}
         for f in FIELDS:
@@ -201,7 +205,11 @@ class RobustReport:
         out |= {"verdict": ck.verdict.value, "reason": ck.reason, "remedy": ck.remedy,
                 "check": ck.name, "loop": self.loop}  # fmt: skip
         out["evidence"] = None if self.cover is None else self.cover.summary()
-        return out
+        return out | {"status": self.status.value, "ok": self.ok}
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: :meth:`numbers` with non-finite values as ``None``."""
+        return jsonable(self.numbers())
 
     def rows(self) -> list[dict]:
         """One dict per plant (label, stable, margins, bandwidth; ``None``: not computed)."""

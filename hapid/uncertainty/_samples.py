@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import dataclasses
+import enum
 
 import equinox as eqx
 import jax
@@ -12,8 +13,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from .._plain import jsonable
 from ..fit._pd import Scale, n_params, theta_to_model
 from ..impedance import ImpedanceModel
+
+
+class SamplesStatus(enum.StrEnum):
+    """Outcome of a posterior sampler (:class:`PosteriorSamples`); ``ok`` means ``CONVERGED``."""
+
+    CONVERGED = "converged"
+    NOT_CONVERGED = "not converged"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,17 +123,32 @@ class PosteriorSamples:
         return bool(np.all(np.isfinite(np.asarray(self.samples)))) and bool(conv)
 
     @property
-    def status(self) -> str:
-        """``"converged"`` or ``"not converged"`` (see :attr:`ok`)."""
-        return "converged" if self.ok else "not converged"
+    def status(self) -> SamplesStatus:
+        """:class:`SamplesStatus`: ``CONVERGED`` (:attr:`ok`) or ``NOT_CONVERGED``."""
+        return SamplesStatus.CONVERGED if self.ok else SamplesStatus.NOT_CONVERGED
 
-    def summary(self) -> str:
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, ``method``, ``n_samples``, ``d`` (columns),
+        ``n``, ``error_kind`` and the sampler's scalar diagnostics (acceptance fraction, τ,
+        ESS …) that are present; non-finite numbers as ``None``."""
+        d = self.diagnostics
+        out = {"status": self.status, "ok": self.ok, "method": d.get("method"),
+               "n_samples": self.n_samples, "d": int(self.samples.shape[1]), "n": int(self.n),
+               "error_kind": self.error_kind}  # fmt: skip
+        out |= {k: d[k] for k in _REPORTED if d.get(k) is not None}
+        return jsonable(out)
+
+    def report(self) -> str:
+        """One line: method, sample count, dimension and the sampler's diagnostics."""
         d = self.diagnostics
         parts = [f"{d.get('method', '?')}: {self.n_samples} samples, d = {self.samples.shape[1]}"]
-        for k in ("acceptance_fraction", "tau_max", "steps_over_tau", "ess_min", "ess_per_s"):
+        for k in _REPORTED:
             if k in d and d[k] is not None:
                 parts.append(f"{k} {d[k]:.4g}")
         return "; ".join(parts)
+
+
+_REPORTED = ("acceptance_fraction", "tau_max", "steps_over_tau", "ess_min", "ess_per_s")
 
 
 @eqx.filter_jit
