@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from . import io
+from . import design, io
 from .defaults import N_DRAWS
-from .design import STAGES, DesignOptions, run_design
+from .design import STAGES, DesignOptions
 
 
 class DesignCommandError(ValueError):
@@ -44,7 +44,7 @@ def cmd_design(a, parse: Callable) -> None:
     o = DesignOptions(kind=kind, f_max_hz=a.f_max_hz, posterior=a.posterior, samples=a.samples,
                       max_samples=a.max_samples, seed=a.seed, fs_hz=fs,
                       lab=_lab_args(a) if kind == "timeseries" else ())  # fmt: skip
-    rep = run_design(a.input, a.out, o, parse, skip=tuple(a.skip or ()), only=tuple(a.only or ()),
+    rep = design.run_design(a.input, a.out, o, parse, skip=tuple(a.skip or ()), only=tuple(a.only or ()),
                      cache_dir=None if a.no_cache else a.cache)  # fmt: skip
     n = rep.numbers
     for c in rep.checks:
