@@ -16,3 +16,33 @@ os.environ.setdefault(
 )
 
 import hapid  # noqa: E402,F401  (float64 before any test builds arrays)
+
+# The heaviest test files (seconds of compile and run on the idle 2-core machine, measured
+# with --durations) go first: `make test` hands out whole files (--dist loadfile), and a
+# heavy file handed out last leaves the other worker idle (longest-first scheduling).
+# Order within a file is kept.
+_HEAVY_FIRST = (
+    "test_fit_nls.py",
+    "test_kernels_eig.py",
+    "test_uncertainty.py",
+    "test_notebooks.py",
+    "test_tune_chance.py",
+    "test_uncertainty_gp_corr.py",
+    "test_fit_ml.py",
+    "test_fit_batch.py",
+    "test_control_margins.py",
+    "test_tune_backoff.py",
+    "test_design.py",
+    "test_cli_edges.py",
+    "test_result_convention.py",
+    "test_wls_batch.py",
+    "test_tune_evidence.py",
+    "test_experiment.py",
+    "test_control_controller.py",
+    "test_properties.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(_HEAVY_FIRST)}
+    items.sort(key=lambda it: rank.get(it.path.name, len(rank)))  # stable: file order kept

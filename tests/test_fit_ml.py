@@ -39,6 +39,7 @@ def _perturbed(model: ImpedanceModel, rel=0.3, seed=0) -> ImpedanceModel:
     return project_pd(ImpedanceModel.from_hand_mechanism(pert(model.hand), pert(model.mechanism)))
 
 
+@pytest.mark.slow  # CI budget (~11 s); the numpy cost reference and test_fit_band_default keep ML fast
 def test_recovers_truth_on_noise_free_spectra():
     dev = _device()
     prot = Protocol(freq_hz=FREQ_HZ, n_periods=2, pattern="hadamard").noiseless()

@@ -7,6 +7,7 @@ Z_H = 0 the relative weights were 1/0.
 """
 
 import numpy as np
+import pytest
 from helpers_fit import PAPER_FREQ_HZ, random_truth, synthetic_frf
 
 from hapid.fit import fit_nls, model_to_theta, project_pd, wls
@@ -39,6 +40,7 @@ def test_single_impedance_as_Z_H_equal_Z_T_fits_noise_free():
         assert np.linalg.norm(np.asarray(a) - np.asarray(b)) <= 1e-6 * np.linalg.norm(b)
 
 
+@pytest.mark.slow  # CI budget (~16 s); …_equal_Z_T_fits_noise_free keeps the single-impedance fit fast
 def test_single_impedance_as_Z_H_zero_fits_through_the_cli_without_nan(tmp_path, capsys):
     from hapid import io
     from hapid.cli import main

@@ -66,6 +66,7 @@ def test_left_out_intervals_have_nothing_for_any_pairing(n, spread, seed):
     assert found.any() and keep[found].all()  # it keeps every interval with a crossing
 
 
+@pytest.mark.slow  # CI budget (~12 s); test_left_out_intervals_… keeps the screen fast
 def test_nan_and_spread_loops_keep_everything():
     L = _clustered_loops(3, 200, 0.05, 0)
     L[50, 0, 0] = np.nan
