@@ -121,11 +121,7 @@ class LoopReport(eqx.Module):
         """The scalar fields as python ``bool``/``int``/``float`` (lists for a batched report),
         ``stable`` first, then ``status`` (its value) and ``ok``; non-finite values stay
         ``nan``/``inf`` (for arithmetic; :meth:`summary` is the JSON form)."""
-        st = self.status
-        return scalar_fields(self, _SCALARS) | {
-            "status": st.value if isinstance(st, LoopStatus) else jsonable(st.tolist()),
-            "ok": np.asarray(self.ok).tolist(),
-        }
+        return report_numbers(self, _SCALARS)
 
     def summary(self) -> dict:
         """Strict-JSON dict: :meth:`numbers` with non-finite values as ``None``."""
@@ -188,6 +184,16 @@ def scalar_fields(report, names) -> dict:
             v = v.astype(np.int64)
         out[name] = v.tolist()
     return out
+
+
+def report_numbers(report, names) -> dict:
+    """:func:`scalar_fields` of ``names``, then ``status`` (the :class:`LoopStatus` value, a
+    list of them when batched) and ``ok`` — the ``numbers()`` of every loop report."""
+    st = report.status
+    return scalar_fields(report, names) | {
+        "status": st.value if isinstance(st, LoopStatus) else jsonable(st.tolist()),
+        "ok": np.asarray(report.ok).tolist(),
+    }
 
 
 def loop_arrays(P, G, omega, who: str):

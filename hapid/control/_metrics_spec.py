@@ -13,7 +13,7 @@ from jaxtyping import Array, Bool, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
 from .._plain import enum_members, jsonable
-from ._loop import scalar_fields
+from ._loop import report_numbers
 from ._status import LoopStatus
 
 TWO_PI = 2.0 * np.pi
@@ -132,11 +132,7 @@ class LoopMetrics(eqx.Module):
         """Scalar fields as python ``bool``/``int``/``float`` (lists when batched), then
         ``status`` (its value) and ``ok``. Non-finite values stay ``nan``/``inf`` (for
         arithmetic; :meth:`summary` is the JSON form)."""
-        st = self.status
-        return scalar_fields(self, _SCALARS) | {
-            "status": st.value if isinstance(st, LoopStatus) else jsonable(st.tolist()),
-            "ok": np.asarray(self.ok).tolist(),
-        }
+        return report_numbers(self, _SCALARS)
 
     def summary(self) -> dict:
         """Strict-JSON dict: :meth:`numbers` with non-finite values as ``None``."""
