@@ -162,7 +162,7 @@ def objective_forms(S: int = 150, N: int = 300, n: int = 5, repeat: int = 7) -> 
     difference. ``python benchmarks/bench_tune.py --objective``."""
     import time
 
-    from hapid.tune import _objective as O
+    from hapid.control._kernels import to_entries
     from hapid.tune._response import smooth_sigma_max_entries
     from hapid.tune._scenarios import Scenarios
 
@@ -198,7 +198,7 @@ def objective_forms(S: int = 150, N: int = 300, n: int = 5, repeat: int = 7) -> 
         gg = gr + 1j * gi
         d = 1.0 + gg[None, :, None] * sc.lam
         r = jnp.moveaxis(1.0 / d, -1, 0)
-        Ve, Vie = O._entries(sc.V), O._entries(sc.Vi)
+        Ve, Vie = to_entries(sc.V), to_entries(sc.Vi)
         hS = smooth_sigma_max_entries(
             jnp.sum(Ve[:, :, None] * r[None, :, None] * Vie[None], axis=1)
         )

@@ -51,6 +51,7 @@ import numpy as np
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
 from ..control import ISO_THRESHOLD
+from ..control._kernels import to_entries
 from ..defaults import GM_DB, PM_DEG
 from ._params import ParamMap
 from ._response import g_response, smooth_sigma_max_entries
@@ -128,11 +129,6 @@ def _lse(a, axis, beta, log_w=None):
     return jax.nn.logsumexp(beta * a, axis=axis) / beta
 
 
-def _entries(A):
-    """``(..., n, n)`` → ``(n, n, ...)``."""
-    return jnp.moveaxis(A, (-2, -1), (0, 1))
-
-
 def scenario_constraints(g, sc: Scenarios, u, req: Requirements) -> dict[str, jax.Array]:
     """Per-scenario smooth constraint values ``(S,)`` (≤ 0 when met): ``bw``, ``ms`` and, with
     ``disk_alpha``, ``disk``. ``g`` is a Compensator, ``u = log ω_b``."""
@@ -140,7 +136,7 @@ def scenario_constraints(g, sc: Scenarios, u, req: Requirements) -> dict[str, ja
     gl = gam[None, :, None] * sc.lam
     d = 1.0 + gl
     # S = V diag(1/d) V⁻¹, entry-major (n, n, S, N): see smooth_sigma_max_entries
-    Ve, Vie = _entries(sc.V), _entries(sc.Vi)
+    Ve, Vie = to_entries(sc.V), to_entries(sc.Vi)
     r = jnp.moveaxis(1.0 / d, -1, 0)
     hS = smooth_sigma_max_entries(jnp.sum(Ve[:, :, None] * r[None, :, None] * Vie[None], axis=1))
     lw = jnp.log(sc.omega)

@@ -21,6 +21,7 @@ from jaxtyping import Array, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
 from ..control import Compensator
+from ..control._kernels import to_entries
 from ..lti import matched_response
 
 
@@ -37,7 +38,7 @@ def g_response(
 
 def smooth_sigma_max(X: Complex[Array, "... n n"], k: int = 6) -> Float[Array, ...]:
     """``log s_p(X)`` — log of the smooth upper bound of σ̄(X) (module docstring), ``p = 2^k``."""
-    return smooth_sigma_max_entries(jnp.moveaxis(X, (-2, -1), (0, 1)), k)
+    return smooth_sigma_max_entries(to_entries(X), k)
 
 
 def smooth_sigma_max_entries(X: Complex[Array, "n n ..."], k: int = 6) -> Float[Array, ...]:
