@@ -136,7 +136,9 @@ def cmd_tune(a):
         from .io import save_json
 
         save_json(a.report, {"start": tab.get("start"), "tuned": tab.get("tuned"), "constraints": r.constraints,
-                             "history": r.history, "parameters": r.parameters(), "loop": res.get("loop")}
+                             "history": r.history, "parameters": r.parameters(), "loop": res.get("loop"),
+                             "returned": tab.get("returned"), "decision": res.get("decision", ""),
+                             "bandwidth_claimed_hz": r.bandwidth_hz, "tune_wall_s": r.wall_s}
                   | ({} if r.check is None else {"verdict": r.check.verdict.value, "reason": r.check.reason,
                                                  "remedy": r.check.remedy}))  # fmt: skip
     print(f"design → {a.out} ({time.perf_counter() - t:.1f} s)")
