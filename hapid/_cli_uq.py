@@ -73,7 +73,8 @@ def _robust_kw(a, dev) -> dict:
     (``dev``: the device of the ``--device`` options, or None)."""
     return {"frf_path": a.frf, "draws": a.draws, "gm_db": a.gm_db, "pm_deg": a.pm_deg,
             "max_samples": a.max_samples, "device": dev, "n_subjects": a.subjects,
-            "metrics": robust_metrics(a), "ts": None if a.fs is None else 1.0 / a.fs}  # fmt: skip
+            "metrics": robust_metrics(a), "ts": None if a.fs is None else 1.0 / a.fs,
+            "n_freq": a.n_freq}  # fmt: skip
 
 
 def _draws_line(d: dict) -> str:

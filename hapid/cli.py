@@ -246,6 +246,9 @@ def _register_stages(sub):
         default=N_DRAWS,
         help="draws checked (posterior samples used, or loop draws made)",
     )
+    ro.add_argument("--n-freq", type=int, default=None,
+                    help="points of the analysis grid (default: 1000 for loop draws, 1500 for "
+                    "parameter draws); denser resolves loci the default grid does not")  # fmt: skip
     ro.add_argument("--all-metrics", action="store_true",
                     help="also the disk margin and the peak of σ̄(T) (≈ 2× the time per plant)")  # fmt: skip
     ro.add_argument("--processes", type=int, default=None, help=_PROCESSES_HELP)

@@ -97,7 +97,7 @@ def loop_gp_check(
     cover = EvidenceCover((lo, hi), float(cert["beyond_loop_gain"]), float(ev.kappa), clear,
                           float(ev.g_max), loop)  # fmt: skip
     nominal_bw = float(rep.iso_bandwidth_hz[-1]) if bool(rep.stable[-1]) else None
-    keep = ("stable", "n_closed_loop_rhp", "gm_freq_hz", "pm_freq_hz") + FIELDS
+    keep = ("stable", "n_closed_loop_rhp", "nyquist_resolved", "gm_freq_hz", "pm_freq_hz") + FIELDS
     rep = dataclasses.replace(rep, cover=cover, loop=loop,
                               **{k: np.asarray(getattr(rep, k))[:S] for k in keep})  # fmt: skip
     bw = np.asarray(rep.iso_bandwidth_hz)[np.asarray(rep.stable, bool)]
@@ -126,6 +126,7 @@ def robust_from_files(
     metrics=(),
     seed: int = 0,
     ts: float | None = None,
+    n_freq: int | None = None,
 ) -> dict:
     """Samples file and/or measured FRF + nominal model file → robust-check summary (and
     optional JSON file).
@@ -151,10 +152,15 @@ def robust_from_files(
     established"``) with its ``reason`` and ``remedy`` (:attr:`RobustReport.check`) and the
     ``loop`` it was checked on. ``ts`` (s): the rate the controller runs at for the loop
     draws (default: the device's with ``device``, else the continuous-time controller).
+    ``n_freq``: points of the analysis grid (default: :func:`loop_gp_check`'s for loop draws,
+    :func:`~hapid._grids.continuous_grid`'s for parameter draws); a denser grid resolves
+    loci whose phase the default grid does not.
     """
 
     if draws not in DRAWS:  # before any file is read
         raise ValueError(f"draws must be one of {DRAWS}, got {draws!r}")
+    if n_freq is not None and int(n_freq) < 50:
+        raise ValueError(f"n_freq must be at least 50 grid points, got {n_freq}")
     model = load_model(model_path)
     ps = None if samples_path is None else load_samples(samples_path, n=model.n)
     measured = load_frf(frf_path) if frf_path is not None else getattr(ps, "measured", None)
@@ -168,13 +174,15 @@ def robust_from_files(
             )
         if ts is None and device is not None:
             ts = (preset(device) if isinstance(device, str) else device).ts
+        kw = {} if n_freq is None else {"n_freq": int(n_freq)}
         rep, info = loop_gp_check(measured, model, g, n_draws=max_samples, seed=seed, gm_db=gm_db,
-                                  pm_deg=pm_deg, metrics=metrics, ts=ts)  # fmt: skip
+                                  pm_deg=pm_deg, metrics=metrics, ts=ts, **kw)  # fmt: skip
         post = rep.numbers() | {"draws": info}
     else:
         if ps is None:
             raise ValueError("the robust check on parameter draws needs a samples file")
-        rep = robust_check(ps, (model, g), posterior_omega(), gm_db=gm_db, pm_deg=pm_deg,
+        om = posterior_omega() if n_freq is None else posterior_omega(int(n_freq))
+        rep = robust_check(ps, (model, g), om, gm_db=gm_db, pm_deg=pm_deg,
                            max_samples=max_samples, metrics=metrics, seed=seed)  # fmt: skip
         post = dataclasses.replace(rep, loop="continuous-time controller, second-order parameter draws",
                                    uncovered=PARAMS_UNCOVERED).numbers()  # fmt: skip

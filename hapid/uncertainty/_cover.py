@@ -16,7 +16,9 @@ in no draw; below ``f₁`` the draws continue as a stated assumption. The requir
 
 Otherwise the check is ``not established``, with the reason and what would establish it
 (measure the FRF to a higher / lower frequency, or lower ``|g|`` above ``f_e``). A check that
-fails on the draws stays ``failed``: the draws are the evidence at hand.
+fails on the draws stays ``failed``: the draws are the evidence at hand (unless it fails only
+through draws whose Nyquist count the grid did not resolve:
+:meth:`~hapid.uncertainty.RobustReport.failed_check`).
 """
 
 from __future__ import annotations
@@ -86,9 +88,9 @@ def cover_check(report, cover: EvidenceCover, name: str) -> Check:
     cover (module docstring): failed when the draws fail, else not established when the loop
     above the band is not small-gain or a deciding crossing lies outside the band, else
     passed."""
-    why = report.reasons()
-    if why:
-        return Check(Verdict.FAILED, reason="; ".join(why), name=name)
+    failed = report.failed_check(name)
+    if failed is not None:
+        return failed
     lo, hi = cover.measured_hz
     reasons, remedies = [], []
     if not cover.beyond_covered:

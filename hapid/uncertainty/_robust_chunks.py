@@ -34,7 +34,7 @@ from ..control import MetricsSpec, analyze_loop
 from ..control._metrics import grid_pass, metrics_screened, refine_many
 from ._robust_report import FIELDS
 
-_KEYS = ("stable", "n_closed_loop_rhp") + FIELDS + ("gm_freq_hz", "pm_freq_hz")
+_KEYS = ("stable", "n_closed_loop_rhp", "nyquist_resolved") + FIELDS + ("gm_freq_hz", "pm_freq_hz")
 
 
 def _spec(metrics: tuple) -> MetricsSpec:
@@ -45,8 +45,8 @@ def _spec(metrics: tuple) -> MetricsSpec:
 
 
 def _fields(m: dict, spec: MetricsSpec) -> dict:
-    keys = ("stable", "n_closed_loop_rhp", "gm_db", "pm_deg", "iso_bandwidth_hz", "gm_freq_hz",
-            "pm_freq_hz")  # fmt: skip
+    keys = ("stable", "n_closed_loop_rhp", "nyquist_resolved", "gm_db", "pm_deg",
+            "iso_bandwidth_hz", "gm_freq_hz", "pm_freq_hz")  # fmt: skip
     out = {k: m[k] for k in keys}
     nan = jnp.full_like(m["gm_db"], jnp.nan)
     out["t_peak_db"] = m["t_peak_db"] if spec.t_peak else nan

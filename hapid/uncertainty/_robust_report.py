@@ -75,6 +75,7 @@ class RobustReport:
     cover: EvidenceCover | None = None
     loop: str = ""
     uncovered: tuple = ()
+    nyquist_resolved: np.ndarray | None = None
 
     @property
     def check(self) -> Check:
@@ -89,13 +90,42 @@ class RobustReport:
             f" ({self.loop})" if self.loop else "")  # fmt: skip
         if self.cover is not None:
             return cover_check(self, self.cover, name)
-        why = self.reasons()
-        if why:
-            return Check(Verdict.FAILED, reason="; ".join(why), name=name)
+        failed = self.failed_check(name)
+        if failed is not None:
+            return failed
         if self.uncovered:
             return Check(Verdict.NOT_ESTABLISHED, reason=self.uncovered[0],
                          remedy=self.uncovered[1], name=name)  # fmt: skip
         return Check(Verdict.PASSED, name=name)
+
+    def failed_check(self, name: str = "") -> Check | None:
+        """The check when the requirements fail on the plants, else None: ``failed`` with
+        :meth:`reasons`, or ``not established`` when the failure rests on plants whose
+        Nyquist count the frequency grid did not resolve (:attr:`nyquist_resolved` False:
+        they count as unstable, but would pass were every one of them stable with ample
+        margins). Resolving them needs a denser grid (``hapid robust --n-freq``)."""
+        why = self.reasons()
+        if not why:
+            return None
+        unres = (np.zeros(self.n, bool) if self.nyquist_resolved is None
+                 else ~np.asarray(self.nyquist_resolved, bool))  # fmt: skip
+        if unres.any():
+            best = {f: np.where(unres, np.inf, getattr(self, f)) for f in ("gm_db", "pm_deg")}
+            hopeful = dataclasses.replace(
+                self, stable=np.asarray(self.stable, bool) | unres, nyquist_resolved=None,
+                cover=None, uncovered=(), **best,
+            )  # fmt: skip
+            if not hopeful.reasons():
+                k = int(unres.sum())
+                return Check(
+                    Verdict.NOT_ESTABLISHED, name=name,
+                    reason=f"{k} of {self.n} plants have a Nyquist count the frequency grid "
+                    f"does not resolve; counted unstable they fail the check ({why[0]}), "
+                    "counted stable they would not",
+                    remedy="a denser frequency grid (hapid robust --n-freq, e.g. twice the "
+                    "points) to resolve their loci",
+                )  # fmt: skip
+        return Check(Verdict.FAILED, reason="; ".join(why), name=name)
 
     @property
     def not_computed(self) -> tuple:
