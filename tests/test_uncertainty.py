@@ -3,6 +3,7 @@
 import warnings
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from helpers_fit import batch_frfs, random_truth, synthetic_frf
@@ -396,6 +397,15 @@ def test_robust_default_spec_equals_full_spec():
     np.testing.assert_allclose(disk.disk_margin, full.disk_margin, rtol=1e-12)
     with pytest.raises(ValueError, match="metrics must be among"):
         robust_check(P, G, omega, metrics=("peak",))
+    # a padded chunk (the last 4 of 24 slots copies of plant 19; no grid pass of their own,
+    # the same compiled programs as the full chunk): the real plants' fields are unchanged
+    from hapid.uncertainty._robust_chunks import _analyze_chunk, _pad, _spec
+
+    part = _analyze_chunk(_pad(jnp.asarray(P[:20]), 24), _pad(jnp.zeros(20), 24), jnp.asarray(G),
+                          jnp.asarray(omega), False, _spec(()), 20)  # fmt: skip
+    for f in ("stable", "nyquist_resolved", "gm_db", "pm_deg", "iso_bandwidth_hz"):
+        np.testing.assert_array_equal(part[f][:20], getattr(fast, f)[:20])
+        np.testing.assert_array_equal(part[f][20:], np.repeat(part[f][19:20], 4))
 
 
 def test_robust_report_not_computed_fields_are_absent():

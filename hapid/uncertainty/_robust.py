@@ -219,7 +219,7 @@ def robust_check(
         Pc, pc = get(i, j)  # (not `pol`: the array path's `get` reads that name)
         pc = jnp.asarray(pc, dtype=jnp.float64) + c_rhp
         if backend == "metrics":
-            r = _analyze_chunk(_pad(Pc, chunk), _pad(pc, chunk), G, om, vectorize, spec)
+            r = _analyze_chunk(_pad(Pc, chunk), _pad(pc, chunk), G, om, vectorize, spec, j - i)
         else:  # analyze_loop computes every field: keep the asked ones, as the default backend
             r = _reference_chunk(Pc, pc, G, om)
             r |= {f: np.full_like(r[f], np.nan, dtype=float) for f in FIELDS if f not in computed}

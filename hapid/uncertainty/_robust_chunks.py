@@ -94,16 +94,34 @@ def _refine_chunk(grids, spec):
     return _fields(refine_many(out, tasks, None, spec), spec)
 
 
-def _analyze_chunk(P, p_ol, G, omega, vectorize, spec):
+def _analyze_chunk(P, p_ol, G, omega, vectorize, spec, m=None):
     """Per-plant fields of a (padded) chunk: :func:`~hapid.control.loop_metrics`'s program
     vmapped over the chunk (``vectorize=True``), or its grid pass once per plant and its
-    refinement pass vmapped over the chunk (default)."""
+    refinement pass vmapped over the chunk (default). ``m``: the chunk's real plants (the
+    rest is padding; default all): the per-plant grid pass skips the padding, whose
+    refinement repeats the last real plant's.
+
+    With several JAX devices (:func:`hapid._config.cpu_devices`: one per core) the per-plant
+    grid passes are dealt out round-robin, one device each, and run side by side; the
+    refinement runs on the first device. Each plant's program is the same on every device,
+    so the fields are the same as on one."""
     if vectorize:
         return {k: np.asarray(v) for k, v in _metrics_chunk(P, p_ol, G, omega, spec).items()}
     # the grid pass per plant, not vmapped: a vmapped program keeps the batch axis in front
     # of the kernels' entry-major layout (measured ~2-3x slower per plant); the refinement
     # is a few small sequential steps, whose cost is their count, so it is shared
-    grids = [_grid_one(P, np.int32(i), p_ol, G, omega, spec) for i in range(P.shape[0])]
+    size = P.shape[0]
+    m = size if m is None else int(m)
+    devs = jax.local_devices()
+    args = [(P, p_ol, G, omega)] if len(devs) == 1 else [
+        jax.device_put((P, p_ol, G, omega), d) for d in devs]  # fmt: skip
+    grids = []
+    for i in range(m):
+        a = args[i % len(args)]
+        grids.append(_grid_one(a[0], np.int32(i), a[1], a[2], a[3], spec))
+    if len(args) > 1:
+        grids = jax.device_put(grids, devs[0])
+    grids += [grids[-1]] * (size - m)
     return {k: np.asarray(v) for k, v in _refine_chunk(grids, spec).items()}
 
 
