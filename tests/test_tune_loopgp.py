@@ -155,9 +155,10 @@ def test_robust_design_loop_gp_needs_an_frf():
 
 
 def test_correlated_draws_equal_the_per_element_sum_and_have_the_covariance():
-    """The loop draws' Gaussian square root as one matrix product equals the per-element sum
-    Σ_k root[m, k] z[s, k, e] over the same normal draws (numpy einsum), and their empirical
-    covariance is the requested one (a clipped negative eigenvalue contributes nothing)."""
+    """The loop draws' Gaussian square root as two real matrix products equals the
+    per-element sum Σ_k root[m, k] z[k, s, e] over the same normal draws (numpy einsum), and
+    their empirical covariance is the requested one (a clipped negative eigenvalue
+    contributes nothing)."""
     from hapid.uncertainty._loopgp import _correlated, matern52
 
     u = np.linspace(0.0, 3.0, 40)
@@ -166,9 +167,11 @@ def test_correlated_draws_equal_the_per_element_sum_and_have_the_covariance():
     got = _correlated(cov, 4000, 3, np.random.default_rng(5))
     rng = np.random.default_rng(5)
     w, V = np.linalg.eigh(cov)
-    root = V * np.sqrt(np.clip(w, 0.0, None))[None]
-    z = (rng.standard_normal((4000, 40, 3)) + 1j * rng.standard_normal((4000, 40, 3))) / np.sqrt(2)
-    ref = np.einsum("mk,ske->sme", root, z)
+    keep = w > 0
+    root = V[:, keep] * np.sqrt(w[keep])[None]
+    r = int(keep.sum())
+    z = (rng.standard_normal((r, 4000, 3)) + 1j * rng.standard_normal((r, 4000, 3))) / np.sqrt(2)
+    ref = np.einsum("mk,kse->sme", root, z)
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
     emp = np.einsum("sme,sne->mn", got, np.conj(got)).real / (4000 * 3)
     assert np.max(np.abs(emp - cov)) < 0.1 * np.max(cov)

@@ -101,7 +101,7 @@ def _analyze_chunk(P, p_ol, G, omega, vectorize, spec, m=None):
     rest is padding; default all): the per-plant grid pass skips the padding, whose
     refinement repeats the last real plant's.
 
-    With several JAX devices (:func:`hapid._config.cpu_devices`: one per core) the per-plant
+    With several JAX devices (``HAPID_CPU_DEVICES``, :mod:`hapid._config`) the per-plant
     grid passes are dealt out round-robin, one device each, and run side by side; the
     refinement runs on the first device. Each plant's program is the same on every device,
     so the fields are the same as on one."""
