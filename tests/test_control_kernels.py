@@ -42,9 +42,11 @@ def _match_err(e, r):
 
 def _check_eigvals(n, seed):
     rng = np.random.default_rng(seed)
-    cases = _cases(n, rng)
+    cases = _cases(n, rng, B=60)
     A = np.concatenate(list(cases.values()))
-    e = np.asarray(jax.jit(lambda A: K.eigvals(K.to_entries(A)))(jnp.asarray(A))).T
+    # the program of tests/test_kernels_eig.py (jit of eigvals on 300 matrices): one compile
+    # per n between the two files (the persistent cache holds it)
+    e = np.asarray(jax.jit(K.eigvals)(K.to_entries(jnp.asarray(A)))).T
     r = np.linalg.eigvals(A)
     scale = np.linalg.norm(A, axis=(1, 2))
     err = _match_err(e, r) / scale
@@ -73,9 +75,9 @@ def test_eigvals_above_the_unrolled_size_use_lapack(n):
 
 
 def test_eigvals_of_nonfinite_matrices_terminate():
-    A = np.full((3, 3, 4), np.nan + 0j)
-    e = np.asarray(K.eigvals(jnp.asarray(A)))
-    assert e.shape == (3, 4) and not np.all(np.isfinite(e))
+    A = np.full((3, 3, 300), np.nan + 0j)  # the n = 3 program of test_eigvals_equal_lapack
+    e = np.asarray(jax.jit(K.eigvals)(jnp.asarray(A)))
+    assert e.shape == (3, 300) and not np.all(np.isfinite(e))
 
 
 @pytest.mark.parametrize("n", [2, 3, 4, 5])
