@@ -1,5 +1,6 @@
 """XLA small-matrix kernels (hapid.control._kernels) against numpy/LAPACK."""
 
+import functools
 import itertools
 
 import jax
@@ -96,13 +97,14 @@ def test_pair_optimal_is_the_best_permutation(n):
 def test_det_inv_and_sigma_max_equal_lapack():
     rng = np.random.default_rng(3)
     A = rng.standard_normal((200, 4, 4)) + 1j * rng.standard_normal((200, 4, 4))
-    det, Ai = K.det_inv(K.to_entries(jnp.asarray(A)), unroll=True)
+    E = K.to_entries(jnp.asarray(A))  # jitted, as the loop analysis runs them (not op by op)
+    det, Ai = jax.jit(functools.partial(K.det_inv, unroll=True))(E)
     np.testing.assert_allclose(np.asarray(det), np.linalg.det(A), rtol=1e-11)
     np.testing.assert_allclose(np.asarray(K.from_entries(Ai)), np.linalg.inv(A), rtol=1e-9,
                                atol=1e-10 * np.abs(np.linalg.inv(A)).max())  # fmt: skip
-    s = np.asarray(K.sigma_max(K.to_entries(jnp.asarray(A))))
+    s = np.asarray(jax.jit(K.sigma_max)(E))
     np.testing.assert_allclose(s, np.linalg.svd(A, compute_uv=False)[:, 0], rtol=1e-12)
-    lo, hi = K.sigma_bounds(K.to_entries(jnp.asarray(A)))
+    lo, hi = jax.jit(K.sigma_bounds)(E)
     assert np.all(np.asarray(lo) <= s * (1 + 1e-12)) and np.all(s <= np.asarray(hi) * (1 + 1e-12))
 
 
