@@ -17,29 +17,36 @@ os.environ.setdefault(
 
 import hapid  # noqa: E402,F401  (float64 before any test builds arrays)
 
-# The heaviest test files (seconds of compile and run on the idle 2-core machine, measured
-# with --durations) go first: `make test` hands out whole files (--dist loadfile), and a
-# heavy file handed out last leaves the other worker idle (longest-first scheduling).
-# Order within a file is kept.
+# The heaviest test files (seconds of compile and run, measured with --durations=0 on a
+# clean-clone `make test`) go first: `make test` hands out whole files (--dist loadfile), and
+# a heavy file handed out last leaves the other worker idle (longest-first scheduling).
+# Order within a file is kept. test_kernels_eig.py stays before test_control_kernels.py: the
+# latter reuses the former's eigvals programs from the persistent cache.
 _HEAVY_FIRST = (
     "test_fit_nls.py",
-    "test_kernels_eig.py",
     "test_uncertainty.py",
-    "test_notebooks.py",
-    "test_tune_chance.py",
     "test_uncertainty_gp_corr.py",
-    "test_fit_ml.py",
-    "test_fit_batch.py",
-    "test_control_margins.py",
-    "test_tune_backoff.py",
-    "test_design.py",
-    "test_cli_edges.py",
+    "test_fit_fast.py",
     "test_result_convention.py",
-    "test_wls_batch.py",
-    "test_tune_evidence.py",
     "test_experiment.py",
-    "test_control_controller.py",
+    "test_stress.py",
+    "test_kernels_eig.py",
+    "test_tune_evidence.py",
+    "test_uncertainty_gp.py",
+    "test_tune.py",
+    "test_design.py",
+    "test_control_kernels.py",
     "test_properties.py",
+    "test_notebooks.py",
+    "test_control_discrete.py",
+    "test_closed_loop.py",
+    "test_wls_batch.py",
+    "test_fit_ml.py",
+    "test_wall.py",
+    "test_device.py",
+    "test_control_loop.py",
+    "test_control_controller.py",
+    "test_control_compensator.py",
 )
 
 

@@ -1,5 +1,6 @@
 """XLA small-matrix kernels (hapid.control._kernels) against numpy/LAPACK."""
 
+import functools
 import itertools
 
 import jax
@@ -42,9 +43,11 @@ def _match_err(e, r):
 
 def _check_eigvals(n, seed):
     rng = np.random.default_rng(seed)
-    cases = _cases(n, rng)
+    cases = _cases(n, rng, B=60)
     A = np.concatenate(list(cases.values()))
-    e = np.asarray(jax.jit(lambda A: K.eigvals(K.to_entries(A)))(jnp.asarray(A))).T
+    # the program of tests/test_kernels_eig.py (jit of eigvals on 300 matrices): one compile
+    # per n between the two files (the persistent cache holds it)
+    e = np.asarray(jax.jit(K.eigvals)(K.to_entries(jnp.asarray(A)))).T
     r = np.linalg.eigvals(A)
     scale = np.linalg.norm(A, axis=(1, 2))
     err = _match_err(e, r) / scale
@@ -73,18 +76,18 @@ def test_eigvals_above_the_unrolled_size_use_lapack(n):
 
 
 def test_eigvals_of_nonfinite_matrices_terminate():
-    A = np.full((3, 3, 4), np.nan + 0j)
-    e = np.asarray(K.eigvals(jnp.asarray(A)))
-    assert e.shape == (3, 4) and not np.all(np.isfinite(e))
+    A = np.full((3, 3, 300), np.nan + 0j)  # the n = 3 program of test_eigvals_equal_lapack
+    e = np.asarray(jax.jit(K.eigvals)(jnp.asarray(A)))
+    assert e.shape == (3, 300) and not np.all(np.isfinite(e))
 
 
 @pytest.mark.parametrize("n", [2, 3, 4, 5])
 def test_pair_optimal_is_the_best_permutation(n):
     rng = np.random.default_rng(10 + n)
-    I = 500
+    I = 400  # the jitted program of tests/test_kernels_eig.py (eager there for n ≤ 2)
     a = rng.standard_normal((n, I)) + 1j * rng.standard_normal((n, I))
     b = a + 0.8 * (rng.standard_normal((n, I)) + 1j * rng.standard_normal((n, I)))
-    got = np.asarray(K.pair_optimal(jnp.asarray(a), jnp.asarray(b)))
+    got = np.asarray(jax.jit(K.pair_optimal)(jnp.asarray(a), jnp.asarray(b)))
     perms = np.array(list(itertools.permutations(range(n))))
     cost = np.sum(np.abs(a.T[:, None, :] - b.T[:, perms]) ** 2, axis=2)  # (I, P)
     best = b.T[np.arange(I)[:, None], perms[np.argmin(cost, axis=1)]]
@@ -94,13 +97,14 @@ def test_pair_optimal_is_the_best_permutation(n):
 def test_det_inv_and_sigma_max_equal_lapack():
     rng = np.random.default_rng(3)
     A = rng.standard_normal((200, 4, 4)) + 1j * rng.standard_normal((200, 4, 4))
-    det, Ai = K.det_inv(K.to_entries(jnp.asarray(A)), unroll=True)
+    E = K.to_entries(jnp.asarray(A))  # jitted, as the loop analysis runs them (not op by op)
+    det, Ai = jax.jit(functools.partial(K.det_inv, unroll=True))(E)
     np.testing.assert_allclose(np.asarray(det), np.linalg.det(A), rtol=1e-11)
     np.testing.assert_allclose(np.asarray(K.from_entries(Ai)), np.linalg.inv(A), rtol=1e-9,
                                atol=1e-10 * np.abs(np.linalg.inv(A)).max())  # fmt: skip
-    s = np.asarray(K.sigma_max(K.to_entries(jnp.asarray(A))))
+    s = np.asarray(jax.jit(K.sigma_max)(E))
     np.testing.assert_allclose(s, np.linalg.svd(A, compute_uv=False)[:, 0], rtol=1e-12)
-    lo, hi = K.sigma_bounds(K.to_entries(jnp.asarray(A)))
+    lo, hi = jax.jit(K.sigma_bounds)(E)
     assert np.all(np.asarray(lo) <= s * (1 + 1e-12)) and np.all(s <= np.asarray(hi) * (1 + 1e-12))
 
 

@@ -19,6 +19,8 @@ import numpy as np
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
+from test_control_nyquist import _freq_resp
+from test_control_nyquist import _random_loop as family_loop
 
 import hapid  # noqa: F401  (float64)
 from hapid.control import StateSpace, analyze_loop, closed_loop_matrix, loop_matrices
@@ -163,27 +165,28 @@ N_GRID = 1500
 
 
 def _random_loop(rng):
-    """(P, G) state spaces, n = 3, from the seeded family of test_control_nyquist (plants
-    with 0–2 RHP modes; static, low-pass or unstable first-order G)."""
-    from test_control_nyquist import _random_loop as family_loop
-
+    """(P, G) state-space matrices ``(A, B, C, D)``, n = 3, from the seeded family of
+    test_control_nyquist (plants with 0–2 RHP modes; static, low-pass or unstable
+    first-order G)."""
     _, P, G = family_loop(rng, N_ROD)
-    return tuple(StateSpace(*(jnp.asarray(m) for m in ss)) for ss in (P, G))
+    return P, G
 
 
 @settings(max_examples=12, **SETTINGS)
 @given(seed=st.integers(0, 2**31 - 1))
 def test_nyquist_verdict_agrees_with_closed_loop_poles(seed):
+    # the responses on the grid come from numpy (StateSpace.at_omega has its own test against
+    # python-control in test_lti): its program would recompile for every random state count
     rng = np.random.default_rng(seed)
-    Ps, Gs = _random_loop(rng)
+    P, G = _random_loop(rng)
+    Ps, Gs = (StateSpace(*(jnp.asarray(m) for m in ss)) for ss in (P, G))
     cl = np.linalg.eigvals(np.asarray(closed_loop_matrix(Ps, Gs)))
-    ol = np.concatenate([np.linalg.eigvals(np.asarray(Ps.A)),
-                         np.linalg.eigvals(np.asarray(Gs.A)) if Gs.n_states else []])  # fmt: skip
+    ol = np.concatenate([np.linalg.eigvals(P[0]), np.linalg.eigvals(G[0]) if G[0].size else []])
     assume(not np.any(np.abs(cl.real) < 0.01 * np.abs(cl)))  # near-marginal: undecidable
     mags = np.abs(np.concatenate([ol, cl]))
     w = np.logspace(np.log10(mags.min()) - 3, np.log10(mags.max()) + 3, N_GRID)
     P_ol = int(np.sum(ol.real > 0))
-    r = analyze_loop(Ps.at_omega(w), Gs.at_omega(w), jnp.asarray(w), P_ol)
+    r = analyze_loop(_freq_resp(*P, w), _freq_resp(*G, w), jnp.asarray(w), P_ol)
     n_rhp = int(np.sum(cl.real > 0))
     assert bool(r.nyquist_resolved)
     assert bool(r.stable) == (n_rhp == 0)

@@ -253,29 +253,49 @@ def test_emcee_coverage_few_reps():
     assert np.mean(inside) >= 0.75
 
 
-def test_laplace_and_emcee_agree(case, tmp_path):
+@pytest.fixture(scope="module")
+def laplace_gaussian(case):
+    """The near-Gaussian case's posterior (no model-error terms) and its Laplace Gaussian."""
+    _, frf, nls = case
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error=False)
+    mean, cov, info = laplace_posterior(post, initial_point(post, nls))
+    assert info["converged"]
+    return post, mean, cov
+
+
+def test_laplace_and_emcee_agree(case, laplace_gaussian):
     """Near-Gaussian case (n = 2, 0.1 % noise, no model-error terms): emcee from the
     posterior's Laplace Gaussian and the NLS Laplace draws agree — means within 0.2 sd,
     sds within 15 % (ESS ≳ 1000 gives ≈ 0.03 sd / 2 % sampling error)."""
-    _, frf, nls = case
-    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error=False)
-    x0 = initial_point(post, nls)
-    mean, cov, info = laplace_posterior(post, x0)
-    assert info["converged"]
+    _, _, nls = case
+    post, mean, cov = laplace_gaussian
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ShortChainWarning)
-        ps = sample_posterior(
-            post, (mean, cov), n_steps=2000, seed=1, backend_path=tmp_path / "chain.h5"
-        )
+        ps = sample_posterior(post, (mean, cov), n_steps=2000, seed=1)
     d = ps.diagnostics
     assert 0.1 < d["acceptance_fraction"] < 0.5
     assert d["ess_min"] > 500
-    assert (tmp_path / "chain.h5").exists()
     lap = laplace_samples(nls, 20000, key=0)
     m_e, s_e = ps.theta.mean(0), ps.theta.std(0)
     m_l, s_l = lap.theta.mean(0), lap.theta.std(0)
     assert np.max(np.abs(m_e - m_l) / s_l) < 0.2
     assert np.max(np.abs(s_e / s_l - 1)) < 0.15
+
+
+def test_backend_path_stores_the_chain_and_leaves_the_draws_unchanged(laplace_gaussian, tmp_path):
+    """``backend_path``: the HDF5 file holds every step of every walker, and the draws are
+    those of the same seed without a file (a short chain: the property is not its length)."""
+    emcee = pytest.importorskip("emcee")
+    post, mean, cov = laplace_gaussian
+    path = tmp_path / "chain.h5"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ShortChainWarning)
+        a = sample_posterior(post, (mean, cov), n_steps=40, seed=1, backend_path=path)
+        b = sample_posterior(post, (mean, cov), n_steps=40, seed=1)
+    np.testing.assert_array_equal(a.theta, b.theta)
+    chain = emcee.backends.HDFBackend(str(path), read_only=True).get_chain()
+    assert chain.shape == (40, 2 * post.dim + 2, post.dim)
+    assert np.all(np.isfinite(chain))
 
 
 # --- robust check --------------------------------------------------------------------
