@@ -176,8 +176,8 @@ def test_cli_route_tuned_g_is_stable_on_a_device_not_used_for_tuning(tmp_path):
     from hapid import io
     from hapid.cli import main
     from hapid.device import cu5_soft
+    from hapid.io import load_samples
     from hapid.tune import load_design, true_plant_loop
-    from hapid.uncertainty import load_samples
 
     d = tmp_path
     for argv in (["simulate", "--device", "cu5_soft", "--out", str(d / "run.npz")],
