@@ -1,9 +1,9 @@
 """When may a continuation stage of the tuner stop? Wall time against the design's quality.
 
 ``hapid tune`` runs each continuation stage as a BFGS solve (optimistix) that stops when the
-Cauchy test holds at ``rtol = atol = tol`` or after ``--max-steps`` steps. This study runs the
-default route (``hapid tune --model nls.npz --frf frf.npz --fs FS``, loop draws) at several
-``tol`` on each device, then checks every design on that device's *true* plant with
+Cauchy test holds at ``rtol = atol = tol`` or after ``--max-steps`` steps
+(``hapid.defaults.TUNE_TOL``). This study runs the default route (``hapid tune --model nls.npz
+--frf frf.npz --fs FS``, loop draws) at several ``tol`` (every stage) on each device, then checks every design on that device's *true* plant with
 ``hapid analyze --device … --design …`` (the sampled loop). Devices: the presets and variants
 given, each simulated with the paper protocol, fitted by NLS to 40 Hz.
 
@@ -30,16 +30,10 @@ PY = sys.executable
 
 # run the CLI with the BFGS tolerance of the tuner's stages replaced (the study's only knob)
 _TUNE = """
-import sys, optimistix as optx
+import sys
 import hapid.tune._tune as T
-tol = float(sys.argv[1])
-_BFGS = optx.BFGS
-class _Patched:
-    def __getattr__(self, k):
-        return getattr(optx, k)
-    def BFGS(self, rtol, atol, **kw):
-        return _BFGS(rtol=tol, atol=tol, **kw)
-T.optx = _Patched()
+T.tune.__kwdefaults__["tol"] = float(sys.argv[1])  # every stage
+T.tune.__kwdefaults__["tol_worst"] = float(sys.argv[1])
 from hapid.cli import main
 sys.exit(main(sys.argv[2:]))
 """

@@ -27,6 +27,7 @@ from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
 from .._plain import jsonable
 from ..control import Compensator, MetricsSpec, nyquist_encirclements, nyquist_verdict
+from ..defaults import TUNE_TOL, TUNE_TOL_WORST
 from ..verdict import Check
 from ._exchange import exchange
 from ._objective import Box, Requirements, aggregate, penalized, penalized_parts
@@ -281,6 +282,8 @@ def tune(
     f_max_hz: float | None = None,
     progress=None,
     max_exchanges: int = 4,
+    tol: float = TUNE_TOL,
+    tol_worst: float = TUNE_TOL_WORST,
 ) -> TuneResult:
     """Tune g's parameters (log coordinates) for the largest robust isotropic bandwidth.
 
@@ -293,6 +296,9 @@ def tune(
     - ``rho``: weight of ``‖x − x₀‖²`` (keeps flat directions near the start).
     - ``progress``: a :class:`.TuneProgress` (a bar over the stages), or a callable
       given each stage's history entry, or None.
+    - ``tol``, ``tol_worst``: relative and absolute tolerance of each stage's BFGS solve when
+      a family is chance-constrained (quantile < 1), and when every family is worst-case
+      (:data:`hapid.defaults.TUNE_TOL`, :data:`hapid.defaults.TUNE_TOL_WORST`).
     - ``max_exchanges``: how many times, in all, a stage may be repeated after families with a
       dense grid (:attr:`.Family.dense`) had violated frequencies added to their training
       grid (:mod:`._exchange`; ``history[i]["grid_added"]`` counts them per family).
@@ -333,7 +339,10 @@ def tune(
         st = stable_scenarios(pm.compensator(zc[:-1]), families)
         return [None if m is None else jnp.asarray(m) for m in st], st
 
-    solver = optx.BFGS(rtol=1e-8, atol=1e-8)
+    # sampled plants: stop early (the training draws' tail is not the plant's); worst-case
+    # families: converge (defaults.TUNE_TOL, TUNE_TOL_WORST)
+    stol = tol if any(f.quantile < 1.0 for f in families) else tol_worst
+    solver = optx.BFGS(rtol=stol, atol=stol)
     history = []
 
     def same_topology(zc, count0, keep):
