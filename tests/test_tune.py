@@ -257,3 +257,26 @@ def test_tune_help_states_the_expected_time_and_quiet(capsys):
         main(["tune", "--help"])
     out = " ".join(capsys.readouterr().out.split())
     assert f"Expect about {TUNE_EXPECTED_S / 60:.0f} min" in out and "--quiet" in out
+
+
+def test_stage_tolerance_is_ignored_by_worst_case_families(small):
+    """Worst-case families (quantile 1) converge at ``tol_worst`` whatever ``tol`` says (the
+    same steps and parameters as the default)."""
+    _, _, _, _, sc_c = small
+    worst = Family(sc_c.subset([0, 1, 2]), quantile=1.0, name="train")
+    kw = dict(mu_schedule=(100.0, 1e4), max_steps=150)
+    a = tune([worst], Compensator.paper(), **kw)
+    b = tune([worst], Compensator.paper(), tol=1e-1, **kw)
+    assert [h["steps"] for h in a.history] == [h["steps"] for h in b.history]
+    np.testing.assert_array_equal(a.x, b.x)
+
+
+@pytest.mark.slow  # two more compiles of the stage solver; fast sibling: the test above
+def test_stage_tolerance_stops_chance_constrained_families_early(small):
+    """A chance-constrained family stops each stage at ``tol``: fewer BFGS steps when looser."""
+    _, _, _, _, sc_c = small
+    chance = Family(sc_c, quantile=0.75, name="draws")  # 4 plants, one may violate
+    kw = dict(mu_schedule=(100.0, 1e4), max_steps=150)
+    tight = tune([chance], Compensator.paper(), tol=1e-8, **kw)
+    loose = tune([chance], Compensator.paper(), tol=1e-1, **kw)
+    assert sum(h["steps"] for h in loose.history) < sum(h["steps"] for h in tight.history)
