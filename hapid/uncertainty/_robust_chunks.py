@@ -22,14 +22,13 @@ verdicts as the reference on 1000 cu5 posterior draws
 
 from __future__ import annotations
 
-from functools import partial
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from .._aot import cached_jit
 from ..control import MetricsSpec, analyze_loop
 from ..control._metrics import grid_pass, metrics_screened, refine_many
 from ._robust_report import FIELDS
@@ -83,15 +82,18 @@ def grid_pass_one(P, i, p_ol, G, omega, spec):
     return grid_pass(P[i], G, omega, p_ol[i], spec)
 
 
-_grid_one = partial(jax.jit, static_argnames="spec")(grid_pass_one)
+# through the export cache (hapid._aot): a later process skips tracing and lowering them
+_grid_one = cached_jit(grid_pass_one)
 
 
-@partial(jax.jit, static_argnames="spec")
-def _refine_chunk(grids, spec):
+def refine_chunk(grids, spec):
     """The refinement pass of every plant of a chunk at once (vmapped: its sequential steps
     are shared by the chunk instead of paid per plant)."""
     out, tasks = jax.tree.map(lambda *x: jnp.stack(x), *grids)
     return _fields(refine_many(out, tasks, None, spec), spec)
+
+
+_refine_chunk = cached_jit(refine_chunk)
 
 
 def _analyze_chunk(P, p_ol, G, omega, vectorize, spec, m=None):
@@ -99,12 +101,7 @@ def _analyze_chunk(P, p_ol, G, omega, vectorize, spec, m=None):
     vmapped over the chunk (``vectorize=True``), or its grid pass once per plant and its
     refinement pass vmapped over the chunk (default). ``m``: the chunk's real plants (the
     rest is padding; default all): the per-plant grid pass skips the padding, whose
-    refinement repeats the last real plant's.
-
-    With several JAX devices (``HAPID_CPU_DEVICES``, :mod:`hapid._config`) the per-plant
-    grid passes are dealt out round-robin, one device each, and run side by side; the
-    refinement runs on the first device. Each plant's program is the same on every device,
-    so the fields are the same as on one."""
+    refinement repeats the last real plant's."""
     if vectorize:
         return {k: np.asarray(v) for k, v in _metrics_chunk(P, p_ol, G, omega, spec).items()}
     # the grid pass per plant, not vmapped: a vmapped program keeps the batch axis in front
@@ -112,15 +109,7 @@ def _analyze_chunk(P, p_ol, G, omega, vectorize, spec, m=None):
     # is a few small sequential steps, whose cost is their count, so it is shared
     size = P.shape[0]
     m = size if m is None else int(m)
-    devs = jax.local_devices()
-    args = [(P, p_ol, G, omega)] if len(devs) == 1 else [
-        jax.device_put((P, p_ol, G, omega), d) for d in devs]  # fmt: skip
-    grids = []
-    for i in range(m):
-        a = args[i % len(args)]
-        grids.append(_grid_one(a[0], np.int32(i), a[1], a[2], a[3], spec))
-    if len(args) > 1:
-        grids = jax.device_put(grids, devs[0])
+    grids = [_grid_one(P, np.asarray(i, np.int32), p_ol, G, omega, spec) for i in range(m)]
     grids += [grids[-1]] * (size - m)
     return {k: np.asarray(v) for k, v in _refine_chunk(grids, spec).items()}
 
