@@ -21,7 +21,7 @@ COHERENCE_LOW = 0.9
 KAPPA = 0.5
 
 #: Wall time (s) of ``hapid tune`` with its defaults on cu5 (150 training / 200 held-out draws,
-#: 3–5 continuation stages of ≤ 300 BFGS steps, re-check): 300–370 s measured through the CLI
-#: on a 2-core machine, warm (benchmarks/README.md): the "expected" time of its progress
-#: report and ``--help``.
-TUNE_EXPECTED_S = 330.0
+#: 3–4 continuation stages stopped at ``defaults.TUNE_TOL``, re-check, certified fallback):
+#: 98 s measured through the CLI on an idle 2-core machine, warm (benchmarks/README.md): the
+#: "expected" time of its progress report and ``--help``.
+TUNE_EXPECTED_S = 100.0
