@@ -41,10 +41,11 @@ from ..uncertainty import posterior_from_files
 from ._commands import FILES, DesignOptions, commands, resolve
 
 #: a rough guide (s) to each stage's wall time on cu5 with the paper protocol and a warm JAX
-#: cache, for the progress lines; measured on 2 cores shared with other jobs, the robust
-#: stage took ~10 min (3 models × 1000 loop draws) and ML ~70 s
-EXPECTED_S = {"frf": 2.0, "wls": 10.0, "nls": 10.0, "ml": 70.0, "posterior": 40.0,
-              "robust": 300.0, "tune": 300.0}  # fmt: skip
+#: cache, for the progress lines; measured on an idle 2-core machine (`hapid design run.npz`):
+#: frf < 1, wls 2.4, nls 1.9, ml 14.8, posterior 7.2, robust 65 (3 models × 1000 loop
+#: draws), tune 96 s
+EXPECTED_S = {"frf": 2.0, "wls": 5.0, "nls": 5.0, "ml": 20.0, "posterior": 10.0,
+              "robust": 70.0, "tune": 100.0}  # fmt: skip
 MODELS = ("wls", "nls", "ml")
 
 
