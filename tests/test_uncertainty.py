@@ -418,15 +418,6 @@ def test_robust_default_spec_equals_full_spec():
     np.testing.assert_allclose(disk.disk_margin, full.disk_margin, rtol=1e-12)
     with pytest.raises(ValueError, match="metrics must be among"):
         robust_check(P, G, omega, metrics=("peak",))
-    # a padded chunk (the last 4 of 24 slots copies of plant 19; no grid pass of their own,
-    # the same compiled programs as the full chunk): the real plants' fields are unchanged
-    from hapid.uncertainty._robust_chunks import _analyze_chunk, _pad, _spec
-
-    part = _analyze_chunk(_pad(jnp.asarray(P[:20]), 24), _pad(jnp.zeros(20), 24), jnp.asarray(G),
-                          jnp.asarray(omega), False, _spec(()), 20)  # fmt: skip
-    for f in ("stable", "nyquist_resolved", "gm_db", "pm_deg", "iso_bandwidth_hz"):
-        np.testing.assert_array_equal(part[f][:20], getattr(fast, f)[:20])
-        np.testing.assert_array_equal(part[f][20:], np.repeat(part[f][19:20], 4))
 
 
 def test_robust_report_not_computed_fields_are_absent():
@@ -494,24 +485,32 @@ def _resonant_plants(omega, zetas, k=0.2, n=3):
 
 
 def test_a_coarse_grid_leaves_a_sharp_mode_unresolved_and_a_dense_one_resolves_it():
-    # the shapes of tests/test_uncertainty.py's mixed batch (24 plants, n = 3, 300
-    # frequencies): in one test process the compiled programs are shared
+    """n = 1 (the loop program compiles fastest; nothing here depends on n), 24 plants, one
+    grid size (one compiled program): evenly log-spaced, or the same count of points crowded
+    around the 10 Hz modes. Also: a padded chunk gives the full chunk's fields."""
     zetas = [0.3] * 21 + [3e-3] * 3  # three sharp modes among 24 plants
-    # one grid size (one compiled program): evenly log-spaced, or the same count of points
-    # crowded around the 10 Hz modes
-    N = 300
+    N, n = 300, 1
     coarse = 2 * np.pi * np.geomspace(0.1, 100.0, N)
     dense = 2 * np.pi * np.concatenate([np.geomspace(0.1, 8.9, N // 4), np.geomspace(9.0, 11.0, N // 2),
                                         np.geomspace(11.1, 100.0, N // 4)])  # fmt: skip
+    G = np.broadcast_to(np.eye(n), (N, n, n))
     req = dict(gm_db=0.0, pm_deg=0.0)
-    rc = robust_check(_resonant_plants(coarse, zetas), np.broadcast_to(np.eye(3), (N, 3, 3)),
-                      coarse, **req)  # fmt: skip
+    Pc = _resonant_plants(coarse, zetas, n=n)
+    rc = robust_check(Pc, G, coarse, **req)
     assert not rc.nyquist_resolved[-3:].any() and rc.nyquist_resolved[:21].all()
     assert rc.check.verdict is Verdict.NOT_ESTABLISHED
-    rd = robust_check(_resonant_plants(dense, zetas), np.broadcast_to(np.eye(3), (N, 3, 3)),
-                      dense, **req)  # fmt: skip
+    rd = robust_check(_resonant_plants(dense, zetas, n=n), G, dense, **req)
     assert rd.nyquist_resolved.all() and rd.stable.all()  # the closed form: all stable
     assert rd.check.verdict is Verdict.PASSED
+    # a padded chunk (the last 4 of 24 slots copies of plant 19; no grid pass of their own,
+    # the same compiled programs as the full chunk): the real plants' fields are unchanged
+    from hapid.uncertainty._robust_chunks import _analyze_chunk, _pad, _spec
+
+    part = _analyze_chunk(_pad(jnp.asarray(Pc[:20]), 24), _pad(jnp.zeros(20), 24),
+                          jnp.asarray(G, complex), jnp.asarray(coarse), False, _spec(()), 20)  # fmt: skip
+    for f in ("stable", "nyquist_resolved", "gm_db", "pm_deg", "iso_bandwidth_hz"):
+        np.testing.assert_array_equal(part[f][:20], getattr(rc, f)[:20])
+        np.testing.assert_array_equal(part[f][20:], np.repeat(part[f][19:20], 4))
 
 
 # --- predictive ------------------------------------------------------------------------
