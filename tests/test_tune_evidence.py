@@ -55,6 +55,25 @@ def test_mismatch_bound_and_certificate_match_numpy():
         evidence_from_frf(_frf(model, 1.0), model, kappa=1.5)
 
 
+def test_nominal_loop_is_unstable_when_the_hand_model_has_rhp_roots():
+    """The certificate's nominal loop (``L = g I`` on the model's own plant, the controller's
+    RHP poles counted): stable for a PD model, never for one whose Ẑ_H has an RHP root —
+    ``G = g Ẑ_T Ẑ_H⁻¹`` cancels it unstably (closed form: det(I + g I) = (1 + g)ⁿ makes no
+    encirclement to offset the controller's open-loop RHP pole)."""
+    import hapid
+    from hapid.control import controller_unstable_poles
+    from hapid.tune._evidence import nominal_stable
+
+    model = _model(2, 0)
+    g = Compensator.paper()
+    assert nominal_stable(model, g)
+    h = model.hand
+    bad = hapid.ImpedanceModel(hapid.SecondOrder(h.M, h.B, h.K - 2.0 * np.trace(np.asarray(h.K)) * np.eye(2)),
+                               model.total)  # fmt: skip
+    assert int(controller_unstable_poles(bad, g)) > 0
+    assert not nominal_stable(bad, g)
+
+
 def test_certificate_judges_the_measured_loci_like_the_analysis():
     """A non-normal measured plant P = A P̂ (L = g A): the certificate's loci distance is
     numpy's min |1 + g λ_i(A)|, it is never below the return difference σ̲(I + g A), and

@@ -37,6 +37,7 @@ from ._loop import SPEC_FIGURES as SPEC_FIGURES
 from ._loop import SPEC_REPORT as SPEC_REPORT
 from ._loop import SPEC_SWEEP as SPEC_SWEEP
 from ._loop import SPEC_VALIDATE as SPEC_VALIDATE
+from ._loop import SPEC_VERDICT as SPEC_VERDICT
 from ._loop import MetricsSpec as MetricsSpec
 from ._loop import Plant as Plant
 from ._loop import check_nyquist as check_nyquist

@@ -41,6 +41,8 @@ SPEC_SWEEP = MetricsSpec(disk=True)  # the sweep table has the disk margin colum
 SPEC_REPORT = MetricsSpec(disk=True, literal=True, kernels="lapack")  # analyze, paper summary
 SPEC_FIGURES = MetricsSpec(disk=True, literal=True, arrays=True, full_sv=True, kernels="lapack")
 SPEC_VALIDATE = MetricsSpec(disk=True, kernels="lapack")  # tune's re-check on the true plant
+SPEC_VERDICT = MetricsSpec(bandwidth=False, margins=False, t_peak=False, kernels="lapack")
+"""The Nyquist verdict alone (the evidence certificate's nominal loop): the smallest program."""
 
 
 class SystemResponse(eqx.Module):

@@ -187,8 +187,9 @@ def nominal_stable(model, g: Compensator) -> bool:
     from .._grids import continuous_grid
 
     om = continuous_grid(800)
-    rep = pipeline.loop(pipeline.controller(model, g), pipeline.model_plant(model, om))
-    return bool(rep.summary()["stable"])
+    rep = pipeline.loop(pipeline.controller(model, g), pipeline.model_plant(model, om),
+                        pipeline.SPEC_VERDICT)  # fmt: skip
+    return bool(rep.stable)
 
 
 def certificate(ev: Evidence, model, g: Compensator, floor: float = 0.5) -> dict:
