@@ -137,36 +137,59 @@ def _export(fn: Callable, args: tuple, name: str) -> tuple[object, object]:
     return exp, box["skeleton"]
 
 
+def _local_key(static, dyn_tree, leaves) -> tuple | None:
+    """An in-process key of a call: the pytree structures, the static leaves (with their
+    types) and every array leaf's shape/dtype/weak type — hashable and cheap, unlike
+    :func:`cache_key` (``repr`` and SHA-256 of the same), which a batch of calls with the
+    same structure would otherwise pay per call. ``None`` when a static leaf is unhashable."""
+    s_leaves, s_tree = jax.tree.flatten(static)
+    key = (s_tree, dyn_tree, tuple((type(x), x) for x in s_leaves), tuple(map(_aval, leaves)))
+    try:
+        hash(key)
+    except TypeError:
+        return None
+    return key
+
+
 def cached_jit(fn: Callable, name: str | None = None) -> Callable:
     """``fn`` jit-compiled through the export cache (module docstring: the contract)."""
     name = name or fn.__name__
     plain = eqx.filter_jit(fn)
     memo: dict[str, _Program | None] = {}
+    local: dict[tuple, _Program | None] = {}  # _local_key → the program of memo
 
     @functools.wraps(fn)
     def wrapper(*args):
         if any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(args)):
             return fn(*args)
         folder = export_dir()
-        key = cache_key(fn, args) if folder is not None else None
-        if key is None:
+        if folder is None:
             return plain(*args)
-        prog = memo.get(key, False)
+        dyn, static = eqx.partition(args, eqx.is_array)
+        leaves, dyn_tree = jax.tree.flatten(dyn)
+        lkey = _local_key(static, dyn_tree, leaves)
+        prog = local.get(lkey, False) if lkey is not None else False
         if prog is False:
-            path = folder / f"{name}-{key[:40]}.pkl"
-            prog = _load(path)
-            if prog is None:
-                try:
-                    exp, skeleton = _export(fn, args, name)
-                except Exception:  # noqa: BLE001  (not exportable: ordinary jit)
-                    prog = None
-                else:
-                    _save(path, exp, skeleton)
-                    prog = _Program(jax.jit(exp.call), skeleton)
-            memo[key] = prog
+            key = cache_key(fn, args)
+            if key is None:
+                return plain(*args)
+            prog = memo.get(key, False)
+            if prog is False:
+                path = folder / f"{name}-{key[:40]}.pkl"
+                prog = _load(path)
+                if prog is None:
+                    try:
+                        exp, skeleton = _export(fn, args, name)
+                    except Exception:  # noqa: BLE001  (not exportable: ordinary jit)
+                        prog = None
+                    else:
+                        _save(path, exp, skeleton)
+                        prog = _Program(jax.jit(exp.call), skeleton)
+                memo[key] = prog
+            if lkey is not None:
+                local[lkey] = prog
         if prog is None:
             return plain(*args)
-        leaves = jax.tree.leaves(eqx.filter(args, eqx.is_array))
         return _unflatten(prog.skeleton, prog.call(leaves))
 
     wrapper.plain = plain
