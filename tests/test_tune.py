@@ -280,3 +280,39 @@ def test_stage_tolerance_stops_chance_constrained_families_early(small):
     tight = tune([chance], Compensator.paper(), tol=1e-8, **kw)
     loose = tune([chance], Compensator.paper(), tol=1e-1, **kw)
     assert sum(h["steps"] for h in loose.history) < sum(h["steps"] for h in tight.history)
+
+
+def test_loop_draws_train_on_the_loop_the_held_out_check_closes(small):
+    """The tuner's loop-draw family and its held-out plants close one loop: at the
+    controller's rate (the discretized controller on a grid to π/ts) when ``ts`` is given —
+    its loci are those of :func:`hapid.pipeline.controller` at ``ts`` on the same draws —
+    and the continuous loop on the continuous grid when not."""
+    from hapid import pipeline
+    from hapid._grids import continuous_grid
+    from hapid.tune._recipe_plants import loop_draw_family
+    from hapid.uncertainty._loopgp import fit_loop_gp, loop_gp_plants
+
+    model, *_ = small
+    om_meas = TWO_PI * np.geomspace(1.0, 100.0, 40)
+    truth = _model(2, 0, jitter=0.05)
+    P_meas = np.asarray(truth.P(1j * om_meas)) * np.exp(-1j * om_meas * TS)[:, None, None]
+    lgp = fit_loop_gp(om_meas, P_meas, model)
+    kw = dict(n_freq=60, dense_factor=1, n_train=4, n_holdout=3, n_holdout_freq=80,
+              quantile=0.9, bandwidth=True, seed=0)  # fmt: skip
+    fam, hold, om_h = loop_draw_family(lgp, model, ts=TS, **kw)
+    om = np.asarray(fam.scenarios.omega)
+    assert fam.scenarios.ts == TS
+    assert om[-1] == pytest.approx(np.pi / TS) and om_h[-1] == pytest.approx(np.pi / TS)
+    assert hold.shape == (3, 80, 2, 2)
+    g = Compensator.paper()
+    P = loop_gp_plants(lgp, model, om, 4, 0)
+    L = P @ np.asarray(pipeline.controller(model, g, ts=TS).response(om))[None]
+    loci = np.sort_complex(np.linalg.eigvals(L))
+    ours = np.sort_complex(
+        np.asarray(g_response(g, om, TS))[None, :, None] * np.asarray(fam.scenarios.lam)
+    )
+    np.testing.assert_allclose(ours, loci, rtol=1e-7, atol=1e-9)
+    fam_c, _, om_hc = loop_draw_family(lgp, model, ts=None, **kw)
+    assert fam_c.scenarios.ts is None
+    np.testing.assert_allclose(np.asarray(fam_c.scenarios.omega), continuous_grid(60))
+    np.testing.assert_allclose(om_hc, continuous_grid(80))

@@ -2,7 +2,9 @@
 
 Families (see :class:`.Family`):
 
-* ``posterior`` — ``n_train`` posterior samples (continuous loops ``P̂_s · g Ẑ_T Ẑ_H⁻¹``).
+* ``posterior`` — ``n_train`` posterior samples (continuous loops ``P̂_s · g Ẑ_T Ẑ_H⁻¹``)
+  or loop draws conditioned on the measured FRF (:func:`.loop_draw_family`: the loop the
+  held-out check closes, at the controller's rate when it is known).
   They constrain the **margins** for a fraction ``quantile`` of the samples (CVaR); by
   default they do not claim bandwidth (set ``posterior_bandwidth``): Laplace draws of a
   misspecified fit can be far from the nominal at low frequency, where no g can make
@@ -31,7 +33,7 @@ import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
-from .._grids import below_nyquist_grid, nyquist_grid
+from .._grids import below_nyquist_grid
 from .._grids import continuous_grid as posterior_grid
 from ..control import Compensator
 from ._check import FRF_FLOOR, design_check, loop_label
@@ -53,6 +55,7 @@ from ._recipe_plants import (
     _n_models,
     _sample_models,
     count_grid,
+    loop_draw_family,
     posterior_plants,
     predictive_scenario_plants,
 )
@@ -209,27 +212,18 @@ def robust_design(
     hold_models = None
     omc = posterior_grid(n_freq)
     if draw_family == "loop_gp":
-        from ..uncertainty._loopgp import fit_loop_gp, loop_gp_plants, measured_data
+        from ..uncertainty._loopgp import fit_loop_gp, measured_data
 
         d = measured_data(src)
         lgp = fit_loop_gp(
             np.asarray(d["omega"], dtype=float), measured_plant(d["Z_H"], d["Z_T"]), model
         )
-        dense = None
-        if dense_factor > 1:  # the same draws on the dense grid (one joint GP draw)
-            omc_d = posterior_grid(dense_factor * n_freq)
-            P_all = loop_gp_plants(lgp, model, np.concatenate([omc, omc_d]), n_train, seed)
-            P, P_d = P_all[:, : omc.size], P_all[:, omc.size :]
-            dense = make_scenarios(P_d, model, omc_d)
-        else:
-            P = loop_gp_plants(lgp, model, omc, n_train, seed)
-        # held out at the controller's rate (the discretized controller on a grid to fs/2)
-        om_h = (posterior_grid(n_holdout_freq) if evidence_ts is None
-                else nyquist_grid(1.0 / evidence_ts, n_holdout_freq))  # fmt: skip
-        hold_models = loop_gp_plants(lgp, model, om_h, n_holdout, seed + 1)
-        families.append(Family(make_scenarios(P, model, omc), quantile=quantile,
-                               bandwidth=posterior_bandwidth, bw_quantile=0.5, name="posterior",
-                               dense=dense))  # fmt: skip
+        fam, hold_models, om_h = loop_draw_family(
+            lgp, model, n_freq=n_freq, dense_factor=dense_factor, n_train=n_train,
+            n_holdout=n_holdout, n_holdout_freq=n_holdout_freq, quantile=quantile,
+            bandwidth=posterior_bandwidth, seed=seed, ts=evidence_ts,
+        )  # fmt: skip
+        families.append(fam)
         info["posterior"] = {"train": int(n_train), "held_out": int(n_holdout),
                              "plants": "loop GP (Q = P P̂⁻¹ conditioned on the measured FRF)",
                              "loop_gp": {"ell": lgp.ell, "eta": lgp.eta, "sigma2": lgp.sigma2}}  # fmt: skip
@@ -293,7 +287,11 @@ def robust_design(
         families[0] = dataclasses.replace(families[0], quantile=quantile, bandwidth=True,
                                           bw_quantile=0.5)  # fmt: skip
     # the box of g's frequencies as without the evidence family (whose grid ends at ω_e)
-    f_max_hz = 0.45 * device.fs_hz if device is not None else float(omc[-1]) / TWO_PI / 4.0
+    f_max_hz = (
+        0.45 * device.fs_hz
+        if device is not None
+        else float(posterior_grid(n_freq)[-1]) / TWO_PI / 4.0
+    )
     ev = None
     if evidence:
         src = frf if frf is not None else getattr(samples, "predictive", None)
