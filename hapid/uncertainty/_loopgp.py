@@ -189,8 +189,8 @@ def loop_gp_draws(
         dlo = _below(gp, u[lo], d1, rng)
         if mean_only:  # the continuation's mean: ρ(u) d1
             dlo = matern52((gp.u[0] - u[lo]) / gp.ell)[None, :, None] * d1[:, None, :]
-        ratio = (omega[lo] / np.exp(u1))[None, :, None]
-        out[:, lo] = dlo.real + 1j * ratio * dlo.imag
+        dlo.imag *= (omega[lo] / np.exp(u1))[None, :, None]
+        out[:, lo] = dlo
     t = np.clip((u[hi] - ue) / TOP_TAPER, 0.0, 1.0)
     out[:, hi] = de[:, None] * (0.5 * (1.0 + np.cos(np.pi * t)))[None, :, None]
     return np.eye(gp.n) + out.reshape(n_draws, N, gp.n, gp.n)
@@ -250,9 +250,9 @@ def _below(gp: LoopGP, u_lo, d1, rng) -> np.ndarray:
     a1 = float(gp.envelope(gp.u[:1])[0])
     rho = matern52((gp.u[0] - u_lo) / gp.ell)
     C = a1**2 * (matern52((u_lo[:, None] - u_lo[None]) / gp.ell) - rho[:, None] * rho[None])
-    return rho[None, :, None] * d1[:, None, :] + _correlated(
-        0.5 * (C + C.T), d1.shape[0], d1.shape[1], rng
-    )
+    out = _correlated(0.5 * (C + C.T), d1.shape[0], d1.shape[1], rng)
+    out += rho[None, :, None] * d1[:, None, :]
+    return out
 
 
 def loop_gp_plants(gp: LoopGP, model, omega, n_draws: int, seed: int = 0, *,
