@@ -4,6 +4,7 @@ gradients). Library imports stay inside the commands (start-up time)."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from ._cli_errors import CLIError
@@ -99,6 +100,22 @@ def _robust_worker(a):
         robust_from_files(a.samples, m, None, **_robust_kw(a, dev))
 
 
+def no_bandwidth_note(table: dict, kept_start: bool = False) -> str:
+    """A line when the returned g meets the margins only by barely acting: its held-out
+    draws' median isotropic bandwidth is under a tenth of the start's (e.g. the certified
+    fallback's gain scaled far down when no g with the start's static gain holds the
+    margins). ``""`` otherwise."""
+    if not table:
+        return ""
+    ret = table.get("returned") or table.get("start" if kept_start else "tuned") or {}
+    bw, bw0 = (d.get("posterior_iso_bandwidth_hz_q50") for d in (ret, table.get("start", {})))
+    if bw is None or bw0 is None or not math.isfinite(bw0) or not bw < 0.1 * bw0:
+        return ""
+    return (f"NOTE: the returned g meets the margins by barely acting — held-out median isotropic "
+            f"bandwidth {bw:.2f} Hz against the start's {bw0:.2f} Hz (--free-dc lets the tuner "
+            "trade the start's static gain for margin)")  # fmt: skip
+
+
 def cmd_tune(a):
 
     import time
@@ -115,6 +132,10 @@ def cmd_tune(a):
     r = res["result"]
     if r.check is not None:  # the verdict first: passed / failed / not established, for which loop
         print(check_line(r.check))
+    tab = res.get("table", {})
+    note = no_bandwidth_note(tab, res.get("kept_start", False))
+    if note:
+        print(note)
     print(res.get("decision", ""))
     print(f"tuned in {r.wall_s:.1f} s: claimed robust bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, "
           f"smooth constraints {'met' if r.feasible else 'NOT met'} on the training scenarios")  # fmt: skip
@@ -123,7 +144,6 @@ def cmd_tune(a):
               "left more training loops unstable than the quantile allows (hapid.tune.gain_backoff)")  # fmt: skip
     for p in r.parameters():
         print(f"  {p['name']:16s} {p['start']:10.4g} → {p['tuned']:10.4g}")
-    tab = res.get("table", {})
     if tab:
         from ._cli_predict import recheck_table
 
@@ -138,7 +158,7 @@ def cmd_tune(a):
 
         save_json(a.report, {"start": tab.get("start"), "tuned": tab.get("tuned"), "constraints": r.constraints,
                              "history": r.history, "parameters": r.parameters(), "loop": res.get("loop"),
-                             "returned": tab.get("returned"), "decision": res.get("decision", ""),
+                             "returned": tab.get("returned"), "decision": res.get("decision", ""), "note": note,
                              "bandwidth_claimed_hz": r.bandwidth_hz, "tune_wall_s": r.wall_s}
                   | ({} if r.check is None else {"verdict": r.check.verdict.value, "reason": r.check.reason,
                                                  "remedy": r.check.remedy}))  # fmt: skip

@@ -316,3 +316,21 @@ def test_loop_draws_train_on_the_loop_the_held_out_check_closes(small):
     assert fam_c.scenarios.ts is None
     np.testing.assert_allclose(np.asarray(fam_c.scenarios.omega), continuous_grid(60))
     np.testing.assert_allclose(om_hc, continuous_grid(80))
+
+
+def test_a_returned_g_without_bandwidth_is_named_next_to_its_verdict():
+    """``hapid tune`` prints a note when the returned g meets the margins only by barely
+    acting (held-out median bandwidth under a tenth of the start's: the certified fallback on
+    cu5 with 3 samples of delay, 0.00 Hz against the paper g's 5.9 Hz), and none otherwise."""
+    from hapid._cli_uq import no_bandwidth_note
+
+    start = {"posterior_iso_bandwidth_hz_q50": 5.9}
+    fallback = {"start": start, "tuned": {"posterior_iso_bandwidth_hz_q50": 6.4},
+                "returned": {"posterior_iso_bandwidth_hz_q50": 0.0}}  # fmt: skip
+    assert "0.00 Hz against the start's 5.90 Hz" in no_bandwidth_note(fallback)
+    assert (
+        no_bandwidth_note({"start": start, "tuned": {"posterior_iso_bandwidth_hz_q50": 5.7}}) == ""
+    )
+    kept = {"start": start, "tuned": {"posterior_iso_bandwidth_hz_q50": 0.1}}
+    assert no_bandwidth_note(kept, kept_start=True) == "" and no_bandwidth_note(kept) != ""
+    assert no_bandwidth_note({}) == ""
