@@ -93,7 +93,9 @@ def test_certificate_judges_the_measured_loci_like_the_analysis():
     loci = np.min(np.abs(1.0 + gv[:, None] * np.linalg.eigvals(A)[None]))
     sig = np.min(np.linalg.svd(np.eye(2) + gv[:, None, None] * A, compute_uv=False)[:, -1])
     cert = certificate(ev, model, g)
-    assert cert["frf_min_loci_distance"] == pytest.approx(loci, rel=1e-9)
+    # A is defective (a Jordan block): its eigenvalues, and so the loci, are accurate to
+    # ~√eps only, and LAPACK builds differ at 1e-9 (measured 2.6e-9 between two machines)
+    assert cert["frf_min_loci_distance"] == pytest.approx(loci, rel=1e-7)
     assert cert["frf_min_sigma_I_plus_L"] == pytest.approx(sig, rel=1e-9)
     assert sig < 0.5 <= loci  # the case where the two rules disagree
     assert cert["certified"] == bool(
