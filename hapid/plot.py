@@ -205,6 +205,26 @@ def impedance_h1(f, Z, coherence=None, *, title: str = "", unit: str = "N/m"):
     return fig, axes
 
 
+def coherence(f, gamma2: dict, *, title: str = "", level: float = COHERENCE_LOW):
+    """The coherence γ² of an H1 estimate: one panel per entry of ``gamma2``
+    (``{label: (N, n)}``, one curve per response channel) against frequency ``f`` (Hz), the
+    low-coherence ``level`` dashed."""
+    fig, axes = plt.subplots(1, len(gamma2), figsize=(6.0 * len(gamma2), 3.4), squeeze=False)
+    for ax, (name, g) in zip(axes[0], gamma2.items(), strict=True):
+        g = np.asarray(g)
+        for i in range(g.shape[1]):
+            ax.semilogx(f, g[:, i], "-", lw=1.0, label=f"channel {i}")
+        ax.axhline(level, color="k", ls="--", lw=0.8)
+        ax.set_ylim(0, 1.05)
+        ax.set_xlabel("frequency (Hz)")
+        ax.set_ylabel("coherence γ²")
+        ax.set_title(f"{title}{name}", fontsize=10)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig, axes[0]
+
+
 def pphat(f, curves: dict, *, title: str = "", band_db: float = 7.0, f_band_hz: float = 30.0):
     """Singular values of P·P̂⁻¹ (ideally 0 dB) with the paper's ±7 dB band to 30 Hz shaded
     — the paper's Fig. 8."""

@@ -157,11 +157,17 @@ def test_design_on_a_lab_file_fits_a_single_impedance_and_makes_no_controller(tm
     numbers = _check_outputs(d)
     assert numbers["verdict"]["checks"] == [] and "no controller" in numbers["controller"]
     assert numbers["robust"] is None and numbers["tune"] is None
-    assert {f["name"] for f in numbers["figures"]} == {"frf_Z"}
+    assert {f["name"] for f in numbers["figures"]} == {"frf_Z", "coherence"}
     assert not (d / "design.npz").exists()
     # the same fit as the single commands, and it recovers the truth
     _run(["frf", ts, "--h1", "--nperseg", "512", "--f-min-hz", "2", "--f-max-hz", "60",
           "--out", tmp_path / "z.npz"])  # fmt: skip
+    # the coherence the report shows is the single command's H1 coherence: 512-sample Welch
+    # segments of white noise, 1 % noise: high but < 1 (numpy's median and minimum of the file)
+    g = np.asarray(io.load_impedance_frf(tmp_path / "z.npz").coherence)
+    coh = numbers["frf"]["coherence"]["Z"]
+    assert (coh["median"], coh["min"]) == (float(np.median(g)), float(np.min(g)))
+    assert 0.9 < coh["median"] < 1.0 and g.shape == (numbers["frf"]["n_freq"], 2)
     _run(["fit", tmp_path / "z.npz", "--method", "nls", "--out", tmp_path / "nls.npz"])
     a, b = io.load_impedance_model(d / "nls.npz"), io.load_impedance_model(tmp_path / "nls.npz")
     for m in ("M", "B", "K"):

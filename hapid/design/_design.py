@@ -13,12 +13,13 @@ import numpy as np
 
 from .. import __version__, io
 from ..control import Compensator
+from ..experiment import low_coherence_note
 from ..fit import crhp_report, pphat_band_db
 from ..impedance_frf import ImpedanceFRF
 from ..verdict import Check, Verdict, worst
 from . import _graph, _html
 from ._commands import FILES, DesignOptions, analyze_command, shell_line
-from ._figures import LABELS, figures, loops
+from ._figures import LABELS, coherences, figures, loops
 from ._verdict import TUNED, robust_check, tuned_check, tuned_row
 
 BAND_HZ = 30.0  # the P P̂⁻¹ band's upper edge, as hapid fit reports it (--band-hz default)
@@ -181,6 +182,26 @@ def run_design(input_path, out_dir, o: DesignOptions, parse: Callable, *, skip=(
     return DesignReport(d, tuple(checks), numbers, tuple(files))
 
 
+def _coherence_numbers(frf, f, kind: str) -> dict:
+    """The report's coherence figures: per H1 block (``Z``, or ``Z_H`` and ``Z_T``) the median
+    and minimum γ² and where it is low; a note why there is none otherwise."""
+    coh = coherences(frf)
+    if not coh:
+        why = ("a periodic run's FRF is averaged over whole periods (no leakage): its quality is "
+               "the element std" if kind == "run" else "the FRF file holds none")  # fmt: skip
+        return {"coherence": None, "coherence_note": f"not measured: {why}"}
+    blocks = {k: {"median": float(np.median(g)), "min": float(np.min(g)),
+                  "low": low_coherence_note(f, g)} for k, g in coh.items()}  # fmt: skip
+    low = "; ".join(f"{k}: {b['low']}" for k, b in blocks.items() if b["low"])
+    note = ", ".join(
+        f"{k} median γ² {b['median']:.3f} (min {b['min']:.2f})" for k, b in blocks.items()
+    )
+    return {
+        "coherence": blocks,
+        "coherence_note": note + (f"; {low}" if low else "; ≥ 0.9 everywhere"),
+    }
+
+
 def _numbers(o, path, cmds, log, res, fits, robust, tune, reps, checks, figs, files) -> dict:
     frf = res["frf"]
     f = np.asarray(frf.freq_hz)
@@ -209,8 +230,7 @@ def _numbers(o, path, cmds, log, res, fits, robust, tune, reps, checks, figs, fi
             "f_min_hz": float(f.min()),
             "f_max_hz": float(f.max()),
             "median_relative_std": rel,
-            "coherence": None,
-            "coherence_note": "not computed: hapid's H1 estimator reports the element std, not coherence",
+            **_coherence_numbers(frf, f, o.kind),
         },  # fmt: skip
         "fits": {m: _fit_numbers(r, frf) for m, r in fits.items()},
         "posterior": None
@@ -279,7 +299,8 @@ def _page(n: dict, figs) -> str:
     frf_html = H.table(("n", "frequencies", "range (Hz)", "median relative std of Z"),
                        [(fr["n"], fr["n_freq"], f"{fr['f_min_hz']:g}–{fr['f_max_hz']:g}",
                          fr["median_relative_std"])]) + H.para(f"Coherence: {fr['coherence_note']}.")  # fmt: skip
-    frf_html += "".join(H.figure(byname[k]) for k in ("frf_Z", "frf_Z_H", "frf_Z_T") if k in byname)
+    frf_html += "".join(H.figure(byname[k]) for k in ("frf_Z", "frf_Z_H", "frf_Z_T", "coherence")
+                        if k in byname)  # fmt: skip
     secs.append(("FRF and fits", frf_html))
     rows = []
     for m, q in n["fits"].items():

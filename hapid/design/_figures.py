@@ -42,6 +42,25 @@ def _models(fits: dict) -> dict:
     return {m: r["model"] for m, r in fits.items() if "error" not in r}
 
 
+def coherences(frf) -> dict:
+    """``{label: γ² (N, n)}`` an H1 FRF holds (``Z`` of a lab impedance, ``Z_H``/``Z_T`` of a
+    MIMO H1 estimate); empty for a periodic run's FRF, which has the element std instead."""
+    if isinstance(frf, ImpedanceFRF):
+        return {} if frf.coherence is None else {"Z": np.asarray(frf.coherence)}
+    out = {"Z_H": getattr(frf, "coherence_H", None), "Z_T": getattr(frf, "coherence_T", None)}
+    return {k: np.asarray(v) for k, v in out.items() if v is not None}
+
+
+def _coherence_figure(frf) -> list[Figure]:
+    coh = coherences(frf)
+    if not coh:
+        return []
+    fig, _ = plot.coherence(np.asarray(frf.freq_hz), coh, title="coherence γ² of ")
+    return [_fig("coherence", "Coherence of the H1 estimate", "Multiple coherence γ² of every "
+                 "response channel; below the dashed level noise, leakage or nonlinearity "
+                 "spoil the estimate there.", fig)]  # fmt: skip
+
+
 def _frf_figures(frf, fits: dict) -> list[Figure]:
     f = np.asarray(frf.freq_hz)
     f_dense = np.geomspace(f.min(), f.max(), 400)
@@ -122,4 +141,9 @@ def _robust_figure(robust: dict) -> list[Figure]:
 def figures(frf, fits: dict, robust: dict | None, reps: dict) -> list[Figure]:
     """Every figure the stages' results allow: the FRF with its std bars and fits, σ(P P̂⁻¹),
     the characteristic loci and σ(T − I) of ``reps`` (:func:`loops`), the robust histograms."""
-    return _frf_figures(frf, fits) + _loop_figures(reps) + _robust_figure(robust or {})
+    return (
+        _frf_figures(frf, fits)
+        + _coherence_figure(frf)
+        + _loop_figures(reps)
+        + _robust_figure(robust or {})
+    )

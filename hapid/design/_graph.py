@@ -37,6 +37,7 @@ from ..impedance_frf import ImpedanceFRF
 from ..io import load_samples, save_samples
 from ..robust import loop_gp_check
 from ..tune import design_info, tune_from_files
+from ..tune._progress import TuneProgress
 from ..uncertainty import posterior_from_files
 from ._commands import FILES, DesignOptions, commands, resolve
 
@@ -122,7 +123,11 @@ def _tune(parse, o, nls, post):
         io.save_model(files[FILES["nls"]], nls["model"], **nls["meta"])
         save_samples(files[FILES["posterior"]], post["samples"])
         a = parse(resolve(o["argv"], files, ""))
-        res = tune_from_files(a.model, a.samples, None, **tune_kw(a))
+        bar = TuneProgress(expected_s=EXPECTED_S["tune"])  # stages, steps, objective on stderr
+        try:
+            res = tune_from_files(a.model, a.samples, None, **tune_kw(a), progress=bar)
+        finally:
+            bar.close()
     return {"g": res["result"].g, "info": design_info(res), "decision": str(res.get("decision", "")),
             "kept_start": bool(res.get("kept_start", False))}  # fmt: skip
 
