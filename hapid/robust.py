@@ -24,7 +24,7 @@ from .tune._evidence import certificate, evidence_from_frf
 from .tune._response import g_response
 from .uncertainty._cover import EvidenceCover
 from .uncertainty._files import DRAWS, resolve_draws
-from .uncertainty._loopgp import fit_loop_gp, loop_gp_plants, measured_data, measured_plant
+from .uncertainty._loopgp import loop_gp_plants, measured_data, measured_loop_gp
 from .uncertainty._robust import FIELDS, device_plants, posterior_omega, robust_check
 
 
@@ -56,8 +56,9 @@ def loop_gp_check(
     ``(report, info)``: the :class:`~hapid.uncertainty.RobustReport` — its
     :attr:`~hapid.uncertainty.RobustReport.check` is ``passed`` only when the measured band
     covers the loop (:mod:`hapid.uncertainty._cover`) — and a dict with the GP's ``ell``,
-    ``eta``, ``sigma2``, the measured band ``measured_hz`` ``[f₁, f_e]``, the evidence
-    figures of :func:`hapid.tune.certificate` (``frf_min_sigma_I_plus_L``,
+    ``eta``, ``sigma2``, ``measurement_noise`` (whether the draws condition on the FRF's
+    element std, :func:`hapid.uncertainty.measured_noise_var`), the measured band
+    ``measured_hz`` ``[f₁, f_e]``, the evidence figures of :func:`hapid.tune.certificate` (``frf_min_sigma_I_plus_L``,
     ``beyond_loop_gain``, ``certified``), ``beyond_covered``, ``loop``, and the isotropic
     bandwidth as ``iso_bandwidth_nominal_hz`` (of the conditional-mean loop, the nominal
     estimate from the measured FRF; ``None`` if that loop is not stable) with the draws'
@@ -70,7 +71,7 @@ def loop_gp_check(
     """
 
     data = measured_data(measured)
-    gp = fit_loop_gp(data["omega"], measured_plant(data["Z_H"], data["Z_T"]), model)
+    gp = measured_loop_gp(data, model)
     kw = dict(gm_db=gm_db, pm_deg=pm_deg, p_stable_required=p_stable_required,
               max_samples=None, metrics=metrics)  # fmt: skip
     # the draws and, last, the conditional-mean loop (the nominal bandwidth): one batch
@@ -102,6 +103,7 @@ def loop_gp_check(
                               **{k: np.asarray(getattr(rep, k))[:S] for k in keep})  # fmt: skip
     bw = np.asarray(rep.iso_bandwidth_hz)[np.asarray(rep.stable, bool)]
     info = {"draws": "loop_gp", "ell": gp.ell, "eta": gp.eta, "sigma2": gp.sigma2,
+            "measurement_noise": "FRF element std" if gp.v is not None else "none (nugget only)",
             "measured_hz": [lo, hi], **cert, "beyond_covered": cover.beyond_covered,
             "loop": loop, "iso_bandwidth_nominal_hz": nominal_bw,
             "iso_bandwidth_interval_hz": [float(x) for x in np.quantile(bw, [0.05, 0.95])]

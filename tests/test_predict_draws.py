@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from hapid import io
 from hapid._constants import TWO_PI
 from hapid.cli import main
 from hapid.fit import Scale
@@ -155,3 +156,24 @@ def test_cli_bad_draws_are_one_line_errors(tmp_path, extra, sample_file, needle)
     save_samples(tmp_path / "without.npz", _samples(measured=False)[0])
     argv = ["predict", "--samples", sample_file, *extra, "--out", "o.npz"]
     assert_clean_error(argv, tmp_path, needle)
+
+
+def test_samples_file_keeps_the_frf_std_and_the_draws_condition_on_it(tmp_path):
+    """The measured FRF's element std survives the samples file, and loop draws made from the
+    file condition on it (the same draws as from the FRF in memory; wider at the measured
+    frequencies than without it)."""
+    ps, model = _samples()
+    m = ps.measured
+    std = {"Z_H_std": 1e-3 * np.abs(m["Z_H"]), "Z_T_std": 1e-3 * np.abs(m["Z_T"])}
+    noisy = dataclasses.replace(ps, measured=m | std)
+    path = io.save_samples(tmp_path / "s.npz", noisy)
+    back = io.load_samples(path)
+    for k, v in std.items():
+        np.testing.assert_array_equal(back.measured[k], v)
+    om = TWO_PI * F_MEAS
+    a = plant_draws(back, om, draws="loop_gp", max_samples=300, seed=2)
+    b = plant_draws(noisy, om, draws="loop_gp", max_samples=300, seed=2)
+    c = plant_draws(ps, om, draws="loop_gp", max_samples=300, seed=2)
+    np.testing.assert_array_equal(a.P, b.P)
+    spread = [float(np.mean(np.std(d.P, axis=0))) for d in (b, c)]
+    assert spread[0] > 1.5 * spread[1], spread

@@ -16,7 +16,7 @@ from .._constants import TWO_PI
 from .._grids import continuous_grid
 from ..fit import pphat
 from ..impedance_frf import ImpedanceFRF
-from ..uncertainty import fit_loop_gp, loop_gp_mean
+from ..uncertainty import loop_gp_mean, measured_data, measured_loop_gp
 
 LABELS = {"wls": "WLS + positize", "nls": "NLS (PD)", "ml": "ML"}
 
@@ -97,7 +97,7 @@ def loops(frf, nls_model, g_paper, g_tuned) -> dict:
     interpolated by the loop GP (``Q̄ P̂``, :func:`hapid.uncertainty.loop_gp_mean`) on the
     robust check's dense grid: the measured FRF's few frequencies cannot resolve a Nyquist
     count."""
-    gp = fit_loop_gp(np.asarray(frf.omega), np.asarray(frf.P), nls_model)
+    gp = measured_loop_gp(measured_data(frf), nls_model)
     omega = continuous_grid()
     P = loop_gp_mean(gp, omega) @ np.asarray(nls_model.P(1j * omega))
     plant = pipeline.Plant(jnp.asarray(omega), jnp.asarray(P), jnp.asarray(0), None)

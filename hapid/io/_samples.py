@@ -109,9 +109,12 @@ def load_samples(path, n: int | None = None) -> PosteriorSamples:
 
 
 def _load_measured(d: dict, path, n: int) -> dict:
-    out = {k: np.asarray(d[f"meas_{k}"]) for k in ("omega", "Z_H", "Z_T") if f"meas_{k}" in d}
+    keys = ("omega", "Z_H", "Z_T", "Z_H_std", "Z_T_std")
+    out = {k: np.asarray(d[f"meas_{k}"]) for k in keys if f"meas_{k}" in d}
     K = np.shape(out.get("omega", ()))
-    for k in ("Z_H", "Z_T"):
+    for k in ("Z_H", "Z_T", "Z_H_std", "Z_T_std"):
+        if k.endswith("_std") and k not in out:  # the element std is optional
+            continue
         if k not in out or np.shape(out[k]) != K + (n, n) or not np.all(np.isfinite(out[k])):
             raise ValueError(
                 f"{path}: measured FRF {k!r} missing, not finite or not ({K[0] if K else 0}, {n}, {n})"

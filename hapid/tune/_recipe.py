@@ -37,7 +37,7 @@ from .._grids import below_nyquist_grid
 from .._grids import continuous_grid as posterior_grid
 from ..control import Compensator
 from ._check import FRF_FLOOR, design_check, loop_label
-from ._evidence import KAPPA, beyond_grid, certificate, evidence_from_frf, measured_plant
+from ._evidence import KAPPA, beyond_grid, certificate, evidence_from_frf
 from ._objective import Family, Requirements
 from ._progress import note
 from ._recipe_decision import (
@@ -212,12 +212,9 @@ def robust_design(
     hold_models = None
     omc = posterior_grid(n_freq)
     if draw_family == "loop_gp":
-        from ..uncertainty._loopgp import fit_loop_gp, measured_data
+        from ..uncertainty._loopgp import measured_data, measured_loop_gp
 
-        d = measured_data(src)
-        lgp = fit_loop_gp(
-            np.asarray(d["omega"], dtype=float), measured_plant(d["Z_H"], d["Z_T"]), model
-        )
+        lgp = measured_loop_gp(measured_data(src), model)
         fam, hold_models, om_h = loop_draw_family(
             lgp, model, n_freq=n_freq, dense_factor=dense_factor, n_train=n_train,
             n_holdout=n_holdout, n_holdout_freq=n_holdout_freq, quantile=quantile,

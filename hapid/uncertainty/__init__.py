@@ -36,6 +36,8 @@ from ._loopgp import fit_loop_gp as fit_loop_gp
 from ._loopgp import loop_gp_mean as loop_gp_mean
 from ._loopgp import loop_gp_plants as loop_gp_plants
 from ._loopgp import measured_data as measured_data
+from ._loopgp import measured_loop_gp as measured_loop_gp
+from ._loopgp import measured_noise_var as measured_noise_var
 from ._mode import check_initial_state as check_initial_state
 from ._mode import initial_point as initial_point
 from ._plant_draws import DrawsStatus as DrawsStatus

@@ -22,7 +22,7 @@ from .._constants import TWO_PI
 from .._plain import jsonable
 from ..fit._pd import theta_to_model
 from ._files import resolve_draws
-from ._loopgp import fit_loop_gp, loop_gp_plants, measured_data, measured_plant
+from ._loopgp import loop_gp_plants, measured_data, measured_loop_gp
 from ._predictive import predictive_plants
 from ._samples import PosteriorSamples
 
@@ -130,7 +130,7 @@ def plant_draws(
                          "leave out include_error=False / --no-model-error, or use params draws")  # fmt: skip
     data = measured_data(ps.measured)
     model = nominal_model(ps)
-    gp = fit_loop_gp(data["omega"], measured_plant(data["Z_H"], data["Z_T"]), model)
+    gp = measured_loop_gp(data, model)
     P = loop_gp_plants(gp, model, omega, int(max_samples), seed)
     band = [float(data["omega"][0] / TWO_PI), float(data["omega"][-1] / TWO_PI)]
     info = {"ell": float(gp.ell), "eta": float(gp.eta), "sigma2": float(gp.sigma2),
