@@ -21,7 +21,8 @@ COHERENCE_LOW = 0.9
 KAPPA = 0.5
 
 #: Wall time (s) of ``hapid tune`` with its defaults on cu5 (150 training / 200 held-out draws,
-#: 3–4 continuation stages stopped at ``defaults.TUNE_TOL``, re-check, certified fallback):
-#: 98 s measured through the CLI on an idle 2-core machine, warm (benchmarks/README.md): the
-#: "expected" time of its progress report and ``--help``.
-TUNE_EXPECTED_S = 100.0
+#: 3–4 continuation stages stopped at ``defaults.TUNE_TOL``, re-check): 47 s (43–51) measured
+#: through the CLI on an idle 2-core machine, warm, by ``benchmarks/bench_route.py``
+#: (benchmarks/README.md); 41–96 s over the study devices. The "expected" time of its
+#: progress report and ``--help``.
+TUNE_EXPECTED_S = 60.0
