@@ -264,7 +264,7 @@ def test_fit_nls_on_the_haptic_pair_defaults_to_the_40_hz_band(tmp_path, capsys)
     capsys.readouterr()
     assert main(["fit", str(fp), "--method", "nls", "--out", str(tmp_path / "m.npz")]) == 0
     out = capsys.readouterr().out
-    assert "default for nls on the haptic pair: up to 40 Hz" in out
+    assert "default for nls and ml on the haptic pair: up to 40 Hz" in out
     f_q = np.load(tmp_path / "m.npz")["quality_freq_hz"]
     assert f_q.max() <= 40.0 and f_q.max() > 30.0
     assert main(["fit", str(fp), "--method", "wls", "--out", str(tmp_path / "w.npz")]) == 0
