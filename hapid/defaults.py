@@ -45,6 +45,17 @@ steps per stage) the tuned g held on the held-out draws (6.0 Hz on the true plan
 of the time. Stopping early is the tuner's regularization on sampled plants
 (``benchmarks/study_tune_stop.py``, benchmarks/README.md)."""
 
+TUNE_PM_ALLOWANCE_DEG = 3.0
+"""Degrees added to the phase-margin requirement the tuner *trains* on when a family is
+chance-constrained (posterior or loop draws); the re-check and the verdict keep the requirement
+asked for. The loop draws' PM is under-dispersed where the margin is decided between two
+measured frequencies (cu5 on the paper protocol: decided at 16.4 Hz between measured 15 and 20
+Hz), and a g tuned to the 30° boundary of the draws met 27.1–32.0° on the true plant (cu5,
+cu5_soft, quad4 + 2 samples of delay, seeds 0–2; the largest shortfall 2.9°). Worst-case
+families (device variants) train on the requirement itself. Measured:
+``benchmarks/study_tune_stop.py`` (docs/robust-design.md, "One loop for training and
+re-check")."""
+
 TUNE_TOL_WORST = 1e-8
 """The same tolerance when every family is worst-case (quantile 1: the device's variants of
 ``hapid paper``'s tuned column): no draws to over-fit, and a loose solve leaves the penalty's

@@ -334,3 +334,37 @@ def test_a_returned_g_without_bandwidth_is_named_next_to_its_verdict():
     kept = {"start": start, "tuned": {"posterior_iso_bandwidth_hz_q50": 0.1}}
     assert no_bandwidth_note(kept, kept_start=True) == "" and no_bandwidth_note(kept) != ""
     assert no_bandwidth_note({}) == ""
+
+
+def test_sampled_families_train_with_the_pm_allowance_and_are_judged_without_it(small, monkeypatch):
+    """robust_design on loop draws hands the tuner PM + TUNE_PM_ALLOWANCE_DEG (the draws'
+    PM is under-dispersed between measured frequencies) and keeps the requested PM for the
+    re-check; the requested GM and the rest of the requirements are passed unchanged."""
+    import hapid.tune._recipe as R
+    from hapid.defaults import TUNE_PM_ALLOWANCE_DEG
+    from hapid.tune import Requirements
+
+    class Stop(Exception):
+        pass
+
+    seen = {}
+
+    def fake_tune(families, g0, *, requirements, **kw):
+        seen["req"], seen["q"] = requirements, [f.quantile for f in families]
+        raise Stop
+
+    monkeypatch.setattr(R, "tune", fake_tune)
+    model, *_ = small
+    om = TWO_PI * np.geomspace(1.0, 100.0, 30)
+    frf = {
+        "omega": om,
+        "Z_H": np.asarray(model.Z_H(1j * om)),
+        "Z_T": np.asarray(model.Z_T(1j * om)),
+    }
+    req = Requirements(gm_db=7.0, pm_deg=35.0)
+    with pytest.raises(Stop):
+        R.robust_design(model, frf=frf, draw_family="loop_gp", requirements=req, n_train=4,
+                        n_holdout=3, n_freq=60, n_holdout_freq=80, seed=0)  # fmt: skip
+    assert min(seen["q"]) < 1.0
+    assert seen["req"].pm_deg == pytest.approx(35.0 + TUNE_PM_ALLOWANCE_DEG)
+    assert seen["req"].gm_db == 7.0 and req.pm_deg == 35.0  # the caller's requirement untouched
