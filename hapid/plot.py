@@ -72,19 +72,26 @@ def frf_overview(frf, *, title_prefix: str = ""):
             if g is None:
                 ax.set_axis_off()
                 continue
-            g = np.asarray(g)
-            for i in range(g.shape[1]):
-                ax.semilogx(f, g[:, i], "-", lw=1.0, label=f"row {i}")
-            ax.axhline(COHERENCE_LOW, color="k", ls="--", lw=0.8)
-            ax.set_ylim(0, 1.05)
-            ax.set_xlabel("frequency (Hz)")
-            ax.set_ylabel("coherence γ²")
-            ax.set_title(f"{title_prefix}coherence of the rows of {name} (H1)", fontsize=10)
-            ax.grid(True, which="both", alpha=0.3)
-            ax.legend(fontsize=8)
+            _coherence_panel(ax, f, g, f"{title_prefix}coherence of the rows of {name} (H1)",
+                             COHERENCE_LOW, "row")  # fmt: skip
         axes[1, 2].set_axis_off()
     fig.tight_layout()
     return fig, axes if rows == 2 else axes[0]
+
+
+def _coherence_panel(ax, f, g, title: str, level: float, label: str) -> None:
+    """γ² ``(N, n)`` against ``f`` (Hz) on ``ax``: one curve per channel (``label i``), the
+    low-coherence ``level`` dashed, the axis 0–1.05."""
+    g = np.asarray(g)
+    for i in range(g.shape[1]):
+        ax.semilogx(f, g[:, i], "-", lw=1.0, label=f"{label} {i}")
+    ax.axhline(level, color="k", ls="--", lw=0.8)
+    ax.set_ylim(0, 1.05)
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("coherence γ²")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
 
 
 ISO = 1 - 1 / np.sqrt(2)
@@ -211,16 +218,7 @@ def coherence(f, gamma2: dict, *, title: str = "", level: float = COHERENCE_LOW)
     low-coherence ``level`` dashed."""
     fig, axes = plt.subplots(1, len(gamma2), figsize=(6.0 * len(gamma2), 3.4), squeeze=False)
     for ax, (name, g) in zip(axes[0], gamma2.items(), strict=True):
-        g = np.asarray(g)
-        for i in range(g.shape[1]):
-            ax.semilogx(f, g[:, i], "-", lw=1.0, label=f"channel {i}")
-        ax.axhline(level, color="k", ls="--", lw=0.8)
-        ax.set_ylim(0, 1.05)
-        ax.set_xlabel("frequency (Hz)")
-        ax.set_ylabel("coherence γ²")
-        ax.set_title(f"{title}{name}", fontsize=10)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
+        _coherence_panel(ax, f, g, f"{title}{name}", level, "channel")
     fig.tight_layout()
     return fig, axes[0]
 

@@ -12,6 +12,7 @@ import jax
 import numpy as np
 
 from .. import __version__, io
+from .._constants import COHERENCE_LOW
 from ..control import Compensator
 from ..experiment import low_coherence_note
 from ..fit import crhp_report, pphat_band_db
@@ -198,7 +199,7 @@ def _coherence_numbers(frf, f, kind: str) -> dict:
     )
     return {
         "coherence": blocks,
-        "coherence_note": note + (f"; {low}" if low else "; ≥ 0.9 everywhere"),
+        "coherence_note": note + (f"; {low}" if low else f"; ≥ {COHERENCE_LOW:g} everywhere"),
     }
 
 
