@@ -28,7 +28,7 @@ Only process 0 writes files and prints reports; the others compute and exit.
 
 from __future__ import annotations
 
-import io
+import io as _io
 import os
 import socket
 import subprocess
@@ -133,13 +133,13 @@ def local_chunks(n_items: int, chunk: int) -> list[int]:
 
 
 def _encode(d: dict) -> np.ndarray:
-    buf = io.BytesIO()
+    buf = _io.BytesIO()
     np.savez(buf, **d)
     return np.frombuffer(buf.getvalue(), dtype=np.uint8)
 
 
 def _decode(b: np.ndarray) -> dict:
-    with np.load(io.BytesIO(b.tobytes()), allow_pickle=False) as z:
+    with np.load(_io.BytesIO(b.tobytes()), allow_pickle=False) as z:
         return {k: z[k] for k in z.files}
 
 
