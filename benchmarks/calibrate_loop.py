@@ -116,6 +116,7 @@ def draw_plants(kind: str, frf, nls, omega, n_draws: int, seed: int = 0, cache=N
         boundary_fixed,
         laplace_samples,
         make_log_posterior,
+        model_error_from,
         posterior_laplace_samples,
         predictive_plants,
     )
@@ -134,7 +135,7 @@ def draw_plants(kind: str, frf, nls, omega, n_draws: int, seed: int = 0, cache=N
         return posterior_plants(ps.models(), omega)[0]
     cache = {} if cache is None else cache
     if err not in cache:
-        post = make_log_posterior(frf, nls.scale, f_max_hz=40.0, model_error=err,
+        post = make_log_posterior(frf, nls.scale, f_max_hz=40.0, model_error=model_error_from(err),
                                   reference=nls if err.startswith("gp") else None,
                                   fixed=boundary_fixed(nls) if nls.boundary else None)  # fmt: skip
         cache[err] = posterior_laplace_samples(post, n_draws, nls, key=seed)

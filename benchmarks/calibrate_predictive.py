@@ -75,6 +75,7 @@ from hapid.uncertainty import (
     initial_point,
     make_log_posterior,
     measured_data,
+    model_error_from,
     param_names,
     plant_draws,
     posterior_laplace_samples,
@@ -141,7 +142,7 @@ def _loop_gp_rows(name, frf, nls, om, tr, draws, seed, quantities):
     """The ``loop_gp`` construction: ``hapid predict --draws loop_gp``'s library call on a
     samples stand-in that carries the measured FRF and the NLS fit (no posterior needed)."""
     n = np.asarray(frf.Z_H).shape[-1]
-    names = tuple(param_names(n, model_error=False))
+    names = tuple(param_names(n))
     ps = PosteriorSamples(samples=np.asarray(nls.theta)[None], log_prob=np.full(1, np.nan),
                           scale=nls.scale, n=n, names=names, measured=measured_data(frf),
                           diagnostics={"fit_theta": np.asarray(nls.theta)})  # fmt: skip
@@ -183,16 +184,12 @@ def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", dra
             rows += _loop_gp_rows(name, frf, nls, om, tr, draws, seed, quantities)
             continue
         fixed = boundary_fixed(nls) if nls.boundary else None
-        base, _, mode = kind.partition("@")  # e.g. "gp_corr@map": gp_hyper mode after "@"
-        opts = {"warp": False} if base == "gp_logf" else {}
-        if base in ("gp_corr_el", "gp_corr_cls"):
-            opts["error_scale"] = {"gp_corr_el": "element", "gp_corr_cls": "class"}[base]
-        if mode:
-            opts["gp_hyper"] = mode
-        me = {"gp_logf": "gp", "gp_corr_el": "gp_corr", "gp_corr_cls": "gp_corr"}.get(base, base)
+        base, _, mode = kind.partition("@")  # e.g. "gp_corr@map": the hyperparameters' fixing
+        me = model_error_from("gp_corr" if base == "gp_corr_el" else base, gp_hyper=mode or None,
+                              error_scale="element" if base == "gp_corr_el" else None)  # fmt: skip
         t0 = time.perf_counter()
         post = make_log_posterior(
-            frf, nls.scale, f_max_hz=40.0, model_error=me, reference=nls, fixed=fixed, **opts,
+            frf, nls.scale, f_max_hz=40.0, model_error=me, reference=nls, fixed=fixed,
         )  # fmt: skip
         t_build = time.perf_counter() - t0
         ms = _eval_ms(post, initial_point(post, nls))
@@ -224,11 +221,9 @@ def main(argv=None):
     ap.add_argument("--devices", default="cu5,tripod3_d2,second_order")
     ap.add_argument("--kinds", default="white,gp,gp_corr",
                     help="model errors to compare: white, gp, gp_corr, gp_corr_el (gp_corr "
-                         "with error_scale='element'), gp_corr_cls (gp_corr with "
-                         "error_scale='class': learned diagonal/off-diagonal amplitudes), "
-                         "gp_logf (gp with κ ≡ 0), loop_gp (loop draws conditioned on the "
-                         "measured FRF); "
-                         "kind@mode sets gp_hyper (e.g. gp@marginal, gp_corr@map)")  # fmt: skip
+                         "with scale='element'), loop_gp (loop draws conditioned on the "
+                         "measured FRF); kind@mode sets how the hyperparameters are fixed "
+                         "(e.g. gp@sample, gp_corr@map)")  # fmt: skip
     ap.add_argument(
         "--quantities", default="P,Z_H,Z_T", help="responses compared (loop_gp draws have P only)"
     )

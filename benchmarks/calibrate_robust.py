@@ -104,7 +104,12 @@ def setup(dev, seed: int = 0):
 def draws(kind: str, frf, fit, n_draws: int, seed: int = 0):
     """``(plants, omega, p_ol)`` for :func:`robust_check`: a PosteriorSamples (omega None) or
     plant responses ``(S, N, n, n)`` on ``omega``."""
-    from hapid.uncertainty import boundary_fixed, make_log_posterior, posterior_laplace_samples
+    from hapid.uncertainty import (
+        boundary_fixed,
+        make_log_posterior,
+        model_error_from,
+        posterior_laplace_samples,
+    )
 
     if kind == "loop_gp":
         from hapid.tune import posterior_grid
@@ -114,7 +119,7 @@ def draws(kind: str, frf, fit, n_draws: int, seed: int = 0):
         gp = fit_loop_gp(frf.omega, measured_plant(frf.Z_H, frf.Z_T), fit.model)
         om = posterior_grid(1000)
         return loop_gp_plants(gp, fit.model, om, n_draws, seed), om
-    post = make_log_posterior(frf, fit.scale, f_max_hz=40.0, model_error=kind,
+    post = make_log_posterior(frf, fit.scale, f_max_hz=40.0, model_error=model_error_from(kind),
                               reference=fit if kind.startswith("gp") else None,
                               fixed=boundary_fixed(fit) if fit.boundary else None)  # fmt: skip
     return posterior_laplace_samples(post, n_draws, fit, key=seed), None

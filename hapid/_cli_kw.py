@@ -14,13 +14,15 @@ def device_or_none(a):
 def posterior_kw(a) -> dict:
     """The options of ``hapid posterior`` (parsed ``a``) for
     :func:`hapid.uncertainty.posterior_from_files`, files aside."""
+    from .uncertainty import model_error_from
+
     gp = a.model_error in ("gp", "gp_corr")
+    error = model_error_from(a.model_error, gp_hyper=a.gp_hyper if gp else None,
+                             error_scale=a.error_scale)  # fmt: skip
     return dict(
         method=a.method, n_samples=a.samples, n_steps=a.steps, seed=a.seed,
         backend_path=a.hdf5, fit_options={"f_max_hz": a.f_max_hz, "max_steps": a.max_steps},
-        posterior_options={"model_error": a.model_error}
-        | ({"gp_hyper": a.gp_hyper} if a.gp_hyper and gp else {})
-        | ({"error_scale": a.error_scale} if a.error_scale else {}),
+        posterior_options={"model_error": error},
         sampler_options={"moves": a.moves} | ({"n_walkers": a.walkers} if a.walkers else {}),
         fix_boundary=not a.free_boundary, boundary_refit=not a.keep_boundary,
     )  # fmt: skip

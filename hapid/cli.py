@@ -201,7 +201,7 @@ def _register_stages(sub):
                          "frequency: bands 2-6x too wide), none")  # fmt: skip
     po.add_argument("--gp-hyper", choices=["map", "marginal", "sample"], default=None,
                     help="gp hyperparameters: map (held at the joint posterior mode; gp default), "
-                         "marginal (mode of their marginal, M, B, K integrated out; gp_corr default) "
+                         "marginal (gp_corr only: mode of their marginal, M, B, K integrated out; gp_corr default) "
                          "or sample (sampled with M, B, K; ~100× slower per step)")  # fmt: skip
     po.add_argument("--error-scale", choices=["shared", "element"], default=None,
                     help="gp_corr model-error size per element: shared (one amplitude, the RMS "

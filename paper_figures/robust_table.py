@@ -55,7 +55,12 @@ def design(
     from hapid import scene
     from hapid.control import Compensator
     from hapid.tune import robust_design, true_plant_loop
-    from hapid.uncertainty import laplace_samples, make_log_posterior, posterior_laplace_samples
+    from hapid.uncertainty import (
+        laplace_samples,
+        make_log_posterior,
+        model_error_from,
+        posterior_laplace_samples,
+    )
 
     cache = str(ROOT / ".hapid_cache" / "stages") if cache is None else cache
     cfg = {"device": {"preset": device}} | ({"protocol": protocol} if protocol else {})
@@ -72,7 +77,7 @@ def design(
     elif draws == "nls":  # Laplace of the NLS fit (hapid.uncertainty.laplace_samples)
         ps = laplace_samples(nls, n_draws, key=seed)
     else:  # Laplace of the white/gp log-posterior (hapid posterior --method laplace)
-        post = make_log_posterior(frf, nls.scale, f_max_hz=40.0, model_error=draws,
+        post = make_log_posterior(frf, nls.scale, f_max_hz=40.0, model_error=model_error_from(draws),
                                   **({"reference": nls} if draws in ("gp", "gp_corr") else {}))  # fmt: skip
         ps = posterior_laplace_samples(post, n_draws, nls, key=seed)
     g0 = Compensator.paper() if g0 is None else g0

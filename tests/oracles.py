@@ -55,20 +55,20 @@ def log_prob_numpy(post, xs) -> np.ndarray:
         theta = post.full_theta_numpy(xs[w])
         mats = []
         k = 0
-        matrix = getattr(post, "parameterization", "cholesky") == "matrix"
-        for _ in range(6):
+        for _ in range(6):  # θ: the lower-triangular entries of each symmetric matrix
             L = np.zeros((n, n))
             for i in range(n):
                 for j in range(i + 1):
-                    L[i, j] = abs(theta[k]) if i == j and not matrix else theta[k]
+                    L[i, j] = theta[k]
                     k += 1
-            mats.append(L + L.T - np.diag(np.diag(L)) if matrix else L @ L.T)
+            mats.append(L + L.T - np.diag(np.diag(L)))
         MH, BH, KH, MM, BM, KM = mats
         S = s[:, None, None]
         ZH = MH * S**2 + BH * S + KH
         ZT = ZH + MM * S**2 + BM * S + KM
         r = np.stack([ZH - ZH_d, ZT - ZT_d], axis=-1)  # (N, n, n, 2)
-        if post.model_error:
+        white = post.error.n_hyper > 0  # NoError or White: the oracle's two kinds
+        if white:
             tH, tM = np.exp(xs[w, p]), np.exp(xs[w, p + 1])
             vH = ((tH * aH) ** 2)[:, None, None]
             vM = ((tM * aM) ** 2)[:, None, None]
@@ -87,14 +87,12 @@ def log_prob_numpy(post, xs) -> np.ndarray:
             -0.5 * (xs[w, :p] / post.prior_scale) ** 2
             - np.log(post.prior_scale * np.sqrt(2 * np.pi))
         )
-        if post.model_error:
-            z = (xs[w, p:] - post.log_tau_mean) / post.log_tau_sd
-            lp += np.sum(-0.5 * z**2 - np.log(post.log_tau_sd * np.sqrt(2 * np.pi)))
-        if (
-            matrix
-            and post.psd_constraint
-            and min(np.linalg.eigvalsh(A)[0] for A in mats)
-            < -1e-12 * max(np.abs(np.linalg.eigvalsh(A)).max() for A in mats)
+        if white:
+            m, sd = post.error.log_tau_mean, post.error.log_tau_sd
+            z = (xs[w, p:] - m) / sd
+            lp += np.sum(-0.5 * z**2 - np.log(sd * np.sqrt(2 * np.pi)))
+        if post.psd_constraint and min(np.linalg.eigvalsh(A)[0] for A in mats) < -1e-12 * max(
+            np.abs(np.linalg.eigvalsh(A)).max() for A in mats
         ):
             lp = -np.inf
         v = ll + lp

@@ -37,7 +37,7 @@ def _samples(n=2, S=5):
     d = n_params(n)
     diag = {"method": "laplace", "acceptance": 0.3, "tau": np.arange(3.0)}
     return PosteriorSamples(np.abs(rng.normal(size=(S, d))), rng.normal(size=S), Scale(np.float64(60.0), np.float64(300.0)),
-                            n, tuple(param_names(n, model_error=False)), diag)  # fmt: skip
+                            n, tuple(param_names(n)), diag)  # fmt: skip
 
 
 def _writers(tmp_path):

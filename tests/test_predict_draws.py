@@ -39,7 +39,7 @@ def _samples(n=2, seed=3, S=12, measured=True):
     rng = np.random.default_rng(0)
     draws = theta[None] * (1.0 + 0.01 * rng.standard_normal((S, theta.size)))
     ps = PosteriorSamples(samples=np.abs(draws), log_prob=np.full(S, np.nan), scale=Scale(1.0, 1.0),
-                          n=n, names=tuple(param_names(n, model_error=False)),
+                          n=n, names=tuple(param_names(n)),
                           diagnostics={"fit_theta": theta})  # fmt: skip
     if not measured:
         return ps, model

@@ -269,7 +269,7 @@ def test_posterior_samples_and_plant_draws(frf):
     res = fit_nls(frf, f_max_hz=None)
     rng = np.random.default_rng(1)
     theta = np.asarray(res.theta) + 1e-3 * rng.standard_normal((6, res.theta.shape[0]))
-    names = tuple(param_names(2, model_error=False))
+    names = tuple(param_names(2))
     ps = PosteriorSamples(theta, np.zeros(6), res.scale, 2, names, {"method": "laplace"})
     ok = (SamplesStatus.CONVERGED,)
     assert assert_convention(ps, SamplesStatus, ok) is SamplesStatus.CONVERGED

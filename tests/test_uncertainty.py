@@ -21,9 +21,11 @@ from hapid.fit import fit_nls, fit_nls_batch
 from hapid.fit._pd import canonical_theta
 from hapid.io import load_samples, save_samples
 from hapid.uncertainty import (
+    NoError,
     PosteriorSamples,
     RobustReport,
     ShortChainWarning,
+    White,
     check_initial_state,
     credible_bands,
     fold_theta,
@@ -63,44 +65,41 @@ def _upper(m):
 
 
 @pytest.mark.parametrize(
-    "model_error,rho,param,fix",
-    [(False, 0.0, "cholesky", False), (True, 0.0, "cholesky", False), (True, 0.4, "cholesky", False),
-     (True, 0.0, "matrix", False), (True, 0.4, "matrix", True)],
+    "model_error,rho,fix",
+    [(NoError(), 0.0, False), (White(), 0.0, False), (White(), 0.4, False),
+     (White(log_tau_mean=-2.0, log_tau_sd=0.5), 0.4, True)],
 )  # fmt: skip
-def test_log_prob_matches_numpy(case, model_error, rho, param, fix):
+def test_log_prob_matches_numpy(case, model_error, rho, fix):
     _, frf, nls = case
     fixed = {"K_M": np.asarray(nls.model.mechanism.K)} if fix else None
     post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error=model_error, noise_corr=rho,
-                              parameterization=param, fixed=fixed)  # fmt: skip
+                              fixed=fixed)  # fmt: skip
     x0 = initial_point(post, nls)
     rng = np.random.default_rng(0)
     X = x0 + 1e-3 * rng.standard_normal((7, post.dim))
-    if param == "cholesky":
-        X[3, : post.n_theta] *= -1.0  # a reflected walker
-    else:
-        X[3, : post.n_free] *= -1.0  # every matrix negative definite: outside the PSD cone
+    X[3, : post.n_free] *= -1.0  # every matrix negative definite: outside the PSD cone
     got = post.log_prob_numpy(X)
     ref = log_prob_numpy(post, X)
-    if param == "matrix":
-        assert got[3] == -np.inf and np.all(np.isfinite(np.delete(got, 3)))
+    assert got[3] == -np.inf and np.all(np.isfinite(np.delete(got, 3)))
     np.testing.assert_allclose(got, ref, rtol=1e-10, atol=1e-8)
     # single evaluation == batched, and jit/vmap do not change values
     np.testing.assert_allclose(float(post(X[0])), got[0], rtol=1e-12)
 
 
-def test_folding_invariance(case):
+def test_folding_gives_one_canonical_factor(case):
+    """Column sign flips and a reflected diagonal entry of the Cholesky θ are the same
+    matrices; :func:`fold_theta` maps them to one θ, and the posterior's draws (matrix
+    coordinates, :meth:`LogPosterior.split`) come out in that canonical θ."""
     _, frf, nls = case
-    post = make_log_posterior(frf, nls.scale, f_max_hz=None, parameterization="cholesky")
-    x = initial_point(post, nls)
-    th = x[: post.n_theta]
+    th = np.asarray(nls.theta)
     flipped_col = np.asarray(canonical_theta(-th))  # column flips of every factor
-    refl = th.copy()
+    refl = fold_theta(th).copy()
     refl[0] = -refl[0]  # reflect one diagonal coordinate
-    xs = np.stack([x, np.r_[flipped_col, x[post.n_theta :]], np.r_[refl, x[post.n_theta :]]])
-    lp = post.log_prob_numpy(xs)
-    np.testing.assert_allclose(lp[0], lp[1], rtol=1e-12)
-    np.testing.assert_allclose(lp[0], lp[2], rtol=1e-12)
     np.testing.assert_array_equal(fold_theta(refl), fold_theta(th))
+    np.testing.assert_allclose(fold_theta(flipped_col), fold_theta(th), rtol=1e-12)
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None)
+    theta, _ = post.split(initial_point(post, nls)[None])
+    np.testing.assert_allclose(theta[0], fold_theta(th), rtol=1e-8, atol=1e-12)
 
 
 def _stiffness_free_fit():
@@ -243,7 +242,7 @@ def test_emcee_coverage_few_reps():
     for r in range(4):
         frf = synthetic_frf(truth, rel_noise=NOISE, seed=300 + r)
         nls = fit_nls(frf, weight="noise", f_max_hz=None).raise_if_failed()
-        post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error=True)
+        post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error=White())
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ShortChainWarning)
             ps = sample_posterior(post, nls, n_steps=2000, seed=r)
@@ -257,7 +256,7 @@ def test_emcee_coverage_few_reps():
 def laplace_gaussian(case):
     """The near-Gaussian case's posterior (no model-error terms) and its Laplace Gaussian."""
     _, frf, nls = case
-    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error=False)
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error=NoError())
     mean, cov, info = laplace_posterior(post, initial_point(post, nls))
     assert info["converged"]
     return post, mean, cov

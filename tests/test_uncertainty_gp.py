@@ -12,9 +12,11 @@ from hapid.cli import main
 from hapid.fit import fit_nls
 from hapid.io import load_samples, save_samples
 from hapid.uncertainty import (
+    GP,
     PosteriorSamples,
     RobustReport,
     ShortChainWarning,
+    White,
     band_calibration,
     fold_theta,
     initial_point,
@@ -47,8 +49,8 @@ def test_gp_likelihood_matches_scipy_reference(case):
     numpy from the documented model (amplitude τ (ω/ω_ref)^β a(ω), Matérn-5/2 in the warped
     log-frequency (e^{κu} − 1)/κ)."""
     truth, frf, nls = case
-    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp", reference=nls,
-                              parameterization="cholesky", noise_corr=0.3, gp_hyper="sample", warp=True)  # fmt: skip
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error=GP(hyper="sample"),
+                              reference=nls, noise_corr=0.3)  # fmt: skip
     x = initial_point(post, nls)
     x[-8:] = [np.log(0.05), np.log(0.02), np.log(0.4), np.log(0.8), 0.5, -0.3, 0.7, -0.4]
     ll = float(post.log_likelihood(x))
@@ -86,9 +88,9 @@ def test_gp_tends_to_white_model_for_short_length_scale(case):
     """ℓ → 0 and β = 0 make the GP kernel the identity: the GP likelihood is then exactly
     the white model's (same amplitudes, same τ)."""
     _, frf, nls = case
-    kw = dict(f_max_hz=None, parameterization="cholesky", reference=nls)
-    white = make_log_posterior(frf, nls.scale, model_error="white", **kw)
-    gp = make_log_posterior(frf, nls.scale, model_error="gp", gp_hyper="sample", **kw)
+    kw = dict(f_max_hz=None, reference=nls)
+    white = make_log_posterior(frf, nls.scale, model_error=White(), **kw)
+    gp = make_log_posterior(frf, nls.scale, model_error=GP(hyper="sample"), **kw)
     xw = initial_point(white, nls)
     xw[-2:] = [np.log(0.03), np.log(0.01)]
     xg = np.concatenate([xw, [-30.0, -30.0, 0.0, 0.0, 0.0, 0.0]])
@@ -97,16 +99,15 @@ def test_gp_tends_to_white_model_for_short_length_scale(case):
     assert gp.names[-6:] == ["log_ell_H", "log_ell_M", "beta_H", "beta_M", "kappa_H", "kappa_M"]
 
 
-@pytest.mark.parametrize("param", ["matrix", "cholesky"])
-def test_fixed_hyper_quadratic_form_equals_full_likelihood(case, param):
+def test_fixed_hyper_quadratic_form_equals_full_likelihood(case):
     """With the gp hyperparameters held fixed (empirical Bayes) the log-likelihood is an exact
     quadratic form in the matrix entries: it equals the direct computation (n² Cholesky
     factorizations) at those hyperparameters to 1e-10, at points far from its maximum; only
     θ is sampled and every draw carries the fixed hyperparameters."""
     _, frf, nls = case
     h = np.array([np.log(0.05), np.log(0.02), np.log(0.4), np.log(0.8), 0.5, -0.3, 0.7, -0.4])
-    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp", reference=nls,
-                              noise_corr=0.3, parameterization=param, gp_hyper=h, warp=True)  # fmt: skip
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error=GP(hyper=tuple(h)),
+                              reference=nls, noise_corr=0.3)  # fmt: skip
     assert post.dim == post.n_theta and post.n_tau == 0
     x0 = initial_point(post, nls)
     rng = np.random.default_rng(3)
@@ -140,7 +141,7 @@ def test_gp_predictive_calibrated_on_second_order_truth(case, tmp_path):
     predictive band of P covers the truth at held-out frequencies, and the samples file
     round-trips the fit data the prediction needs."""
     truth, frf, nls = case
-    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp", reference=nls)
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error=GP(), reference=nls)
     ps = posterior_laplace_samples(post, 300, nls, key=1)
     path = save_samples(tmp_path / "s.npz", ps)
     ps2 = load_samples(path)
@@ -220,8 +221,8 @@ def test_tuner_never_worse_rule():
 
 def test_cli_predict_and_plant(case, tmp_path, capsys):
     _, frf, nls = case
-    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error="gp", reference=nls,
-                              gp_hyper="sample")  # fmt: skip
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error=GP(hyper="sample"),
+                              reference=nls)  # fmt: skip
     # draws near the NLS optimum with fixed GP hyperparameters (no Laplace: keeps this fast),
     # written in the format before the frequency warp (6 hyperparameter columns, κ = 0)
     rng = np.random.default_rng(0)
@@ -229,7 +230,7 @@ def test_cli_predict_and_plant(case, tmp_path, capsys):
     th = fold_theta(th + 1e-3 * rng.standard_normal((12, th.shape[0])))
     hyp = np.tile([np.log(0.02), np.log(0.02), np.log(0.5), np.log(0.5), 0.0, 0.0], (12, 1))
     ps = PosteriorSamples(samples=np.concatenate([th, hyp], 1), log_prob=np.zeros(12), scale=nls.scale,
-                          n=2, names=tuple(param_names(2, "gp")[:-2]),
+                          n=2, names=tuple(param_names(2, GP())[:-2]),
                           predictive=post.predictive_data())  # fmt: skip
     s = save_samples(tmp_path / "s.npz", ps)
     out = tmp_path / "draws.npz"
@@ -292,10 +293,11 @@ def test_paper_g_stable_on_cu5_predictive_plants():
     nls = fit_nls(frf, weight="relative", f_max_hz=40.0).raise_if_failed()
     fixed = boundary_fixed(nls) if nls.boundary else None
     # κ ≡ 0 (log-frequency): this guards the per-frequency prior-draw jitter, not the warp; with
-    # the learned warp (default) the GP amplitude near 40 Hz is larger and P(stable) of the
-    # paper's g on these 20 draws is 17/20 (reported in issue 14's note)
-    post = make_log_posterior(frf, nls.scale, f_max_hz=40.0, model_error="gp", reference=nls,
-                              fixed=fixed, warp=False)  # fmt: skip
+    # the learned warp the GP amplitude near 40 Hz is larger and P(stable) of the paper's g on
+    # these 20 draws is 17/20. The joint mode's τ, ℓ, β held with κ = 0:
+    kw = dict(f_max_hz=40.0, reference=nls, fixed=fixed)
+    h = np.asarray(make_log_posterior(frf, nls.scale, model_error=GP(), **kw).hyper_fixed)
+    post = make_log_posterior(frf, nls.scale, model_error=GP(hyper=tuple(h[:6])), **kw)
     ps = posterior_laplace_samples(post, 20, nls, key=0)
     g = Compensator.paper()
     assert true_plant_loop(g, nls.model, dev)["stable"]

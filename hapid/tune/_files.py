@@ -31,13 +31,12 @@ def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf
     Without ``frf`` the measured FRF a samples file from ``hapid posterior`` stores
     (``PosteriorSamples.measured``, every measured frequency) is the evidence. ``draw_family``:
     ``"loop_gp"`` (draws of ``Q = P P̂⁻¹`` conditioned on that FRF), ``"params"`` (the samples'
-    own plants; also ``"samples"``) or ``"auto"`` (default: ``loop_gp`` when a measured FRF is
+    own plants) or ``"auto"`` (default: ``loop_gp`` when a measured FRF is
     known, else the samples)."""
     from .. import io
     from ..uncertainty._files import DRAWS, resolve_draws
     from ._recipe import robust_design
 
-    draw_family = "params" if draw_family == "samples" else draw_family
     if draw_family not in DRAWS:  # before any file is read
         raise ValueError(f"draw_family must be one of {DRAWS}, got {draw_family!r}")
     model = io.load_model(model_path)
@@ -51,7 +50,7 @@ def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf
         if frf is None and samples.measured is not None:
             options["frf"] = samples.measured
     kind = resolve_draws(draw_family, options.get("frf"))
-    options["draw_family"] = "samples" if kind == "params" else kind  # robust_design's name
+    options["draw_family"] = kind
     dev = None
     if device is not None:
         from ..device import preset

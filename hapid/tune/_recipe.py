@@ -108,7 +108,7 @@ def robust_design(
     mismatch: float | None = None,
     evidence_ts: float | None = None,
     evidence_bandwidth: bool = False,
-    draw_family: str = "samples",
+    draw_family: str = "params",
     progress=None,
     certified_fallback: bool = True,
 ) -> dict:
@@ -190,9 +190,9 @@ def robust_design(
     """
     from ..uncertainty import device_plants
 
-    if draw_family not in ("samples", "loop_gp"):
+    if draw_family not in ("params", "loop_gp"):
         raise ValueError(
-            f"robust_design: draw_family must be 'samples' or 'loop_gp', got {draw_family!r}"
+            f"robust_design: draw_family must be 'params' or 'loop_gp', got {draw_family!r}"
         )
     if draw_family == "loop_gp":
         src = frf if frf is not None else getattr(samples, "predictive", None)

@@ -1,8 +1,10 @@
 """Posterior uncertainty of identified impedance models and robust-margin checks.
 
 - :func:`make_log_posterior` → :class:`LogPosterior` — complex-Gaussian likelihood with a
-  relative model-error floor and proper priors on the PD parameterization (``log_prob``
-  jitted and vmapped over walkers).
+  model-error term (a strategy object: :class:`NoError`, :class:`White`, :class:`GP`,
+  :class:`GPCorr`; the CLI's names map to them in :func:`model_error_from`) and proper priors
+  on the matrices in the PSD cone (``log_prob`` jitted and vmapped over walkers);
+  :func:`fix_hyperparameters` is the step that fixes a GP's hyperparameters.
 - :func:`sample_posterior` (emcee), :func:`laplace_samples` (fast path),
   :func:`laplace_posterior` → :class:`PosteriorSamples` (files: :func:`hapid.io.save_samples`,
   :func:`hapid.io.load_samples`); :func:`posterior_from_files` for the CLI.
@@ -24,6 +26,7 @@ from ._coords import fold_theta as fold_theta
 from ._coords import matrix_to_theta as matrix_to_theta
 from ._coords import theta_to_matrix as theta_to_matrix
 from ._files import posterior_from_files as posterior_from_files
+from ._hyper import fix_hyperparameters as fix_hyperparameters
 from ._laplace import laplace_posterior as laplace_posterior
 from ._laplace import laplace_samples as laplace_samples
 from ._laplace import posterior_laplace_samples as posterior_laplace_samples
@@ -40,6 +43,13 @@ from ._loopgp import measured_loop_gp as measured_loop_gp
 from ._loopgp import measured_noise_var as measured_noise_var
 from ._mode import check_initial_state as check_initial_state
 from ._mode import initial_point as initial_point
+from ._model_error import GP as GP
+from ._model_error import MODEL_ERRORS as MODEL_ERRORS
+from ._model_error import GPCorr as GPCorr
+from ._model_error import ModelError as ModelError
+from ._model_error import NoError as NoError
+from ._model_error import White as White
+from ._model_error import model_error_from as model_error_from
 from ._plant_draws import DrawsStatus as DrawsStatus
 from ._plant_draws import PlantDraws as PlantDraws
 from ._plant_draws import plant_draws as plant_draws

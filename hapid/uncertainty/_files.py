@@ -42,9 +42,9 @@ def posterior_from_files(
     ``method``: ``"emcee"`` (default; ``n_steps`` None = run to 50 τ) or ``"laplace"``
     (``n_samples`` draws of the posterior's Laplace Gaussian in matrix coordinates, projected
     onto the PSD cone: :func:`posterior_laplace_samples`); ``posterior_options`` go to
-    ``make_log_posterior`` (its ``f_max_hz`` defaults to the fit's; ``model_error="gp"`` uses
+    ``make_log_posterior`` (its ``f_max_hz`` defaults to the fit's; a GP model error uses
     the NLS fit as the GP amplitudes' reference and as the start of the hyperparameters' mode
-    search, ``gp_hyper`` ``"map"`` by default); with ``fix_boundary`` the fit's matrices at
+    search); with ``fix_boundary`` the fit's matrices at
     the PSD boundary are held fixed (:func:`boundary_fixed`) — after a refit those are the
     refit's strictly PD matrices (``L Lᵀ + pd_eps·I``, whose ``L Lᵀ`` part is on the
     boundary), so every draw keeps the refit's realizable controller there;
@@ -66,7 +66,7 @@ def posterior_from_files(
     popts = {"f_max_hz": fit_options["f_max_hz"]} | dict(posterior_options or {})
     if fix_boundary and nls.boundary and "fixed" not in popts:
         popts["fixed"] = boundary_fixed(nls)
-    if popts.get("model_error") in ("gp", "gp_corr"):
+    if getattr(popts.get("model_error"), "is_gp", False):
         popts.setdefault("reference", nls)
     post = make_log_posterior(frf, nls.scale, **popts)
     if method == "laplace":

@@ -1,8 +1,10 @@
 # ruff: noqa: F722  (jaxtyping shape strings in annotations)
-"""Fixing the model-error hyperparameters of a :class:`~hapid.uncertainty._likelihood.LogPosterior`:
-:func:`fix_gp_hyper` holds them at given values (the matrices' likelihood becomes a quadratic
-form), :func:`marginal_hyper` finds the mode of their marginal likelihood (the matrices
-integrated out in closed form, :func:`log_marginal_likelihood`).
+"""Fixing the model-error hyperparameters of a :class:`~hapid.uncertainty._likelihood.LogPosterior`,
+the step between building the posterior and sampling it: :func:`fix_hyperparameters` does
+what the model-error object's ``hyper`` says; :func:`fix_gp_hyper` holds them at given values
+(the matrices' likelihood becomes a quadratic form), :func:`marginal_hyper` finds the mode of
+their marginal likelihood (the matrices integrated out in closed form,
+:func:`log_marginal_likelihood`).
 """
 
 from __future__ import annotations
@@ -13,12 +15,35 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 
+from ..fit._result import NLSResult
 from ._gp import N_GP_CORR_HYPER, N_GP_HYPER, gp_corr_covariance
-from ._likelihood import GP_KINDS, LogPosterior
-from ._weights import DEFAULT_GAMMA_SD, N_CLASS_HYPER, class_weights
+from ._likelihood import LogPosterior
+from ._mode import initial_point, posterior_mode
+from ._model_error import GPCorr
 
-GP_HYPER_MODES = ("map", "marginal", "sample")
+
+def fix_hyperparameters(post: LogPosterior, reference=None) -> LogPosterior:
+    """``post`` with its model error's hyperparameters fixed as ``post.error.hyper`` says
+    (GP kinds; any other posterior is returned as it is): ``"sample"`` — left sampled;
+    ``"marginal"`` — at the mode of their marginal posterior (:func:`marginal_hyper`, from
+    the prior means); ``"map"`` — at the joint posterior mode from the NLS start
+    (``reference``, an :class:`~hapid.fit.NLSResult`); numbers — at those values
+    (:func:`fix_gp_hyper`)."""
+    how = getattr(post.error, "hyper", "sample")
+    if not post.error.is_gp or how == "sample" or post.hyper_fixed is not None:
+        return post
+    if how == "marginal":
+        h, _ = marginal_hyper(post, jnp.asarray(post.hyper_mean()))
+        return fix_gp_hyper(post, h)
+    if how == "map":
+        if not isinstance(reference, NLSResult):
+            raise ValueError("hyper='map' needs reference= the NLSResult (the start of the mode "
+                             "search); use hyper='sample' or fixed numbers otherwise")  # fmt: skip
+        xm, _ = posterior_mode(post, initial_point(post, reference))
+        return fix_gp_hyper(post, xm[post.n_free :])
+    return fix_gp_hyper(post, how)
 
 
 def fix_gp_hyper(post: LogPosterior, hyper) -> LogPosterior:
@@ -32,27 +57,17 @@ def fix_gp_hyper(post: LogPosterior, hyper) -> LogPosterior:
     autodiff, ``−∇²ℓ = RᵀR``, one Newton refinement of ``μ``); each evaluation is then one
     ``q × q`` triangular matrix-vector product (q = 90 at n = 5) instead of ``n²`` Cholesky
     factorizations of ``2N × 2N``. Draws carry ``hyper`` in their model-error columns."""
-    if not (post.model_error and post.kind in GP_KINDS):
+    if not post.error.is_gp:
         raise ValueError("fix_gp_hyper: the posterior has no gp model error")
     h = jnp.asarray(hyper, dtype=jnp.float64)
-    if post.error_scale == "class":  # γ → per-element weights held fixed, the rest as gp_corr
-        if h.shape != (N_CLASS_HYPER,) or not bool(jnp.all(jnp.isfinite(h))):
-            raise ValueError(f"fix_gp_hyper: error_scale='class' needs {N_CLASS_HYPER} finite "
-                             f"hyperparameters (the last two γ_H, γ_M), got shape {h.shape}")  # fmt: skip
-        g = h[N_GP_CORR_HYPER:]
-        N = post.a_H.shape[0]
-        wH, wM = (jnp.broadcast_to(w[:, None], (w.shape[0], N)) for w in class_weights(g, post.n))
-        post = dataclasses.replace(post, w_H=wH, w_M=wM, class_gamma=g)
-        h = h[:N_GP_CORR_HYPER]
-    full = N_GP_CORR_HYPER if post.kind == "gp_corr" else N_GP_HYPER
+    corr = isinstance(post.error, GPCorr)
+    full = N_GP_CORR_HYPER if corr else N_GP_HYPER
     if h.shape not in ((6,), (N_GP_HYPER,), (full,)) or not bool(jnp.all(jnp.isfinite(h))):
         raise ValueError(f"fix_gp_hyper: hyper must be 6, {N_GP_HYPER} or {full} finite "
                          f"numbers, got shape {h.shape}")  # fmt: skip
     h = jnp.concatenate([h, jnp.zeros(full - h.shape[0])])
     base = dataclasses.replace(post, hyper_fixed=h, quad_R=None, quad_mu=None, quad_ll0=None)
-    R, mu, ll0 = (
-        _quadratic_form_corr(base, h) if post.kind == "gp_corr" else _quadratic_form(base, h)
-    )
+    R, mu, ll0 = _quadratic_form_corr(base, h) if corr else _quadratic_form(base, h)
     if not (np.all(np.isfinite(np.asarray(R))) and np.isfinite(float(ll0))):
         raise ValueError("fix_gp_hyper: the likelihood's curvature is not positive definite at "
                          "these hyperparameters")  # fmt: skip
@@ -124,9 +139,8 @@ def marginal_hyper(post: LogPosterior, h0, *, max_steps: int = 2000) -> tuple[np
     (``gp_hyper="map"``), whose θ absorbs part of the misfit and whose model-error scales
     come out small, this counts the ``q`` fitted degrees of freedom (as REML does).
     BFGS (optimistix) from ``h0``."""
-    if post.parameterization != "matrix" or post.kind not in GP_KINDS or post.n_tau == 0:
-        raise ValueError("marginal_hyper: needs a gp posterior in the matrix parameterization "
-                         "with sampled hyperparameters")  # fmt: skip
+    if not isinstance(post.error, GPCorr) or post.n_tau == 0:
+        raise ValueError("marginal_hyper: needs a GPCorr posterior with sampled hyperparameters")
     h0 = jnp.asarray(h0, dtype=jnp.float64)
     y0, Jc, idx = _compact_design(post)
     h, ok = _marginal_mode(post, h0, y0, Jc, idx, int(post.n_free), max_steps)
@@ -179,10 +193,8 @@ def _whiten(post: LogPosterior, h, y0, J):
     """``(L, z, W)``: the Cholesky factor of the gp_corr covariance at hyperparameters ``h``
     and the residual ``y0`` and design ``J`` whitened by it (``L⁻¹ y0``, ``L⁻¹ J``)."""
     hf = jnp.concatenate([h[:N_GP_CORR_HYPER], jnp.zeros(max(N_GP_CORR_HYPER - h.shape[0], 0))])
-    if not post.warp:
-        hf = hf.at[6:8].set(0.0)
     w = jnp.imag(post.s)
-    C = gp_corr_covariance(jnp.log(w), *post.error_amplitudes(h), post.var_H, post.var_T,
+    C = gp_corr_covariance(jnp.log(w), *post.error_amplitudes(), post.var_H, post.var_T,
                            post.noise_corr, hf)  # fmt: skip
     L = jnp.linalg.cholesky(C)
     z = jax.scipy.linalg.solve_triangular(L, y0[..., None], lower=True)[..., 0]
@@ -227,17 +239,13 @@ def log_marginal_likelihood(post: LogPosterior, h, y0=None, J=None):
 
 @eqx.filter_jit
 def _marginal_mode(post: LogPosterior, h0, y0, Jc, idx, q: int, max_steps):
-    import optimistix as optx
-
     prior = post.unconstrained()
     x_th = jnp.zeros(post.n_free)
 
     def neg(h, _):
         v = _log_marginal_compact(post, h, y0, Jc, idx, q) + prior.log_prior(
-            jnp.concatenate([x_th, h[:N_GP_CORR_HYPER]])
+            jnp.concatenate([x_th, h])
         )
-        if h.shape[0] > N_GP_CORR_HYPER:  # error_scale="class": γ ~ N(0, DEFAULT_GAMMA_SD²)
-            v = v - 0.5 * jnp.sum((h[N_GP_CORR_HYPER:] / DEFAULT_GAMMA_SD) ** 2)
         return -jnp.where(jnp.isfinite(v), v, -1e300)
 
     sol = optx.minimise(neg, optx.BFGS(rtol=1e-9, atol=1e-9), h0, max_steps=max_steps, throw=False)

@@ -99,7 +99,7 @@ def laplace_samples(
         log_prob=np.full(n_samples, np.nan),
         scale=nls_result.scale,
         n=n,
-        names=tuple(param_names(n, model_error=False)),
+        names=tuple(param_names(n)),
         diagnostics={"method": "laplace_nls", "mean": theta, "cov": cov},
     )
 
@@ -137,8 +137,6 @@ def laplace_posterior(
     floor = 1.0 / post.prior_scale**2
     lam = np.maximum(lam, floor)
     cov = (V / lam) @ V.T
-    if post.parameterization == "cholesky" and not post.free_idx:
-        xm = np.concatenate([fold_theta(xm[: post.n_theta]), xm[post.n_theta :]])
     info = {"steps": int(steps), "converged": bool(ok), "log_prob": float(post_u(jnp.asarray(xm))),
             "mode_in_cone": bool(np.isfinite(float(post(jnp.asarray(xm)))))}  # fmt: skip
     return xm, cov, info
@@ -170,7 +168,7 @@ def posterior_laplace_samples(post: LogPosterior, n_samples: int, init, key=0) -
         log_prob=np.asarray(post.log_prob_numpy(draws)),
         scale=post.scale,
         n=post.n,
-        names=tuple(param_names(post.n, post.kind if post.model_error else "none")),
-        diagnostics={"method": f"laplace_{post.parameterization}", "laplace": info},
+        names=tuple(param_names(post.n, post.error)),
+        diagnostics={"method": "laplace_matrix", "laplace": info},
         predictive=post.predictive_data(),
     )

@@ -81,12 +81,9 @@ def initial_point(post: LogPosterior, nls_result: NLSResult | None = None) -> np
             "the NLS result's scale differs from the posterior's: build it with scale=nls.scale"
         )
     th, _ = _canonical_with_cov(th, np.eye(th.shape[0]))
-    if post.parameterization == "matrix":
-        th = theta_to_matrix(th, post.n)
+    th = theta_to_matrix(th, post.n)
     x0 = np.concatenate([post.free_part(th), post.hyper_mean()])
-    if post.parameterization == "matrix":
-        x0 = post.project(x0)  # a boundary matrix's −1e-17 eigenvalue is outside the cone
-    return x0
+    return post.project(x0)  # a boundary matrix's −1e-17 eigenvalue is outside the cone
 
 
 def check_initial_state(post: LogPosterior, x0: np.ndarray, log_prob_fn=None) -> np.ndarray:

@@ -295,7 +295,7 @@ def _gp_corr_errors(ps: PosteriorSamples, idx, ms, omega, rng):
         hm_correlation,
         split_hyper,
     )
-    from ._weights import class_weights, element_weights, gp_amplitudes
+    from ._weights import element_weights, gp_amplitudes
 
     data = ps.predictive
     n, E = ps.n, ps.n * ps.n
@@ -322,9 +322,6 @@ def _gp_corr_errors(ps: PosteriorSamples, idx, ms, omega, rng):
     if scale_kind == "element":  # per element: (E, Nf + N)
         w = element_weights(np.asarray(data["ref_theta"]), ps.scale, om_all)
         a_all = tuple(a[None] * wi for a, wi in zip(a_all, w, strict=True))
-    elif scale_kind == "class":  # per element, constant in ω: the learned γ (class_weights)
-        w = class_weights(jnp.asarray(data["class_gamma"]), n)
-        a_all = tuple(a[None] * np.asarray(wi)[:, None] for a, wi in zip(a_all, w, strict=True))
     a_all = tuple(jnp.asarray(a) for a in a_all)
     M = Nf + N
 

@@ -300,7 +300,7 @@ def sample_posterior(
         log_prob=np.asarray(lps),
         scale=post.scale,
         n=post.n,
-        names=tuple(param_names(post.n, post.kind if post.model_error else "none")),
+        names=tuple(param_names(post.n, post.error)),
         diagnostics=diag,
         predictive=post.predictive_data(),
     )

@@ -1,7 +1,7 @@
 # ruff: noqa: F722  (jaxtyping shape strings in annotations)
 """Sizes of the model-error term per frequency and element: the data's RMS element sizes
 continued by the reference model outside the fit band (:func:`gp_amplitudes`), and the
-per-element weights of ``error_scale="element"`` / ``"class"``."""
+per-element weights of ``GPCorr(scale="element")``."""
 
 from __future__ import annotations
 
@@ -10,9 +10,6 @@ import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
 from ..fit._pd import Scale
-from ._gp import (
-    N_GP_CORR_HYPER,
-)
 
 
 def gp_amplitudes(
@@ -48,16 +45,12 @@ def reference_amplitudes(ref_theta, scale: Scale, omega) -> tuple[np.ndarray, np
     return aH, aM
 
 
-ERROR_SCALES = ("shared", "element", "class")
-CLASS_NAMES = ("gamma_H", "gamma_M")  # error_scale="class": log off-diagonal / diagonal amplitude
-DEFAULT_GAMMA_SD = 2.0  # prior sd of each γ (mean 0: the shared scale)
-N_CLASS_HYPER = N_GP_CORR_HYPER + 2
 ELEMENT_FLOOR = 0.01  # element sizes floored at this × √(e_ii e_jj) (a model zero stays > 0)
 
 
 def element_weights(ref_theta, scale: Scale, omega) -> tuple[np.ndarray, np.ndarray]:
     """Per-element weights ``(w_H, w_M)``, each ``(E, N)`` (``E = n²`` row-major, unitless),
-    of the gp_corr model-error amplitude with ``error_scale="element"``, on ``omega`` (N,)
+    of the gp_corr model-error amplitude with ``GPCorr(scale="element")``, on ``omega`` (N,)
     rad/s: ``w_ij(ω) = e_ij(ω) / RMS_kl e_kl(ω)`` with ``e_ij = |K_ij| + ω |B_ij| + ω² |M_ij|``
     the size of element ``(i, j)`` of the reference model's hand (``w_H``) or mechanism
     (``w_M``) impedance — the sum of its three terms' magnitudes, so it has no dip where they
@@ -65,7 +58,7 @@ def element_weights(ref_theta, scale: Scale, omega) -> tuple[np.ndarray, np.ndar
     e_jj)`` so that an element the model leaves at zero keeps a (small) error. The model
     error is then *relative per element*: ``τ`` is the relative size of the misfit in every
     element, large and small. The RMS weight over the elements is 1, so the total error size
-    ``τ a(ω)`` is that of ``error_scale="shared"``. Fixed by the fit: no hyperparameter."""
+    ``τ a(ω)`` is that of ``GPCorr(scale="shared")``. Fixed by the fit: no hyperparameter."""
     from ..fit._pd import theta_to_model
 
     m = theta_to_model(jnp.asarray(ref_theta), scale)
@@ -81,20 +74,4 @@ def element_weights(ref_theta, scale: Scale, omega) -> tuple[np.ndarray, np.ndar
         e = np.maximum(e, 1e-300)
         w = e / np.sqrt(np.mean(e**2, axis=(1, 2)))[:, None, None]
         out.append(w.reshape(om.shape[0], -1).T)
-    return out[0], out[1]
-
-
-def class_weights(gamma, n: int):
-    """Per-element weights ``(w_H, w_M)``, each ``(E,)`` (``E = n²`` row-major, unitless), of
-    the gp_corr model-error amplitude with ``error_scale="class"``: ``1`` on the diagonal and
-    ``e^γ`` off it (``γ = (γ_H, γ_M)``, learned with the other hyperparameters at the mode of
-    their marginal posterior, prior ``γ ~ N(0, DEFAULT_GAMMA_SD²)``), divided by their RMS over
-    the elements — so ``τ a(ω)`` stays the RMS error size and ``γ = 0`` is the shared scale.
-    Four amplitudes (diagonal and off-diagonal of the hand and of the mechanism) instead of
-    two."""
-    off = jnp.asarray(1.0 - np.eye(n).reshape(-1))
-    out = []
-    for g in (gamma[0], gamma[1]):
-        w = jnp.exp(g * off)
-        out.append(w / jnp.sqrt(jnp.mean(w**2)))
     return out[0], out[1]
