@@ -20,7 +20,7 @@ N_RODS = 3  # small files: the CLI never needs to do real work on them to reject
 def write_valid_files(d: Path, n: int = N_RODS) -> dict[str, Path]:
     """A valid run, FRF, model, samples and scene file in ``d`` (cheap: numpy only)."""
     from hapid import io as hio
-    from hapid.fit._pd import n_params
+    from hapid.fit import n_params
     from hapid.frf import as_frf
     from hapid.impedance import ImpedanceModel, SecondOrder
 

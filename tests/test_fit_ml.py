@@ -15,9 +15,16 @@ from helpers_fit import random_truth
 import hapid  # noqa: F401
 from hapid.device import SecondOrderDevice
 from hapid.experiment import Protocol, estimate_frf, periodic_run
-from hapid.fit import cramer_rao, fit_ml, ml_cost, model_relative_errors, model_to_theta, project_pd
+from hapid.fit import (
+    cramer_rao,
+    data_scale,
+    fit_ml,
+    ml_cost,
+    model_relative_errors,
+    model_to_theta,
+    project_pd,
+)
 from hapid.fit._ml import REL_JITTER, _inverse_cholesky, _quantization_step
-from hapid.fit._problem import data_scale
 from hapid.impedance import ImpedanceModel, SecondOrder
 
 FREQ_HZ = (1.0, 2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0, 30.0, 40.0)

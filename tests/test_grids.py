@@ -1,12 +1,12 @@
 """The one set of frequency-grid builders (hapid._grids) and the shared constants."""
 
 import math
+from math import tau as TWO_PI
 
 import numpy as np
 import pytest
 
 from hapid import _grids
-from hapid._constants import TWO_PI
 from hapid.scene import analysis_grid, merge
 from hapid.tune import device_grid, posterior_grid
 from hapid.uncertainty import posterior_omega, robust_omega

@@ -10,12 +10,11 @@ import pytest
 
 from hapid import io
 from hapid.control import Compensator, analyze_loop
-from hapid.fit._pd import Scale, n_params
+from hapid.fit import Scale, n_params
 from hapid.io import load_samples
 from hapid.io._common import _atomic_write
 from hapid.tune import load_design
-from hapid.uncertainty import PosteriorSamples
-from hapid.uncertainty._likelihood import param_names
+from hapid.uncertainty import PosteriorSamples, param_names
 
 
 def _strict_loads(s):

@@ -4,15 +4,14 @@ spread between and beyond the measured frequencies; ``auto`` picks the family th
 supports; bad uses are one-line errors."""
 
 import dataclasses
+from math import tau as TWO_PI
 
 import numpy as np
 import pytest
 
 from hapid import io
-from hapid._constants import TWO_PI
 from hapid.cli import main
-from hapid.fit import Scale
-from hapid.fit._pd import theta_to_model
+from hapid.fit import Scale, theta_to_model
 from hapid.io import save_samples
 from hapid.uncertainty import (
     PosteriorSamples,

@@ -3,12 +3,12 @@
 model class is wrong, and the samples file carries the measured FRF it needs."""
 
 import dataclasses
+from math import tau as TWO_PI
 
 import numpy as np
 import pytest
 
 from hapid import pipeline
-from hapid._constants import TWO_PI
 from hapid._grids import continuous_grid
 from hapid.control import Compensator
 from hapid.fit import Scale

@@ -1,13 +1,14 @@
 """hapid.tune: differentiable pieces against references, gradients against finite
 differences, and a small tuning run re-checked by the non-smooth analysis."""
 
+from math import tau as TWO_PI
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import hapid
-from hapid._constants import TWO_PI
 from hapid.control import (
     Compensator,
     analyze_loop,
@@ -18,6 +19,7 @@ from hapid.control import (
     inverse_model_state_space,
 )
 from hapid.tune import (
+    Box,
     Family,
     ParamMap,
     Requirements,
@@ -30,7 +32,6 @@ from hapid.tune import (
     tune,
     validate,
 )
-from hapid.tune._objective import Box
 from hapid.tune._progress import TuneProgress
 from tests.helpers import random_model
 
@@ -290,7 +291,7 @@ def test_loop_draws_train_on_the_loop_the_held_out_check_closes(small):
     from hapid import pipeline
     from hapid._grids import continuous_grid
     from hapid.tune._recipe_plants import loop_draw_family
-    from hapid.uncertainty._loopgp import fit_loop_gp, loop_gp_plants
+    from hapid.uncertainty import fit_loop_gp, loop_gp_plants
 
     model, *_ = small
     om_meas = TWO_PI * np.geomspace(1.0, 100.0, 40)

@@ -2,10 +2,11 @@
 unstable the tuner first lowers the loop gain until every strict scenario is stable, then
 tunes; checked against analyze_loop (the reference Nyquist analysis) on every plant."""
 
+from math import tau as TWO_PI
+
 import numpy as np
 import pytest
 
-from hapid._constants import TWO_PI
 from hapid.control import Compensator, analyze_loop, inverse_model_response
 from hapid.tune import Family, Requirements, make_scenarios, tune
 from hapid.tune._tune import gain_backoff

@@ -6,10 +6,11 @@ inverse-model loop has |g| ≈ 40, and no g with the paper's static gain could h
 (docs/robust-design.md, "The collapse"). Now the continuation below ω_1 reverts to the size
 the lowest measured frequencies show, a(u_1)², conditioned on the draw's value at ω_1."""
 
+from math import tau as TWO_PI
+
 import numpy as np
 import pytest
 
-from hapid._constants import TWO_PI
 from hapid.uncertainty._loopgp import LoopGP, conditional, loop_gp_draws
 
 

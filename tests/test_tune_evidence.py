@@ -4,10 +4,11 @@ every plant within the mismatch bound), the never-worse rule on the evidence, th
 device variant, and (slow) the whole CLI route on a
 device never used for tuning choices: the tuned g is stable on its true plant."""
 
+from math import tau as TWO_PI
+
 import numpy as np
 import pytest
 
-from hapid._constants import TWO_PI
 from hapid.control import Compensator, inverse_model_response
 from hapid.tune._evidence import (
     KAPPA,

@@ -3,10 +3,11 @@ grid's points. Synthetic scenarios with a lightly damped resonance placed betwee
 training frequencies at the loop's phase crossover: without the dense grid the tuner is
 fooled (its loci enter the 1/M_s disc there), with it the dense constraint is met."""
 
+from math import tau as TWO_PI
+
 import numpy as np
 import pytest
 
-from hapid._constants import TWO_PI
 from hapid.control import Compensator, analyze_loop, inverse_model_response
 from hapid.tune import Family, Requirements, make_scenarios, tune
 from hapid.tune._exchange import TOL, locus_violation, merge_freqs, violations

@@ -3,10 +3,11 @@ solve, the closed-form leave-one-out against refitting without each point, the d
 moments against the conditional, the continuations beyond the data, calibration on a truth
 drawn from the GP itself, and the plants handing back Q to the tuner's scenarios."""
 
+from math import tau as TWO_PI
+
 import numpy as np
 import pytest
 
-from hapid._constants import TWO_PI
 from hapid.tune import make_scenarios
 from hapid.uncertainty._loopgp import (
     TOP_TAPER,

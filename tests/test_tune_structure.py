@@ -13,10 +13,11 @@
 
 from __future__ import annotations
 
+from math import tau as TWO_PI
+
 import numpy as np
 import pytest
 
-from hapid._constants import TWO_PI
 from hapid.control import Compensator, analyze_loop, inverse_model_response
 from hapid.tune import (
     Family,

@@ -17,8 +17,7 @@ from hapid.control import (
     inverse_model_response,
     loop_metrics,
 )
-from hapid.fit import fit_nls, fit_nls_batch
-from hapid.fit._pd import canonical_theta
+from hapid.fit import canonical_theta, fit_nls, fit_nls_batch
 from hapid.io import load_samples, save_samples
 from hapid.uncertainty import (
     NoError,

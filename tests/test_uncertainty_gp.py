@@ -283,8 +283,8 @@ def test_paper_g_stable_on_cu5_predictive_plants():
     from hapid.control import Compensator, analyze_loop
     from hapid.device import preset
     from hapid.experiment import Protocol, estimate_frf, periodic_run
+    from hapid.tune import true_plant_loop
     from hapid.tune._recipe import predictive_scenario_plants
-    from hapid.tune._validate import true_plant_loop
     from hapid.uncertainty import boundary_fixed
     from hapid.uncertainty._robust import controller_response
 

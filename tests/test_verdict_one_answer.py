@@ -9,11 +9,12 @@ established for the same loop at the same rate, and name that loop.
   certificate holds; a loop gain above the band beyond κ is ``not established``.
 """
 
+from math import tau as TWO_PI
+
 import numpy as np
 import pytest
 
 from hapid import io as hio
-from hapid._constants import TWO_PI
 from hapid.frf import as_frf
 from hapid.tune._check import design_check
 from hapid.verdict import Verdict
