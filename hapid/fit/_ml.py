@@ -172,9 +172,9 @@ def _inverse_cholesky(S):
     """``W⁻¹`` (lower triangular) of the Cholesky factor ``W Wᴴ = S`` for a batch of small
     Hermitian PD matrices ``(..., m, m)``, unrolled in elementary ops.
 
-    XLA:CPU's batched ``triangular_solve`` (and LU ``solve``) under ``jacfwd`` took ~0.6 s
-    per Jacobian of a 28-frequency problem (measured; 1 ms without them): forward-mode
-    tangents become extra batch columns that the LAPACK custom call handles one by one.
+    XLA:CPU's batched ``triangular_solve`` (and LU ``solve``) under ``jacfwd`` is slow
+    (benchmarks/README.md): forward-mode tangents become extra batch columns that the LAPACK
+    custom call handles one by one.
     ``m = 2n`` is small, so a column-by-column Cholesky and forward substitution are cheap.
     """
     m = S.shape[-1]
@@ -392,7 +392,7 @@ def fit_ml(
       ``linear_solver``: as :func:`~hapid.fit.fit_nls`.
     - ``pd_eps``: ``pd_eps·I`` (scaled units, default 1e-3) added to every matrix: strictly
       PD, so a matrix the fit drives to the PSD boundary (a soft direction of the hand) does
-      not put a root of det Ẑ at s = 0 or ∞ (closed RHP; measured on hexapod6 at 10× noise).
+      not put a root of det Ẑ at s = 0 or ∞ (closed RHP; docs/robust-design.md, Evidence E12).
     - ``init_floor``, ``boundary_rtol``: as :func:`~hapid.fit.fit_nls`.
 
     Returns an :class:`MLResult` (``weight == "ml"``): ``status`` converged / max_steps /

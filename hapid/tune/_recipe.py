@@ -122,23 +122,19 @@ def robust_design(
     Off by default: above the fit band the predictive plants are the second-order model (the
     data say nothing there), so a design tuned on them alone is blind to phase lag there; with
     the evidence constraints (on by default) it is certified but at a lower bandwidth than the
-    loop draws give (docs/robust-design.md, section `draw_family="loop_gp"`).
+    loop draws give (docs/robust-design.md, Evidence E11).
 
     ``evidence_bandwidth`` (off): let the measured FRF claim the bandwidth instead of the
-    median draw. With narrow NLS-Laplace draws (24, q = 0.95) it failed on cu5: 6.9 Hz on the
-    true plant but GM −2.0 dB, PM 8.8° — the loci met the disc at the 28 measured
-    frequencies and passed near −1 between them. With the chance constraint on gp draws
-    (125 trained on, q = 0.975) the draws guard the margins between the measured points:
-    cu5 2.41 Hz, GM 6.9 dB, PM 54° (median-draw bandwidth: 1.19 Hz); tripod3 2.77 Hz, GM
-    7.6 dB, PM 44° (2.42 Hz) — all certified (docs/robust-design.md). Off by default: it relies on draws
-    wide enough to cover the plant between the measured frequencies.
+    median draw. Off by default: it relies on draws wide enough to cover the plant between
+    the measured frequencies, where the measured loci say nothing (docs/robust-design.md,
+    Evidence E11).
 
     ``draw_family="loop_gp"``: the training and held-out plants are draws of the loop
     coordinate ``Q = P P̂⁻¹`` itself, conditioned on the whole measured FRF
     (:mod:`hapid.uncertainty._loopgp`: a GP of ``Q − I`` in ln ω, hyperparameters by leave-one-out;
     ``frf`` required, ``samples`` not used) instead of posterior draws of the second-order
-    fit. Calibrated in loop coordinates on cu5 and tripod3 + 2 ms where the gp posterior's
-    draws are not (benchmarks/calibrate_loop.py, docs/robust-design.md).
+    fit. Calibrated in loop coordinates where the parameter draws are not
+    (docs/robust-design.md, Evidence E3).
 
     **Chance constraint.** The margins on the posterior draws must hold on ``quantile``
     (0.975) of the ``n_train`` (150) training draws: a CVaR of the smooth disc constraint in
@@ -164,9 +160,7 @@ def robust_design(
     > 1 (default 4) the device variants and the posterior models are also evaluated on
     ``dense_factor · n_freq`` points, and after each stage the tuner adds the dense
     frequencies where the margin constraint is violated to its grid and repeats the stage
-    (:mod:`hapid.tune._exchange`). Measured on the paper scene (cu5): a design whose loci met
-    the disc at all 300 training points had GM 2.0 dB on every training variant on the
-    analysis grid (a chain mode at 171 Hz between two points).
+    (:mod:`hapid.tune._exchange`; why: docs/robust-design.md, Evidence E7).
 
     **Never worse than the start.** With validation on, the tuned g is kept only if, on the
     held-out evidence (posterior draws; device variants and the nominal true plant when a
@@ -177,11 +171,7 @@ def robust_design(
     (``certified_fallback``, default on, with evidence): when the design so chosen is not
     certified by the evidence, the start and the tuned g are each scaled in gain to the
     largest value the evidence certifies (:func:`certified_gain`), re-checked, and the
-    better returned (``out["table"]["returned"]``). Measured on a held-out tripod3 variant
-    (4 samples of delay, compliant rods, moved stylus; paper protocol): neither was certified,
-    the tuned g was kept on better figures and was unstable on the true plant (a locus
-    around −1 between the measured 40 and 45 Hz); the paper g at 0.35 of its gain is
-    certified and stable there (GM 7.9 dB, PM 50°, 1.45 Hz).
+    better returned (``out["table"]["returned"]``; why: docs/robust-design.md, Evidence E7).
 
     Returns ``{"result": TuneResult, "candidate": TuneResult (the tuner's g even when the
     start was kept), "families": {...sizes}, "validation": {"start": v,

@@ -67,11 +67,10 @@ def predictive_scenario_plants(samples, idx, omega, seed: int = 0) -> tuple[np.n
     misfit the data show (delay, unmodeled modes) and not only parameter uncertainty. The
     error term is confined to the fit band (``error_band``, taper ``PREDICTIVE_TAPER`` in
     ln ω): outside it the data say nothing about the error, and the GP's extrapolation (its
-    prior, ~τ_H ≈ 0.45 relative on cu5) is a random perturbation the data do not support
-    that flips the Nyquist count of loops crossing over just above the band (measured on
-    cu5, paper g, 40 draws, 2000-point grid: P(stable) 0.95 / 0.93 / 0.85 / 0.45 / 0.30 for
-    taper widths 0.1 / 0.25 / 0.5 / 1 / 2); there the draw is its second-order model. The
-    RHP poles are those of the draw's model (0 for PD matrices)."""
+    prior) is a random perturbation the data do not support that flips the Nyquist count of
+    loops crossing over just above the band (docs/robust-design.md, Evidence E12); there the
+    draw is its second-order model. The RHP poles are those of the draw's model (0 for PD
+    matrices)."""
     from ..uncertainty import predictive_plants
 
     sub = _subset(samples, idx)
@@ -105,8 +104,8 @@ def count_grid(fs_hz: float, dense_factor: int, n_freq: int) -> np.ndarray:
     points): :func:`below_nyquist_grid` with ``dense_factor · n_freq`` points (0.1 Hz to
     0.499 f_s), a low tail from the analysis grid's 10⁻³ Hz up to 0.1 Hz and the Nyquist
     frequency itself — so that its Nyquist count closes at both ends as the analysis'
-    (:func:`hapid._grids.nyquist_grid`) does: measured on cu5 with 3 samples of delay,
-    ``det(I + L)`` is at −90° at 0.1 Hz."""
+    (:func:`hapid._grids.nyquist_grid`) does: ``det(I + L)`` can sit at −90° at 0.1 Hz
+    (docs/robust-design.md, Evidence E7)."""
     band = below_nyquist_grid(fs_hz, dense_factor * n_freq)
     tail = log_grid_hz(NYQUIST_F_MIN_HZ, 0.1, n_freq)[:-1]
     return np.sort(np.concatenate([tail, band, [np.pi * float(fs_hz)]]))
@@ -121,11 +120,9 @@ def loop_draw_family(lgp, model, *, n_freq: int, dense_factor: int, n_train: int
 
     Trained and held out on one loop: with ``ts`` (s, the controller's rate) both close the
     loop with the controller discretized at ``ts`` on :func:`nyquist_grid` (to π/ts); without
-    it, the continuous loop on :func:`posterior_grid`. (Trained on the continuous loop and
-    checked on the sampled one, the tuned g sat on the margin boundary of the first and lost
-    ~0.6° of phase margin to the second: on cu5's README route 43 % of the held-out draws
-    then missed 30°.) ``dense_factor > 1``: the same draws on a denser grid (one joint GP
-    draw) for the tuner's grid exchange and Nyquist count."""
+    it, the continuous loop on :func:`posterior_grid` (why: docs/robust-design.md, Evidence
+    E6, "One loop for training and re-check"). ``dense_factor > 1``: the same draws on a
+    denser grid (one joint GP draw) for the tuner's grid exchange and Nyquist count."""
     from ..uncertainty._loopgp import loop_gp_plants
     from ._objective import Family
     from ._scenarios import make_scenarios

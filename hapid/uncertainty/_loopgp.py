@@ -3,8 +3,8 @@
 The inverse-model controller ``G = g Ẑ_T Ẑ_H⁻¹`` sees any plant through ``Q = P P̂⁻¹``
 (``L = g Q``; ``Q = I`` for the model's own plant). Posterior draws of a second-order fit
 describe ``Q`` only through the θ-model (and, for predictive draws, through a model error
-defined on the impedance elements); measured on cu5 and tripod3 + 2 ms they are over-wide in
-these coordinates (benchmarks/calibrate_loop.py, docs/robust-design.md). This module draws
+defined on the impedance elements), and they are not calibrated in these coordinates
+(docs/robust-design.md, Evidence E3). This module draws
 ``Q`` directly: the multiplicative error ``Δ = Q − I`` is measured at every FRF frequency
 (``Δ_k = P_meas(ω_k) P̂(ω_k)⁻¹ − I``, the whole FRF band, 1–100 Hz on the paper's protocol), and
 between the measured frequencies it is a Gaussian process in ``u = ln ω``:
@@ -17,8 +17,8 @@ between the measured frequencies it is a Gaussian process in ``u = ln ω``:
 scale ``σ²``. ``ℓ`` and ``η`` maximize the leave-one-out predictive density on a grid and
 ``σ²`` calibrates the leave-one-out residuals (each measured ``Δ_k`` predicted from the
 others): the band between measured frequencies is sized by how well the data predict
-themselves, not by a likelihood that trusts the kernel (measured on cu5: the marginal
-likelihood's choice covered the held-out truth at only 53 % of 1–10 Hz frequencies). A draw is
+themselves, not by a likelihood that trusts the kernel (why: docs/robust-design.md, Evidence
+E3). A draw is
 the exact GP conditional on the measured ``Δ_k``.
 
 When the FRF carries its element std (a periodic run's FRF does), the measured ``Δ_k`` are
@@ -26,7 +26,7 @@ the loop plus measurement noise of known variance ``v_k`` (:func:`measured_noise
 the data covariance is ``σ² C + diag(v)`` and a draw is of the loop, not of the noisy
 measurement. Without it the draws pass through the measured values to within the nugget, and
 a bandwidth whose crossing lies between two measured points comes out mHz-narrow and offset
-by the noise (held-out compliant quad4: true 5.63 Hz, draws' 5–95 % 5.65–5.68 Hz).
+by the noise (docs/robust-design.md, Evidence E1).
 
 Outside the measured band the data say nothing; the draws continue as stated assumptions:
 
@@ -279,10 +279,8 @@ def _below(gp: LoopGP, u_lo, d1, rng) -> np.ndarray:
     the fitted ``ℓ`` conditioned on ``d1``, reverting to a prior of the size the lowest
     measured frequencies show (``E|Δ_ij|² → a(u_1)²``, the measured RMS element size there).
     Not ``σ² a(u_1)²``: ``σ²`` calibrates how far the data predict themselves *between*
-    measured frequencies (cu5 1.5, quad4 with 2 samples of delay 7.1); as the size of an
-    unmeasured band it gave that quad4 draws with a left-half-plane eigenvalue of Q below
-    1 Hz on 19 of 60 (truth: Re λ ≥ 0.95 there), which no g with the paper's static gain holds
-    (docs/robust-design.md, "The collapse")."""
+    measured frequencies, not the size of an unmeasured band (why: docs/robust-design.md,
+    Evidence E4, "The collapse")."""
     a1 = float(gp.envelope(gp.u[:1])[0])
     rho = matern52((gp.u[0] - u_lo) / gp.ell)
     C = a1**2 * (matern52((u_lo[:, None] - u_lo[None]) / gp.ell) - rho[:, None] * rho[None])

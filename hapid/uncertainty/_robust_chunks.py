@@ -11,12 +11,11 @@ grid pass (every frequency) once per plant — the plain jitted program, no ``vm
 refinement pass (a few small sequential root-finding steps per plant) once per chunk of
 ``chunk`` plants, ``vmap``-ed, so its step count is paid once per chunk instead of once per
 plant (``vectorize=False``, the default); or the whole analysis ``vmap``-ed over chunks
-(``vectorize=True``; the last chunk padded, ``p_ol`` an array: one compile). Measured on the
-2-core machine, the grid pass per plant is the faster: under ``vmap`` the batch axis sits in
-front of the kernels' entry-major ``(n, n, N)`` layout and the grid kernels cost 2–3× more
-per plant (det/inverse 7.3 vs 2.6 ms per plant at 8 plants × 1000 frequencies). Same
-verdicts as the reference on 1000 cu5 posterior draws
-(benchmarks/bench_fast.py, tests/test_control_metrics.py). ``backend="reference"``:
+(``vectorize=True``; the last chunk padded, ``p_ol`` an array: one compile). The grid pass
+per plant is the faster: under ``vmap`` the batch axis sits in front of the kernels'
+entry-major ``(n, n, N)`` layout (timings: benchmarks/README.md, "Per-plant program, not
+vmap"). Same verdicts as the reference (benchmarks/bench_fast.py,
+tests/test_control_metrics.py). ``backend="reference"``:
 :func:`hapid.control.analyze_loop` (the LAPACK reference, grid values) once per plant.
 """
 
