@@ -1,10 +1,10 @@
 """bench_route's robust check over parameter draws vs a plain numpy loop, in one process.
 
 Run by :mod:`bench_route` with a tree on ``PYTHONPATH``: ``python _route_numpy.py S``. Prints
-one JSON line: ``t_hapid`` (warm :func:`hapid.uncertainty.robust_check`, default backend and
+one JSON line: ``t_hapid`` (warm :func:`hapid.uncertainty.robust_check`, default
 spec, after a first call on the same arrays), ``t_numpy`` (the numpy per-draw loop of
 bench_fast: det, inv, eigvals, two SVDs per draw), ``same`` (draws whose verdict equals the
-LAPACK reference, ``backend="reference"``).
+LAPACK reference, :func:`bench_fast.reference_robust`: ``analyze_loop`` on every draw).
 """
 
 import json
@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_fast import _numpy_robust, _setup  # noqa: E402
+from bench_fast import _numpy_robust, _setup, reference_robust  # noqa: E402
 
 
 def main(S: int) -> dict:
@@ -40,7 +40,7 @@ def main(S: int) -> dict:
     t = time.perf_counter()
     _numpy_robust(Pn, Gn)
     t_numpy = time.perf_counter() - t
-    ref = robust_check(Ps, G, omega, controller_rhp=c_rhp, backend="reference")
+    ref = reference_robust(Ps, G, w, c_rhp)
     same = int(np.sum(np.asarray(ref.stable) == np.asarray(rep.stable)))
     return {"t_hapid": t_hapid, "t_numpy": t_numpy, "same": same}
 

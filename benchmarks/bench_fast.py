@@ -10,11 +10,11 @@ paper's g, Laplace posterior draws of the NLS fit.
    and the loci margins), :func:`hapid.control.analyze_loop` (LAPACK reference, grid
    values) and :func:`hapid.control.loop_metrics` (XLA kernels, screened, refined).
    Also the breakdown: each part of loop_metrics timed on its own.
-2. Robust check, S draws × 1000 frequencies: :func:`hapid.uncertainty.robust_check` with
-   ``backend="metrics"`` (loop_metrics once per draw, or vmapped over padded chunks) and its
+2. Robust check, S draws × 1000 frequencies: :func:`hapid.uncertainty.robust_check`
+   (loop_metrics once per draw, or vmapped over padded chunks) and its
    default spec (verdict + σ̄(T − I) bandwidth + loci margins: what ``passed`` needs), the
    same with ``metrics="all"`` (+ disk margin and T peak, for scale), the per-plant
-   reference (``backend="reference"``: ``analyze_loop`` on every draw) and a plain numpy
+   reference (:func:`reference_robust`: ``analyze_loop`` on every draw) and a plain numpy
    per-draw loop, on the same plant arrays: time, ratios and verdict agreement.
 """
 
@@ -191,6 +191,21 @@ def _why(bd, budget, what, whole="loop_metrics: everything"):
             f"{fs(full)} (breakdown table)")  # fmt: skip
 
 
+def reference_robust(Ps, G, omega, controller_rhp: int = 0):
+    """The per-plant reference the robust check is compared with: :func:`hapid.control.analyze_loop`
+    (LAPACK, grid values) on every plant ``Ps (S, N, n, n)`` with ``G (N, n, n)`` on ``omega``.
+    Returns the per-plant arrays ``stable``, ``gm_db``, ``pm_deg``, ``iso_bandwidth_hz`` and
+    ``p_stable`` (a namespace)."""
+    from types import SimpleNamespace
+
+    from hapid.control import analyze_loop
+
+    keys = ("stable", "gm_db", "pm_deg", "iso_bandwidth_hz")
+    reps = [analyze_loop(Ps[i], G, omega, controller_rhp) for i in range(Ps.shape[0])]
+    out = {k: np.stack([np.asarray(getattr(r, k)) for r in reps]) for k in keys}
+    return SimpleNamespace(**out, p_stable=float(np.mean(out["stable"])))
+
+
 def _numpy_robust(Ps, G):
     """A plain numpy per-draw loop: the ingredients of the verdict, σ̄ and loci per draw."""
     for P in Ps:
@@ -216,15 +231,20 @@ def robust_row(sec: Section, nls, S: int):
     full_name = (
         "metrics, grid pass per draw + refinement per chunk, metrics='all' (+ disk margin, T peak)"
     )
-    for name, kw in (("metrics, grid pass per draw + refinement per chunk", dict(backend="metrics", vectorize=False)),
-                     ("metrics, vmapped chunks", dict(backend="metrics", vectorize=True)),
-                     (full_name, dict(backend="metrics", vectorize=False, metrics="all")),
-                     ("reference (analyze_loop per draw)", dict(backend="reference"))):  # fmt: skip
+
+    def check(**kw):
+        return lambda P: robust_check(P, G, omega, controller_rhp=c_rhp, chunk=chunk, **kw)
+
+    for name, fn in (("metrics, grid pass per draw + refinement per chunk", check(vectorize=False)),
+                     ("metrics, vmapped chunks", check(vectorize=True)),
+                     (full_name, check(vectorize=False, metrics="all")),
+                     ("reference (analyze_loop per draw)",
+                      lambda P: reference_robust(P, G, w, c_rhp))):  # fmt: skip
         t = time.perf_counter()
-        robust_check(Ps[:chunk], G, omega, controller_rhp=c_rhp, chunk=chunk, **kw)
+        fn(Ps[:chunk])
         first = time.perf_counter() - t
         t = time.perf_counter()
-        rep = robust_check(Ps, G, omega, controller_rhp=c_rhp, chunk=chunk, **kw)
+        rep = fn(Ps)
         runs[name] = (rep, time.perf_counter() - t, first)
     Pn, Gn = np.asarray(Ps), np.asarray(G)
     t = time.perf_counter()
@@ -328,7 +348,7 @@ def loop_draws_row(sec: Section, S: int):
     M.SCREEN_LOCI = True
     R._grid_one = jax.jit(R.grid_pass_one, static_argnames="spec")
     t = time.perf_counter()
-    ref = robust_check(Ps, G, om, controller_rhp=c_rhp, chunk=chunk, backend="reference")
+    ref = reference_robust(Ps, G, w, c_rhp)
     t_ref = time.perf_counter() - t
     t = time.perf_counter()
     _numpy_robust(np.asarray(Ps), np.asarray(G))

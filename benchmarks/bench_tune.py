@@ -51,7 +51,9 @@ def _fmt(v):
 
 def run(quick: bool = False, out: str = "out/bench") -> Section:
     sec = Section("Gradient tuning of g(s), robust over posterior samples and device variants")
-    res, _ = run_scene(merge({}), ["device", "nls"], cache_dir=".hapid_cache/stages", out_dir=out)
+    res = run_scene(
+        merge({}), ["device", "nls"], cache_dir=".hapid_cache/stages", out_dir=out
+    ).results
     dev, nls = res["device"], res["nls"]
     model = nls["model"]
     g0 = Compensator.paper()
@@ -141,7 +143,7 @@ def devices_table(specs, n_train: int = 60, n_holdout: int = 100, seed: int = 0)
         ret = "returned" if "returned" in tab else "start" if out["kept_start"] else "tuned"
         for name, g, row in (("paper", Compensator.paper(), tab["start"]),
                              (f"returned ({ret})", out["result"].g, tab[ret])):  # fmt: skip
-            t = true_plant_loop(g, fit.model, dev)
+            t = true_plant_loop(g, fit.model, dev).numbers()
             bw = t.get("iso_bandwidth_hz")
             lines.append(
                 f"| {spec} | {name} | {_fmt(bw) if t['stable'] else '—'} | {_fmt(t.get('gm_db'))} | "

@@ -200,7 +200,7 @@ def oracle(g0, model, frf, dev, *, max_steps=300) -> dict:
 def _true(g, model, dev):
     from hapid.tune import true_plant_loop
 
-    t = true_plant_loop(g, model, dev)
+    t = true_plant_loop(g, model, dev).numbers()
     return {k: t[k] for k in ("stable", "iso_bandwidth_hz", "gm_db", "pm_deg")}
 
 
@@ -236,9 +236,9 @@ def main(argv=None):
         + "".join(f"+notch{f:g}" for f in a.extra_notch)
     )
     cfg = {"device": {"preset": a.device}, "protocol": {"freqs": DENSE_FREQS}}
-    res, _ = scene.run_scene(scene.merge(cfg), ["device", "frf", "nls"],
+    res = scene.run_scene(scene.merge(cfg), ["device", "frf", "nls"],
                              cache_dir=str(ROOT / ".hapid_cache" / "stages"),
-                             out_dir=str(ROOT / "out" / "robust"))  # fmt: skip
+                             out_dir=str(ROOT / "out" / "robust")).results  # fmt: skip
     dev, frf, model = res["device"], res["frf"], res["nls"]["model"]
     rec = {"device": a.device, "structure": tag, "n_train": a.n_train, "n_holdout": a.n_holdout}
     if a.oracle:

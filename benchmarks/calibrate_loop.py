@@ -82,9 +82,9 @@ def setup(name: str, how: str = "calibrate", seed: int = 0):
         from hapid import scene
 
         root = Path(__file__).resolve().parent.parent
-        res, _ = scene.run_scene(scene.merge({"device": {"preset": name}}), ["device", "frf", "nls"],
+        res = scene.run_scene(scene.merge({"device": {"preset": name}}), ["device", "frf", "nls"],
                                  cache_dir=str(root / ".hapid_cache" / "stages"),
-                                 out_dir=str(root / "out" / "robust"))  # fmt: skip
+                                 out_dir=str(root / "out" / "robust")).results  # fmt: skip
         return res["device"], res["frf"], res["nls"]["result"]
     dev = cp.device(name)
     so = isinstance(dev, SecondOrderDevice)

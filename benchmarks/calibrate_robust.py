@@ -3,7 +3,7 @@
 The question a robust check answers is "how likely is this controller to be stable (and to
 meet GM ≥ 6 dB, PM ≥ 30°) on the real device?". This script asks it of controllers whose
 answer is known: for each device it simulates the paper's experiment, fits the NLS model
-(``fit_for_control``: the boundary refit as ``hapid fit``), and takes the paper's g scaled in
+(``control_fit``: the boundary refit as ``hapid fit``), and takes the paper's g scaled in
 gain by α (a ladder from far inside to far outside the stable range). On the device's true
 sampled plant each controller is stable or not (``true_plant_loop``, the analysis hapid
 analyze runs). Then each draw family gives its probability of stability and of meeting the
@@ -95,9 +95,9 @@ def setup(dev, seed: int = 0):
     from hapid.experiment import Protocol, estimate_frf, periodic_run
 
     frf = estimate_frf(periodic_run(dev, Protocol(seed=seed)))
-    fit, _ = pipeline.fit_for_control(frf, weight="relative", f_max_hz=40.0)
+    fit = pipeline.control_fit(frf, weight="relative", f_max_hz=40.0).fit
     if not fit.ok:
-        fit, _ = pipeline.fit_for_control(frf, weight="relative", f_max_hz=40.0, max_steps=5000)
+        fit = pipeline.control_fit(frf, weight="relative", f_max_hz=40.0, max_steps=5000).fit
     return frf, fit.result.raise_if_failed()
 
 
@@ -140,7 +140,7 @@ def run_device(spec: str, kinds, alphas, n_draws: int, seed: int = 0, on_row=Non
     gs = {a: scale_gain(Compensator.paper(), a) for a in alphas}
     truth = {}
     for a, g in gs.items():
-        t = true_plant_loop(g, fit.model, dev)
+        t = true_plant_loop(g, fit.model, dev).numbers()
         truth[a] = {"stable": bool(t["stable"]), "gm_db": t.get("gm_db"), "pm_deg": t.get("pm_deg"),
                     "iso_bw_hz": t.get("iso_bandwidth_hz")}  # fmt: skip
     rows = []
@@ -176,7 +176,7 @@ def _loop_gp_rows(spec, dev, frf, fit, gs, truth, n_draws, seed, on_row) -> list
     rows = []
     for a, g in gs.items():
         t0 = time.perf_counter()
-        rep, _ = loop_gp_check(frf, fit.model, g, n_draws=n_draws, seed=seed, ts=dev.ts)
+        rep = loop_gp_check(frf, fit.model, g, n_draws=n_draws, seed=seed, ts=dev.ts)
         meets = rep.stable & (rep.penalized("gm_db") >= 6.0) & (rep.penalized("pm_deg") >= 30.0)
         tr = truth[a]
         tr_meets = tr["stable"] and abs(tr["gm_db"] or 0) >= 6.0 and abs(tr["pm_deg"] or 0) >= 30.0

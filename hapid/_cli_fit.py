@@ -73,9 +73,8 @@ def _pair_nls(frf, a, band) -> Fitted:
     o = dict(weight=a.weight, solver=a.solver, f_max_hz=None, omega_c_hz=a.omega_c_hz,
              max_steps=a.max_steps)  # fmt: skip
     # a Ẑ_H with a root at ∞ / on the imaginary axis is refitted strictly PD
-    f, refit = pipeline.fit_for_control(
-        frf, boundary_refit=not getattr(a, "keep_boundary", False), **o
-    )
+    cf = pipeline.control_fit(frf, boundary_refit=not getattr(a, "keep_boundary", False), **o)
+    f, refit = cf.fit, cf.refit_pd_eps
     res = f.result
     _nls_refuse(res, a)
     meta = dict(method="nls", status=res.status, cost=float(res.cost), steps=int(res.n_steps),

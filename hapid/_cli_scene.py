@@ -18,14 +18,14 @@ def cmd_paper(a):
     cfg = scene.load_scene(a.scene) if a.scene else scene.merge({})
     want = ["fig5", "fig6", "fig7", "fig8", "fig9", "fig10", "summary", "frf_file", "model_files"]
     t0 = time.perf_counter()
-    _, log = scene.run_scene(cfg, want, out_dir=a.out, cache_dir=None if a.no_cache else a.cache,
-                             progress=lambda name: print(f"  … {name}", flush=True))  # fmt: skip
+    run = scene.run_scene(cfg, want, out_dir=a.out, cache_dir=None if a.no_cache else a.cache,
+                          progress=lambda name: print(f"  … {name}", flush=True))  # fmt: skip
     out = Path(a.out)
     print((out / "summary.md").read_text())
-    print(f"computed {len(log['computed'])} stages ({len(log['cached'])} from cache) in "
+    print(f"computed {len(run.computed)} stages ({len(run.cached)} from cache) in "
           f"{time.perf_counter() - t0:.1f} s")  # fmt: skip
-    print("per stage: " + ", ".join(f"{k} {v:.1f} s" + (" (cache)" if k in log["cached"] else "")
-                                     for k, v in log["seconds"].items()))  # fmt: skip
+    print("per stage: " + ", ".join(f"{k} {v:.1f} s" + (" (cache)" if k in run.cached else "")
+                                     for k, v in run.seconds.items()))  # fmt: skip
     print(f"figures: {', '.join(str(out / f'fig{i}.png') for i in range(5, 11))}")
     print(f"summary: {out / 'summary.md'}, {out / 'summary.json'}")
 
@@ -41,11 +41,11 @@ def cmd_run(a):
         cfg = scene.set_option(cfg, key, _parse_value(val))
     want = a.outputs.split(",") if a.outputs else None
     t0 = time.perf_counter()
-    res, log = scene.run_scene(cfg, want, out_dir=a.out, cache_dir=None if a.no_cache else a.cache,
-                               progress=lambda name: print(f"  … {name}", flush=True))  # fmt: skip
-    print(f"computed: {', '.join(log['computed']) or '—'}; from cache: {', '.join(log['cached']) or '—'} "
+    run = scene.run_scene(cfg, want, out_dir=a.out, cache_dir=None if a.no_cache else a.cache,
+                          progress=lambda name: print(f"  … {name}", flush=True))  # fmt: skip
+    print(f"computed: {', '.join(run.computed) or '—'}; from cache: {', '.join(run.cached) or '—'} "
           f"({time.perf_counter() - t0:.1f} s)")  # fmt: skip
-    print("per stage: " + ", ".join(f"{k} {v:.1f} s" for k, v in log["seconds"].items()))
+    print("per stage: " + ", ".join(f"{k} {v:.1f} s" for k, v in run.seconds.items()))
     print(f"outputs in {a.out or cfg['outputs']['dir']}")
 
 

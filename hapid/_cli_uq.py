@@ -46,8 +46,8 @@ def cmd_robust(a):
         res = robust_from_files(a.samples, a.model[0], a.out, **_robust_kw(a, dev))
         for line in verdict_lines(res):
             print(line)
-        print(to_json(res)[:4000])
-        print(_draws_line(res["posterior"]["draws"]))
+        print(to_json(res.numbers())[:4000])
+        print(_draws_line(res.posterior.draws))
     else:
         res = {
             Path(m).stem: robust_from_files(a.samples, m, None, **_robust_kw(a, dev))
@@ -58,11 +58,11 @@ def cmd_robust(a):
                 print(f"{name}: {line}")
         print(side_by_side(res))
         for name, r in res.items():
-            print(f"{name}: {_draws_line(r['posterior']['draws'])}")
+            print(f"{name}: {_draws_line(r.posterior.draws)}")
         if a.out:
             from .io import save_json
 
-            save_json(a.out, res)
+            save_json(a.out, {name: r.numbers() for name, r in res.items()})
     if not a.all_metrics:
         print("disk margin and peak of σ̄(T): not computed (null; add --all-metrics)")
     if a.out:

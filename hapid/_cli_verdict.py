@@ -14,12 +14,12 @@ def check_line(ck) -> str:
     return line
 
 
-def verdict_lines(res: dict) -> list[str]:
-    """The verdict of each batch of a :func:`hapid.robust.robust_from_files` result, one
-    line each, verdict first: ``posterior: not established: … — measure …``."""
+def verdict_lines(res) -> list[str]:
+    """The verdict of each batch of a :class:`hapid.robust.RobustResult`, one line each,
+    verdict first: ``posterior: not established: … — measure …``."""
     out = []
     for batch in ("posterior", "device"):
-        sm = res.get(batch)
+        sm = res.numbers().get(batch)
         if sm is None:
             continue
         line = f"{batch}: {sm['verdict'].upper()} — {sm['check']}"

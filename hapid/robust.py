@@ -16,6 +16,7 @@ import numpy as np
 from . import pipeline
 from ._constants import TWO_PI
 from ._grids import continuous_grid, nyquist_grid
+from ._plain import jsonable
 from .control import Compensator
 from .defaults import GM_DB, N_DRAWS, PM_DEG
 from .device import preset
@@ -26,6 +27,41 @@ from .uncertainty._cover import EvidenceCover
 from .uncertainty._files import DRAWS, resolve_draws
 from .uncertainty._loopgp import loop_gp_plants, measured_data, measured_loop_gp
 from .uncertainty._robust import FIELDS, device_plants, posterior_omega, robust_check
+from .verdict import Verdict
+
+
+@dataclasses.dataclass(frozen=True)
+class RobustResult:
+    """Result of :func:`robust_from_files`: ``posterior`` (the
+    :class:`~hapid.uncertainty.RobustReport` of the loop or parameter draws; its ``draws``
+    says which) and ``device`` (that of the device's true plants, or ``None``).
+
+    ``status`` (:class:`hapid.verdict.Verdict`): ``failed`` if a check failed, else ``not
+    established`` if one is, else ``passed``."""
+
+    posterior: object
+    device: object = None
+
+    @property
+    def status(self) -> Verdict:
+        v = {r.status for r in (self.posterior, self.device) if r is not None}
+        if Verdict.FAILED in v:
+            return Verdict.FAILED
+        return Verdict.NOT_ESTABLISHED if Verdict.NOT_ESTABLISHED in v else Verdict.PASSED
+
+    @property
+    def ok(self) -> bool:
+        return self.status is Verdict.PASSED
+
+    def numbers(self) -> dict:
+        """``{"posterior": …, "device": … | None}``: each report's ``numbers()`` (NaN kept),
+        the content of ``hapid robust``'s JSON file."""
+        return {"posterior": self.posterior.numbers(),
+                "device": None if self.device is None else self.device.numbers()}  # fmt: skip
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, then :meth:`numbers`."""
+        return jsonable({"status": self.status, "ok": self.ok} | self.numbers())
 
 
 def loop_gp_check(
@@ -53,10 +89,11 @@ def loop_gp_check(
     :func:`hapid._grids.continuous_grid` (``n_freq``); with ``ts`` the discretized controller
     (its phase lag included, the loop ``hapid analyze --device`` closes at that rate) on
     :func:`hapid._grids.nyquist_grid` (the draws are of the measured, sampled plant). Returns
-    ``(report, info)``: the :class:`~hapid.uncertainty.RobustReport` — its
+    the :class:`~hapid.uncertainty.RobustReport` of the draws — its
     :attr:`~hapid.uncertainty.RobustReport.check` is ``passed`` only when the measured band
-    covers the loop (:mod:`hapid.uncertainty._cover`) — and a dict with the GP's ``ell``,
-    ``eta``, ``sigma2``, ``measurement_noise`` (whether the draws condition on the FRF's
+    covers the loop (:mod:`hapid.uncertainty._cover`) — whose
+    :attr:`~hapid.uncertainty.RobustReport.draws` holds ``draws`` (``"loop_gp"``), the GP's
+    ``ell``, ``eta``, ``sigma2``, ``measurement_noise`` (whether the draws condition on the FRF's
     element std, :func:`hapid.uncertainty.measured_noise_var`), the measured band
     ``measured_hz`` ``[f₁, f_e]``, the evidence figures of :func:`hapid.tune.certificate` (``frf_min_sigma_I_plus_L``,
     ``beyond_loop_gain``, ``certified``), ``beyond_covered``, ``loop``, and the isotropic
@@ -102,13 +139,13 @@ def loop_gp_check(
     rep = dataclasses.replace(rep, cover=cover, loop=loop,
                               **{k: np.asarray(getattr(rep, k))[:S] for k in keep})  # fmt: skip
     bw = np.asarray(rep.iso_bandwidth_hz)[np.asarray(rep.stable, bool)]
-    info = {"draws": "loop_gp", "ell": gp.ell, "eta": gp.eta, "sigma2": gp.sigma2,
+    draws = {"draws": "loop_gp", "ell": gp.ell, "eta": gp.eta, "sigma2": gp.sigma2,
             "measurement_noise": "FRF element std" if gp.v is not None else "none (nugget only)",
             "measured_hz": [lo, hi], **cert, "beyond_covered": cover.beyond_covered,
             "loop": loop, "iso_bandwidth_nominal_hz": nominal_bw,
             "iso_bandwidth_interval_hz": [float(x) for x in np.quantile(bw, [0.05, 0.95])]
             if bw.size else None}  # fmt: skip
-    return rep, info
+    return dataclasses.replace(rep, draws=draws)
 
 
 def robust_from_files(
@@ -129,9 +166,9 @@ def robust_from_files(
     seed: int = 0,
     ts: float | None = None,
     n_freq: int | None = None,
-) -> dict:
-    """Samples file and/or measured FRF + nominal model file → robust-check summary (and
-    optional JSON file).
+) -> RobustResult:
+    """Samples file and/or measured FRF + nominal model file → :class:`RobustResult` (and
+    optional JSON file of its :meth:`~RobustResult.numbers`).
 
     The controller is ``g Ẑ_T Ẑ_H⁻¹`` of the model file (``g`` default the paper's). ``draws``:
 
@@ -144,13 +181,12 @@ def robust_from_files(
     - ``"auto"`` (default): ``"loop_gp"`` when a measured FRF is known, else ``"params"``.
 
     With ``device`` (a preset name, e.g. ``"cu5"``, or a device), the device-based check (nominal device,
-    ``pose_offsets`` (dx, dy, dz) m, ``n_subjects`` virtual subjects) is added under
-    ``"device"``. ``metrics``: as :func:`robust_check` (``"all"``: also the disk margin and
+    ``pose_offsets`` (dx, dy, dz) m, ``n_subjects`` virtual subjects) is added as
+    ``device``. ``metrics``: as :func:`robust_check` (``"all"``: also the disk margin and
     the peak of σ̄(T); default: verdict, bandwidth and loci margins only — the others are
-    ``None``). Returns ``{"posterior": summary | {"draws": …}, "device": summary | None}``;
-    ``"draws"`` says which family was checked (and for ``loop_gp`` the GP, the measured band
-    and whether the loop gain above it is small enough for the draws to cover it).
-    Every summary carries the three-valued ``verdict`` (``"passed"``, ``"failed"``, ``"not
+    ``None``). The posterior report's ``draws`` says which family was checked (and for
+    ``loop_gp`` the GP, the measured band and whether the loop gain above it is small enough
+    for the draws to cover it). Every report's summary carries the three-valued ``verdict`` (``"passed"``, ``"failed"``, ``"not
     established"``) with its ``reason`` and ``remedy`` (:attr:`RobustReport.check`) and the
     ``loop`` it was checked on. ``ts`` (s): the rate the controller runs at for the loop
     draws (default: the device's with ``device``, else the continuous-time controller).
@@ -177,9 +213,8 @@ def robust_from_files(
         if ts is None and device is not None:
             ts = (preset(device) if isinstance(device, str) else device).ts
         kw = {} if n_freq is None else {"n_freq": int(n_freq)}
-        rep, info = loop_gp_check(measured, model, g, n_draws=max_samples, seed=seed, gm_db=gm_db,
-                                  pm_deg=pm_deg, metrics=metrics, ts=ts, **kw)  # fmt: skip
-        post = rep.numbers() | {"draws": info}
+        post = loop_gp_check(measured, model, g, n_draws=max_samples, seed=seed, gm_db=gm_db,
+                             pm_deg=pm_deg, metrics=metrics, ts=ts, **kw)  # fmt: skip
     else:
         if ps is None:
             raise ValueError("the robust check on parameter draws needs a samples file")
@@ -187,9 +222,9 @@ def robust_from_files(
         rep = robust_check(ps, (model, g), om, gm_db=gm_db, pm_deg=pm_deg,
                            max_samples=max_samples, metrics=metrics, seed=seed)  # fmt: skip
         post = dataclasses.replace(rep, loop="continuous-time controller, second-order parameter draws",
-                                   uncovered=PARAMS_UNCOVERED).numbers()  # fmt: skip
-        post["draws"] = {"draws": "params", "note": PARAMS_NOTE}
-    out = {"posterior": post, "device": None}
+                                   uncovered=PARAMS_UNCOVERED,
+                                   draws={"draws": "params", "note": PARAMS_NOTE})  # fmt: skip
+    dev_rep = None
     if device is not None:
         dev = preset(device) if isinstance(device, str) else device
         poses = [dev.pose.moved(*o) for o in pose_offsets]
@@ -201,11 +236,12 @@ def robust_from_files(
         ctrl = pipeline.controller(model, g, ts=dev.ts)
         rep = robust_check(P, np.asarray(ctrl.response(omega)), omega,
                            controller_rhp=int(ctrl.p_rhp), gm_db=gm_db, pm_deg=pm_deg,
-                           labels=labels, backend="metrics", metrics=metrics)  # fmt: skip
-        out["device"] = dataclasses.replace(rep, loop=f"controller sampled at {dev.fs_hz:g} Hz, "
-                                            "the device's true plants").numbers()  # fmt: skip
+                           labels=labels, metrics=metrics)  # fmt: skip
+        dev_rep = dataclasses.replace(rep, loop=f"controller sampled at {dev.fs_hz:g} Hz, "
+                                      "the device's true plants")  # fmt: skip
+    out = RobustResult(post, dev_rep)
     if out_json is not None:
-        save_json(out_json, out)
+        save_json(out_json, out.numbers())
     return out
 
 
@@ -224,9 +260,9 @@ PARAMS_UNCOVERED = (
 
 
 def side_by_side(results: dict) -> str:
-    """Markdown table of robust-check summaries of several controllers (``{label: output of
-    robust_from_files}``): one row per controller and batch (posterior, device); "—": not
-    computed (``metrics``)."""
+    """Markdown table of robust-check results of several controllers (``{label:
+    RobustResult}``): one row per controller and batch (posterior, device); "—": not computed
+    (``metrics``)."""
     cols = [("P(stable)", "p_stable", "{:.3f}"), ("GM q05 dB", "gm_db_q05", "{:.2f}"),
             ("GM q50 dB", "gm_db_q50", "{:.2f}"), ("PM q05°", "pm_deg_q05", "{:.1f}"),
             ("PM q50°", "pm_deg_q50", "{:.1f}"), ("disk q05", "disk_margin_q05", "{:.3f}"),
@@ -237,7 +273,7 @@ def side_by_side(results: dict) -> str:
              "|" + "---|" * (3 + len(cols))]  # fmt: skip
     for label, res in results.items():
         for batch in ("posterior", "device"):
-            sm = res.get(batch)
+            sm = res.numbers().get(batch)
             if sm is None:
                 continue
             vals = ["—" if sm[key] is None else fmt.format(sm[key]) for _, key, fmt in cols]

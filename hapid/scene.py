@@ -36,6 +36,8 @@ notch_hz, zeta_num, zeta_den, lowpass_hz, siso_gm_db, siso_pm_deg; ``[analysis]`
 from __future__ import annotations
 
 import copy
+import dataclasses
+import enum
 import os
 import tomllib
 from pathlib import Path
@@ -43,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from ._grids import nyquist_grid
+from ._plain import jsonable
 from ._stages import Graph, Stage
 from .defaults import FIT_BAND_HZ
 
@@ -152,7 +155,8 @@ def _nls(o, frf):
     from . import pipeline
 
     o = dict(o)
-    f, refit = pipeline.fit_for_control(frf, boundary_refit=o.pop("boundary_refit", True), **o)
+    cf = pipeline.control_fit(frf, boundary_refit=o.pop("boundary_refit", True), **o)
+    f, refit = cf.fit, cf.refit_pd_eps
     res = f.result
     return {"fit": f, "model": f.model, "result": res, "status": f.status, "steps": int(res.n_steps),
             "cost": float(res.cost), "refit_pd_eps": refit}  # fmt: skip
@@ -302,13 +306,50 @@ def graph() -> Graph:
     return Graph(STAGES + OUT_STAGES + _EXTRA_STAGES)
 
 
+class SceneStatus(enum.StrEnum):
+    """How a scene run got its stages: ``computed`` (at least one stage computed) or
+    ``cached`` (every stage read from the cache). Both are ok: a stage that fails raises."""
+
+    COMPUTED = "computed"
+    CACHED = "cached"
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneRun:
+    """Result of :func:`run_scene`. ``results``: stage name → its output (the requested
+    outputs and every stage they needed); ``computed``, ``cached``: stage names in run order;
+    ``keys``: stage name → its cache key; ``seconds``: stage name → wall time (s)."""
+
+    results: dict
+    computed: list
+    cached: list
+    keys: dict
+    seconds: dict
+
+    @property
+    def status(self) -> SceneStatus:
+        return SceneStatus.COMPUTED if self.computed else SceneStatus.CACHED
+
+    @property
+    def ok(self) -> bool:
+        return True
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, the stage names (``stages``), ``computed``,
+        ``cached``, ``keys`` and ``seconds`` (not the stage outputs)."""
+        return jsonable({"status": self.status, "ok": self.ok, "stages": list(self.results),
+                         "computed": self.computed, "cached": self.cached, "keys": self.keys,
+                         "seconds": self.seconds})  # fmt: skip
+
+
 def run_scene(cfg: dict, outputs=None, *, cache_dir=".hapid_cache/stages", out_dir=None,
-              progress=None):  # fmt: skip
+              progress=None) -> SceneRun:  # fmt: skip
     """Compute a scene's outputs. ``cfg`` is a merged config (``load_scene`` / ``merge``);
-    ``outputs`` defaults to ``cfg["outputs"]["want"]``. Returns ``(results, log)``."""
+    ``outputs`` defaults to ``cfg["outputs"]["want"]``. Returns a :class:`SceneRun`."""
     cfg = copy.deepcopy(cfg)
     if out_dir is not None:
         cfg["outputs"]["dir"] = str(out_dir)
     want = list(outputs if outputs is not None else cfg["outputs"]["want"])
     Path(cfg["outputs"]["dir"]).mkdir(parents=True, exist_ok=True)
-    return graph().run(cfg, want, cache_dir=cache_dir, progress=progress)
+    results, log = graph().run(cfg, want, cache_dir=cache_dir, progress=progress)
+    return SceneRun(results, log["computed"], log["cached"], log["keys"], log["seconds"])

@@ -167,7 +167,8 @@ def point_fn(cfg: dict, keys: tuple[str, ...], estimator: str = ESTIMATOR_DEFAUL
                                      periods=p["periods"])  # fmt: skip
         fo = _fit_options(c["fit"] | fit_static, estimator)
         if estimator == "nls":  # the one NLS fit for control use, boundary refit included
-            f, refit = pipeline.control_fit(frf, boundary_refit=refit_on, **fo)
+            cf = pipeline.control_fit(frf, boundary_refit=refit_on, **fo)
+            f, refit = cf.fit, cf.refitted
         else:
             f, refit = pipeline.fit(frf, estimator, **fo), jnp.asarray(False)
         omega = pipeline.analysis_grid(c["analysis"]["f_min_hz"], n_freq, fs)

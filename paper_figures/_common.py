@@ -18,7 +18,7 @@ def main(output: str, doc: str, argv=None) -> str:
     from hapid import scene
 
     cfg = scene.load_scene(a.scene)
-    res, _ = scene.run_scene(cfg, [output], out_dir=a.out, cache_dir=a.cache)
+    res = scene.run_scene(cfg, [output], out_dir=a.out, cache_dir=a.cache).results
     path = res[output] if isinstance(res[output], str) else str(Path(a.out) / "summary.md")
     print(path)
     return path

@@ -31,8 +31,8 @@ def curves(samples: int = 200, seed: int = 7, cache=str(ROOT / ".hapid_cache" / 
     from hapid.uncertainty import laplace_samples
 
     # the tuned g is the paper scene's "tuned" stage (cached with the other stages)
-    res, _ = scene.run_scene(scene.merge({}), ["device", "nls", "plant", "tuned"], cache_dir=cache,
-                             out_dir=str(ROOT / "out" / "paper"))  # fmt: skip
+    res = scene.run_scene(scene.merge({}), ["device", "nls", "plant", "tuned"], cache_dir=cache,
+                             out_dir=str(ROOT / "out" / "paper")).results  # fmt: skip
     dev, model, plant = res["device"], res["nls"]["model"], res["plant"]
     designs = {"paper g": Compensator.paper(), "tuned g": res["tuned"]["g"]}
     ps = laplace_samples(res["nls"]["result"], samples, key=seed)

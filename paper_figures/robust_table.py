@@ -64,8 +64,8 @@ def design(
 
     cache = str(ROOT / ".hapid_cache" / "stages") if cache is None else cache
     cfg = {"device": {"preset": device}} | ({"protocol": protocol} if protocol else {})
-    res, _ = scene.run_scene(scene.merge(cfg), ["device", "frf", "nls"],
-                             cache_dir=cache, out_dir=str(ROOT / "out" / "robust"))  # fmt: skip
+    res = scene.run_scene(scene.merge(cfg), ["device", "frf", "nls"],
+                             cache_dir=cache, out_dir=str(ROOT / "out" / "robust")).results  # fmt: skip
     dev, frf, nls = res["device"], res["frf"], res["nls"]["result"]
     model = res["nls"]["model"]
     n_train = options.pop("n_train", None) or 150
@@ -90,7 +90,7 @@ def design(
     g = out["candidate"].g  # the tuner's g; out["result"].g is the start when it was kept
     rows = {}
     for name, gg in (("paper g", g0), ("tuned g", g)):
-        t = true_plant_loop(gg, model, dev)
+        t = true_plant_loop(gg, model, dev).numbers()
         tab = out["table"]["start" if name == "paper g" else "tuned"]
         rows[name] = {"stable": t["stable"], "iso_bandwidth_hz": t["iso_bandwidth_hz"],
                       "gm_db": t["gm_db"], "pm_deg": t["pm_deg"],
@@ -99,7 +99,7 @@ def design(
                       "frf_min_sigma": tab.get("frf_min_sigma_I_plus_L"),
                       "beyond_gain": tab.get("beyond_loop_gain")}  # fmt: skip
     if "returned" in out["table"]:  # the certified fallback (neither start nor tuned certified)
-        t, tab = true_plant_loop(out["result"].g, model, dev), out["table"]["returned"]
+        t, tab = true_plant_loop(out["result"].g, model, dev).numbers(), out["table"]["returned"]
         rows["returned g"] = {"stable": t["stable"], "iso_bandwidth_hz": t["iso_bandwidth_hz"],
                               "gm_db": t["gm_db"], "pm_deg": t["pm_deg"],
                               "held_out_frac": tab.get("posterior_frac_meeting_margins"),
@@ -127,8 +127,8 @@ def oracle(device: str, *, cache=None) -> list[dict]:
     from hapid.tune import Family, Requirements, make_scenarios, true_plant_loop, tune
 
     cache = str(ROOT / ".hapid_cache" / "stages") if cache is None else cache
-    res, _ = scene.run_scene(scene.merge({"device": {"preset": device}}), ["device", "nls"],
-                             cache_dir=cache, out_dir=str(ROOT / "out" / "robust"))  # fmt: skip
+    res = scene.run_scene(scene.merge({"device": {"preset": device}}), ["device", "nls"],
+                             cache_dir=cache, out_dir=str(ROOT / "out" / "robust")).results  # fmt: skip
     dev, model = res["device"], res["nls"]["model"]
     om = below_nyquist_grid(dev.fs_hz, 300)
     fam = Family(make_scenarios(np.asarray(dev.sampled_P(om)), model, om, ts=dev.ts), quantile=1.0,
@@ -137,7 +137,7 @@ def oracle(device: str, *, cache=None) -> list[dict]:
     for keep in (True, False):
         dc = float(abs(g0(np.array([0.0]))[0])) if keep else None
         r = tune([fam], g0, requirements=Requirements(min_dc_gain=dc), max_steps=300)
-        t = true_plant_loop(r.g, model, dev)
+        t = true_plant_loop(r.g, model, dev).numbers()
         rows.append({"device": device, "dc": "kept" if keep else "free"}
                     | {k: t[k] for k in ("stable", "iso_bandwidth_hz", "gm_db", "pm_deg")})  # fmt: skip
     return rows

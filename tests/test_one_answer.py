@@ -85,7 +85,7 @@ def test_analyze_sweep_scene_tune_and_robust_give_one_answer_on_cu5(tmp_path):
     from hapid.uncertainty import robust_check
 
     cfg = scene.merge({"protocol": {"noise": 0.0, "position_noise": 0.0, "encoder_res": 0.0}})
-    res, _ = scene.run_scene(cfg, ["device", "wls", "mimo"], out_dir=tmp_path, cache_dir=None)
+    res = scene.run_scene(cfg, ["device", "wls", "mimo"], out_dir=tmp_path, cache_dir=None).results
     model, dev = res["wls"]["model"], res["device"]
     rep = res["mimo"]["wls"]["report"]
     numbers = {"scene": paper.loop_numbers(rep)}
@@ -103,12 +103,12 @@ def test_analyze_sweep_scene_tune_and_robust_give_one_answer_on_cu5(tmp_path):
         numbers[f"sweep n_freq {int(nf)}"] = {k: float(v[i]) for k, v in m.items()}
 
     g = Compensator.paper()
-    numbers["tune"] = true_plant_loop(g, model, dev)  # its own grid (device_grid)
+    numbers["tune"] = true_plant_loop(g, model, dev).numbers()  # its own grid (device_grid)
 
     omega = nyquist_grid(dev.fs_hz, 2500)
     ctrl = pipeline.controller(model, g, ts=dev.ts)
     rb = robust_check(np.asarray(dev.sampled_P(omega))[None], np.asarray(ctrl.response(omega)),
-                      omega, controller_rhp=int(ctrl.p_rhp), backend="metrics", metrics="all")  # fmt: skip
+                      omega, controller_rhp=int(ctrl.p_rhp), metrics="all")  # fmt: skip
     numbers["robust"] = rb.rows()[0]
 
     ref = numbers["scene"]

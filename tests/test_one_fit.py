@@ -115,15 +115,17 @@ def test_keep_boundary_keeps_the_bare_fit_in_fit_and_posterior(tmp_path, boundar
 @pytest.mark.slow  # CI budget (~18 s cold); the slow hexapod6 sweep test covers the traced path too
 def test_control_fit_traced_equals_the_edge_fit(boundary_frf):
     """Under ``vmap`` (a sweep) the control fit selects per element: a batch of a boundary FRF
-    (refitted) and a regular one (kept) gives the edge's two fits (:func:`fit_for_control`)."""
+    (refitted) and a regular one (kept) gives the edge's two fits."""
     regular = synthetic_frf(random_truth(3, 5), rel_noise=1e-2, seed=15)
     batch = jax.tree.map(lambda a, b: jnp.stack([a, b]), boundary_frf, regular)
     o = {"weight": "relative", "f_max_hz": 40.0, "omega_c_hz": 7.0, "max_steps": 500}
-    fits, refitted = jax.jit(jax.vmap(lambda f: pipeline.control_fit(f, **o)))(batch)
-    assert np.asarray(refitted).tolist() == [True, False]
+    both = jax.jit(jax.vmap(lambda f: pipeline.control_fit(f, **o)))(batch)
+    fits = both.fit
+    assert np.asarray(both.refitted).tolist() == [True, False]
     for i, frf in enumerate((boundary_frf, regular)):
-        edge, eps = pipeline.fit_for_control(frf, **o)
-        assert eps == (PD_EPS if i == 0 else None)
+        cf = pipeline.control_fit(frf, **o)
+        edge = cf.fit
+        assert cf.refit_pd_eps == (PD_EPS if i == 0 else None)
         one = jax.tree.map(lambda x, i=i: x[i] if eqx.is_array(x) else x, fits.model)
         assert _rel_diff(one, edge.model) < 1e-9
         assert bool(fits.ok[i]) and int(fits.crhp_hand[i]) == int(edge.crhp_hand)
@@ -134,7 +136,7 @@ def test_control_fit_traced_equals_the_edge_fit(boundary_frf):
 def test_hexapod6_sweep_and_posterior_use_the_control_fit(tmp_path):
     """hexapod6 (the development device where the refit triggers): a sweep's ``nls`` fit is
     the control fit — its P·P̂⁻¹ band, CRHP count and refit flag are those of
-    :func:`fit_for_control`'s model — and ``hapid posterior`` is centred on the model
+    :func:`hapid.pipeline.control_fit`'s model — and ``hapid posterior`` is centred on the model
     ``hapid fit`` writes for the same FRF."""
     from hapid import scene, sweep
     from hapid.fit import pphat_band_db
@@ -150,8 +152,9 @@ def test_hexapod6_sweep_and_posterior_use_the_control_fit(tmp_path):
     for i, seed in enumerate((0, 1)):
         frf = pipeline.simulated_frf(dev, pipeline.protocol(p), seed, noise=p["noise"],
                                      position_noise=p["position_noise"], periods=p["periods"])  # fmt: skip
-        f, eps = pipeline.fit_for_control(frf, **o)
-        assert eps == PD_EPS
+        cf = pipeline.control_fit(frf, **o)
+        f = cf.fit
+        assert cf.refit_pd_eps == PD_EPS
         P = dev.sampled_P(frf.omega)
         lo, hi = (
             float(x) for x in pphat_band_db(P, f.model, frf.omega, cfg["analysis"]["band_hz"])

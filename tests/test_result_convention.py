@@ -12,10 +12,11 @@ import json
 import jax
 import numpy as np
 import pytest
+from helpers import second_order_device
 from helpers_fit import random_truth, synthetic_frf
 from oracles import example_model
 
-from hapid import pipeline
+from hapid import io, pipeline, scene
 from hapid.control import (
     Compensator,
     ControllerCheck,
@@ -44,7 +45,10 @@ from hapid.fit import (
     fit_nls,
 )
 from hapid.impedance import ImpedanceModel, SecondOrder
-from hapid.tune import TuneResult, TuneStatus
+from hapid.robust import RobustResult, robust_from_files
+from hapid.scene import SceneRun, SceneStatus
+from hapid.tune import StepResponse, StepStatus, TuneResult, TuneStatus, Validation, validate
+from hapid.tune._tune import scale_gain
 from hapid.uncertainty import (
     DrawsStatus,
     PlantDraws,
@@ -113,6 +117,26 @@ def test_pipeline_fit(frf):
     assert assert_convention(nls, FitStatus, (FitStatus.CLOSED_FORM, FitStatus.CONVERGED)) \
         is FitStatus.CONVERGED  # fmt: skip
     assert nls.summary()["result"]["status"] == "converged"
+
+
+def test_control_fit(frf):
+    cf = pipeline.control_fit(frf, f_max_hz=None)
+    assert type(cf) is pipeline.ControlFit and type(cf.fit) is pipeline.Fit
+    ok = (FitStatus.CLOSED_FORM, FitStatus.CONVERGED)
+    assert assert_convention(cf, FitStatus, ok) is FitStatus.CONVERGED  # a regular fit: kept
+    assert cf.summary()["refitted"] is False and cf.refit_pd_eps is None
+    assert cf.summary()["result"] == cf.fit.summary()["result"]
+
+
+def test_scene_run(tmp_path):
+    kw = dict(out_dir=tmp_path, cache_dir=tmp_path / "cache")
+    first = scene.run_scene(scene.merge({}), ["device"], **kw)
+    assert type(first) is SceneRun and first.computed == ["device"]
+    both = (SceneStatus.COMPUTED, SceneStatus.CACHED)
+    assert assert_convention(first, SceneStatus, both) is SceneStatus.COMPUTED
+    again = scene.run_scene(scene.merge({}), ["device"], **kw)  # every stage from the cache
+    assert assert_convention(again, SceneStatus, both) is SceneStatus.CACHED
+    assert again.summary()["cached"] == ["device"] and "device" in again.results
 
 
 @pytest.fixture(scope="module")
@@ -233,6 +257,53 @@ def test_robust_report():
     assert inf.summary()["gm_db_q05"] is None and inf.numbers()["gm_db_q05"] == np.inf
 
 
+def test_robust_report_draws():
+    """The draw family a report was checked on (loop_gp_check's GP, parameter draws) is in
+    its summary, after ``status`` and ``ok``."""
+    rep = dataclasses.replace(_robust(10.0), draws={"draws": "params", "note": "x"})
+    assert assert_convention(rep, Verdict, (Verdict.PASSED,)) is Verdict.PASSED
+    assert list(rep.summary())[-3:] == ["status", "ok", "draws"]
+    assert "draws" not in _robust(10.0).summary()
+
+
+def test_robust_result(tmp_path, frf):
+    """``robust_from_files`` on parameter draws: at best ``not established`` (parameter draws
+    do not cover a model class that may be wrong), ``failed`` under an unmeetable PM."""
+    res = fit_nls(frf, f_max_hz=None)
+    rng = np.random.default_rng(1)
+    theta = np.asarray(res.theta) + 1e-3 * rng.standard_normal((6, res.theta.shape[0]))
+    names = tuple(param_names(2, model_error=False))
+    io.save_samples(tmp_path / "s.npz", PosteriorSamples(theta, np.zeros(6), res.scale, 2, names))
+    io.save_model(tmp_path / "m.npz", res.model)
+    kw = dict(draws="params", max_samples=6, n_freq=60)
+    ok = (Verdict.PASSED,)
+    r = robust_from_files(tmp_path / "s.npz", tmp_path / "m.npz", tmp_path / "r.json", **kw)
+    assert type(r) is RobustResult and r.device is None
+    assert assert_convention(r, Verdict, ok) is Verdict.NOT_ESTABLISHED
+    assert r.posterior.draws["draws"] == "params"
+    assert json.loads((tmp_path / "r.json").read_text()) == io.jsonable(r.numbers())
+    bad = robust_from_files(tmp_path / "s.npz", tmp_path / "m.npz", pm_deg=179.0, **kw)
+    assert assert_convention(bad, Verdict, ok) is Verdict.FAILED
+
+
+def test_validation_and_step_response():
+    """``validate`` on a 2-rod device's true plant and in the time domain: the paper g meets
+    6 dB / 30° (GM 16 dB, PM 60°), ten times its gain is unstable."""
+    dev = second_order_device(2, seed=3, delay_samples=1)
+    ok = (Verdict.PASSED,)
+    v = validate(Compensator.paper(), dev.model, device=dev)
+    assert type(v) is Validation and type(v.time_domain) is StepResponse
+    assert assert_convention(v, Verdict, ok) is Verdict.PASSED
+    assert v.summary()["true_plant"] == v.true_plant.summary() and v.posterior is None
+    stable = (StepStatus.STABLE,)
+    assert assert_convention(v.time_domain, StepStatus, stable) is StepStatus.STABLE
+    bad = validate(scale_gain(Compensator.paper(), 10.0), dev.model, device=dev)
+    assert assert_convention(bad, Verdict, ok) is Verdict.FAILED
+    assert bad.verdicts() == {"true_plant": Verdict.FAILED, "time_domain": Verdict.FAILED}
+    assert assert_convention(bad.time_domain, StepStatus, stable) is StepStatus.UNSTABLE
+    assert assert_convention(Validation(), Verdict, ok) is Verdict.NOT_ESTABLISHED  # nothing
+
+
 def test_tune_result():
     g = Compensator.paper()
     x = np.zeros(1)
@@ -293,6 +364,8 @@ RESULT_TYPES = {
     ControllerCheck: ControllerStatus, LoopReport: LoopStatus, LoopMetrics: LoopStatus,
     RobustReport: Verdict, TuneResult: TuneStatus, PosteriorSamples: SamplesStatus,
     PlantDraws: DrawsStatus, DesignReport: DesignStatus, Check: Verdict,
+    pipeline.ControlFit: FitStatus, SceneRun: SceneStatus, RobustResult: Verdict,
+    Validation: Verdict, StepResponse: StepStatus,
 }  # fmt: skip
 
 

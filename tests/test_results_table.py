@@ -71,9 +71,9 @@ def test_readme_table_parses():
 
 
 def test_plant_span_and_wls_pphat_band_match_the_readme(tmp_path):
-    res, _ = scene.run_scene(
+    res = scene.run_scene(
         scene.merge({}), ["device", "frf", "wls"], out_dir=tmp_path, cache_dir=None
-    )
+    ).results
     _check_bands(readme_table(), res, [(1, "wls")])
 
 
@@ -81,7 +81,7 @@ def test_plant_span_and_wls_pphat_band_match_the_readme(tmp_path):
 @pytest.mark.timeout(3600)
 def test_whole_results_table_matches_the_readme(tmp_path):
     t = readme_table()
-    res, _ = scene.run_scene(scene.merge({}), ["summary"], out_dir=tmp_path, cache_dir=None)
+    res = scene.run_scene(scene.merge({}), ["summary"], out_dir=tmp_path, cache_dir=None).results
     _check_bands(t, res, [(1, "wls"), (2, "nls")])
     s = res["summary"]
     cols = {1: s["fits"]["wls"]["mimo"], 2: s["fits"]["nls"]["mimo"], 3: s["tuned"]["mimo"]}

@@ -40,7 +40,8 @@ def test_loop_draws_recover_the_true_verdict_under_an_unmodeled_delay():
     for alpha in (1.0, 10.0):
         g = scale_gain(Compensator.paper(), alpha)
         truth = robust_check(P_true[None], (model, g), om, max_samples=None)
-        rep, info = loop_gp_check(meas, model, g, n_draws=40, n_freq=300)
+        rep = loop_gp_check(meas, model, g, n_draws=40, n_freq=300)
+        info = rep.draws
         seen.add(bool(truth.stable[0]))
         # the draws give the truth's verdict: all stable where it is stable, none where it is not
         assert rep.p_stable == (1.0 if truth.stable[0] else 0.0), (alpha, rep.p_stable)
@@ -92,8 +93,9 @@ def test_passed_only_when_the_measured_band_covers_the_loop():
         # 3000 frequencies: on 300 or 1000 the draws' Nyquist counts of the unstable α = 4
         # loop are unresolved (40 of 40), and the verdict is then "not established" with the
         # remedy "a denser grid" — which, followed, gives "failed"
-        rep, info = loop_gp_check(_measured(model, f_meas[f_meas <= f_top]), model, g,
-                                  n_draws=40, n_freq=3000)  # fmt: skip
+        rep = loop_gp_check(_measured(model, f_meas[f_meas <= f_top]), model, g,
+                            n_draws=40, n_freq=3000)  # fmt: skip
+        info = rep.draws
         ck = rep.check
         assert ck.verdict is want, (alpha, f_top, ck)
         assert rep.passed == (want is Verdict.PASSED) == truth.passed

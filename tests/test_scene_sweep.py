@@ -13,8 +13,8 @@ from hapid import scene, sweep
 
 def test_zh_only_scene_runs_no_controller_stages(tmp_path):
     cfg = scene.merge({"outputs": {"want": ["fig6"]}})
-    _, log = scene.run_scene(cfg, out_dir=tmp_path, cache_dir=tmp_path / "cache")
-    ran = set(log["computed"])
+    log = scene.run_scene(cfg, out_dir=tmp_path, cache_dir=tmp_path / "cache")
+    ran = set(log.computed)
     assert {"device", "run", "frf", "wls", "nls", "fig6"} == ran
     # the controller-side stages exist in the graph (so "did not run" can fail) and did not run
     controller_side = {"controller", "mimo", "siso", "plant", "tuned", "tuned_mimo"}
@@ -27,17 +27,17 @@ def test_zh_only_scene_runs_no_controller_stages(tmp_path):
 def test_changing_the_gain_reruns_only_controller_and_analysis(tmp_path):
     cfg = scene.merge({"analysis": {"n_freq": 300}})
     want = ["fig5", "fig6", "fig9"]  # fig10/summary (with the tuned g): the paper notebook test
-    _, first = scene.run_scene(cfg, want, out_dir=tmp_path, cache_dir=tmp_path / "c")
-    assert "mimo" in first["computed"] and "run" in first["computed"]
+    first = scene.run_scene(cfg, want, out_dir=tmp_path, cache_dir=tmp_path / "c")
+    assert "mimo" in first.computed and "run" in first.computed
     cfg2 = scene.set_option(cfg, "controller.k", 0.6)
-    _, second = scene.run_scene(cfg2, want, out_dir=tmp_path, cache_dir=tmp_path / "c")
+    second = scene.run_scene(cfg2, want, out_dir=tmp_path, cache_dir=tmp_path / "c")
     cached_stages = {"device", "run", "frf", "wls", "nls", "plant"}
-    assert cached_stages <= set(second["cached"])
-    assert {"controller", "mimo", "siso"} <= set(second["computed"])
-    assert not cached_stages & set(second["computed"])
+    assert cached_stages <= set(second.cached)
+    assert {"controller", "mimo", "siso"} <= set(second.computed)
+    assert not cached_stages & set(second.computed)
     # the same config again: every cacheable stage comes from disk
-    _, third = scene.run_scene(cfg2, want, out_dir=tmp_path, cache_dir=tmp_path / "c")
-    assert set(third["computed"]) <= {"fig5", "fig6", "fig9"}
+    third = scene.run_scene(cfg2, want, out_dir=tmp_path, cache_dir=tmp_path / "c")
+    assert set(third.computed) <= {"fig5", "fig6", "fig9"}
 
 
 def test_scene_errors_are_clear(tmp_path):

@@ -37,7 +37,7 @@ def reference(cfg, keys, params, estimator, margins=True):
                                  position_noise=p["position_noise"], periods=p["periods"])  # fmt: skip
     fo = sweep._fit_options(c["fit"], estimator)
     if estimator == "nls":  # the one NLS fit for control use (boundary refit), at the edge
-        model = pipeline.fit_for_control(frf, **fo)[0].model
+        model = pipeline.control_fit(frf, **fo).model
     else:
         model = pipeline.fit(frf, estimator, **fo).model
     g = pipeline.compensator(c["controller"])

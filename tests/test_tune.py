@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import hapid
+from hapid import pipeline
 from hapid.control import (
     Compensator,
     analyze_loop,
@@ -24,16 +25,19 @@ from hapid.tune import (
     ParamMap,
     Requirements,
     aggregate,
+    device_grid,
     g_response,
     make_scenarios,
     penalized,
     scenario_constraints,
     smooth_sigma_max,
+    true_plant_loop,
     tune,
     validate,
 )
 from hapid.tune._progress import TuneProgress
-from tests.helpers import random_model
+from hapid.tune._tune import scale_gain
+from tests.helpers import random_model, second_order_device
 
 TS = 1e-3
 
@@ -200,7 +204,7 @@ def test_tune_small_problem_meets_margins_on_held_out_plants(small, capsys):
     G_ss = inverse_model_state_space(model, res.g)
     ref = [bool(closed_loop_is_stable(impedance_ratio_state_space(hapid.ImpedanceModel(m.total, m.hand)), G_ss))
            for m in plants]  # fmt: skip
-    assert v["posterior"]["n"] == 4 and v["posterior"]["p_stable"] == pytest.approx(np.mean(ref))
+    assert v.posterior.n == 4 and v.posterior.p_stable == pytest.approx(np.mean(ref))
 
 
 def test_design_file_round_trip_and_cli_errors(tmp_path):
@@ -369,3 +373,23 @@ def test_sampled_families_train_with_the_pm_allowance_and_are_judged_without_it(
     assert min(seen["q"]) < 1.0
     assert seen["req"].pm_deg == pytest.approx(35.0 + TUNE_PM_ALLOWANCE_DEG)
     assert seen["req"].gm_db == 7.0 and req.pm_deg == 35.0  # the caller's requirement untouched
+
+
+@pytest.mark.parametrize("gain", [1.0, 5.0, 10.0])  # margins met, PM at the edge, unstable
+def test_true_plant_loop_agrees_with_analyze_loop(gain):
+    """The re-check's true-plant loop (:func:`hapid.tune.true_plant_loop`: ``pipeline.loop``,
+    refined crossings) gives the verdict and margins of the LAPACK reference
+    :func:`analyze_loop` on the same grid (its grid values), with the sampled controller."""
+    dev = second_order_device(2, seed=3, delay_samples=1)
+    g = scale_gain(Compensator.paper(), gain)
+    got = true_plant_loop(g, dev.model, dev).numbers()
+    om = device_grid(dev.fs_hz)
+    ctrl = pipeline.controller(dev.model, g, ts=dev.ts)
+    P, G = np.asarray(dev.sampled_P(om)), np.asarray(ctrl.response(om))
+    ref = analyze_loop(P, G, om, int(ctrl.p_rhp)).numbers()
+    assert got["stable"] == ref["stable"] == (gain < 10.0)
+    assert got["nyquist_resolved"] and ref["nyquist_resolved"]
+    assert got["gm_db"] == pytest.approx(ref["gm_db"], abs=0.01)
+    assert got["pm_deg"] == pytest.approx(ref["pm_deg"], abs=0.05)
+    if got["stable"]:
+        assert got["iso_bandwidth_hz"] == pytest.approx(ref["iso_bandwidth_hz"], abs=1e-3)

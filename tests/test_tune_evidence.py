@@ -216,8 +216,8 @@ def test_cli_route_tuned_g_is_stable_on_a_device_not_used_for_tuning(tmp_path):
         assert main(argv) == 0, argv
     g, info = load_design(d / "design.npz")
     model = io.load_model(d / "nls.npz")
-    assert true_plant_loop(Compensator.paper(), model, cu5_soft())["stable"]  # the start
-    t = true_plant_loop(g, model, cu5_soft())
+    assert true_plant_loop(Compensator.paper(), model, cu5_soft()).numbers()["stable"]  # the start
+    t = true_plant_loop(g, model, cu5_soft()).numbers()
     assert t["stable"], t
     assert json.loads((d / "a.json").read_text())["stable"]
     assert "evidence" in info["families"] and info["families"]["evidence"]["source"] == "frf"
@@ -230,7 +230,7 @@ def test_cli_route_tuned_g_is_stable_on_a_device_not_used_for_tuning(tmp_path):
                  "--n-holdout", "60", "--max-steps", "120", "--out", str(d / "d2.npz"),
                  "--report", str(d / "t2.json")]) == 0  # fmt: skip
     g2, _ = load_design(d / "d2.npz")
-    assert true_plant_loop(g2, model, cu5_soft())["stable"]
+    assert true_plant_loop(g2, model, cu5_soft()).numbers()["stable"]
     assert json.loads((d / "t2.json").read_text())["tuned"]["evidence_hz"] == pytest.approx(
         100.0, rel=0.01
     )

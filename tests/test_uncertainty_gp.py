@@ -308,7 +308,7 @@ def test_paper_g_stable_on_cu5_predictive_plants():
                               reference=nls, fixed=fixed)  # fmt: skip
     ps = posterior_laplace_samples(post, 20, nls, key=0)
     g = Compensator.paper()
-    assert true_plant_loop(g, nls.model, dev)["stable"]
+    assert true_plant_loop(g, nls.model, dev).numbers()["stable"]
     om = continuous_grid(600)
     P, pol = predictive_scenario_plants(ps, np.arange(20), om, seed=1)
     G, c_rhp = controller_response((nls.model, g), om)

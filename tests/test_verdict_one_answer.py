@@ -35,7 +35,7 @@ def test_robust_loop_draws_and_the_device_row_give_one_answer(tmp_path):
     hio.save_model(tmp_path / "model.npz", model)
     res = robust_from_files(None, tmp_path / "model.npz", frf_path=tmp_path / "frf.npz",
                             device=dev, max_samples=20)  # fmt: skip
-    post, devr = res["posterior"], res["device"]
+    post, devr = res.posterior.numbers(), res.device.numbers()
     # the same loop at the same rate: the draws (collapsed on the noise-free dense FRF) give
     # the true sampled loop's margins (the continuous controller's differ by ~1.4 dB)
     assert post["gm_db_q50"] == pytest.approx(devr["gm_db_q50"], abs=0.05)

@@ -100,7 +100,7 @@ def _fit_numbers(fit: dict, frf) -> dict:
 
 
 def _robust_json(robust: dict) -> dict:
-    return {m: {"posterior": r["report"].summary() | {"draws": r["info"]}, "device": None}
+    return {m: {"posterior": r["report"].summary(), "device": None}  # its draws: the loop GP
             for m, r in robust.items()}  # fmt: skip
 
 

@@ -109,9 +109,9 @@ def _robust(parse, o, frf, *fits):
     for name, fit in zip(o["models"], fits, strict=True):
         if "error" in fit:
             continue
-        rep, info = loop_gp_check(frf, fit["model"], Compensator.paper(), n_draws=a.max_samples,
-                                  gm_db=a.gm_db, pm_deg=a.pm_deg, metrics=robust_metrics(a))  # fmt: skip
-        out[name] = {"report": rep, "info": info}
+        rep = loop_gp_check(frf, fit["model"], Compensator.paper(), n_draws=a.max_samples,
+                            gm_db=a.gm_db, pm_deg=a.pm_deg, metrics=robust_metrics(a))  # fmt: skip
+        out[name] = {"report": rep, "info": rep.draws}
     return out
 
 

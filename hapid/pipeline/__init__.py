@@ -5,8 +5,8 @@ Stage graph (value objects in, value objects out; numeric stages jittable and vm
 
     options ─► device ─► experiment (run) ─► frf          (or simulated_frf: device → frf)
     frf ─► fit(estimator, **options) ─► Fit(model, ok, CRHP counts)
-    frf ─► control_fit(**nls options) ─► (Fit, refitted)   the NLS fit for control use, with the
-           PSD-boundary refit; every command fits through it (fit_for_control at the edge)
+    frf ─► control_fit(**nls options) ─► ControlFit(fit, refitted)   the NLS fit for control
+           use, with the PSD-boundary refit; every command fits through it
     Fit.model + g ─► controller(ts | continuous, mimo | siso) ─► Controller(response, p_rhp)
     device | model | frf ─► Plant(omega, P, p_rhp, ts)
     Controller + Plant ─► loop(spec) ─► report (verdict rule: :func:`verdict`, i.e. :func:`hapid.control.nyquist_verdict`)
@@ -19,6 +19,7 @@ from ._controller import Controller as Controller
 from ._controller import compensator as compensator
 from ._controller import controller as controller
 from ._estimate import ESTIMATORS as ESTIMATORS
+from ._estimate import ControlFit as ControlFit
 from ._estimate import Fit as Fit
 from ._estimate import control_fit as control_fit
 from ._estimate import controller_ready as controller_ready

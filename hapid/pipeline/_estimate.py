@@ -186,9 +186,46 @@ def _select(c, a, b):
     return jax.tree.map(lambda x, y: jnp.where(c, x, y) if eqx.is_array(x) else x, a, b)
 
 
-def control_fit(frf, *, boundary_refit: bool = True, **options) -> tuple[Fit, Bool[Array, ""]]:
-    """``(fit, refitted)``: THE NLS fit for control use, shared by ``hapid fit``, ``hapid
-    posterior``, scenes and sweeps (:func:`fit_for_control` is its edge form). The fit is
+class ControlFit(eqx.Module):
+    """Result of :func:`control_fit`: the NLS fit for control use and whether it was refitted.
+
+    ``fit`` (:class:`Fit`); ``refitted`` (bool array, ``(B,)`` when vmapped): the boundary
+    fit was refitted with ``pd_eps = PD_EPS``. ``model``, ``status`` and ``ok`` are the fit's;
+    :attr:`refit_pd_eps` is the edge form of ``refitted``.
+    """
+
+    fit: Fit
+    refitted: Bool[Array, ...]
+
+    @property
+    def model(self):
+        return self.fit.model
+
+    @property
+    def ok(self):
+        return self.fit.ok
+
+    @property
+    def status(self) -> FitStatus:
+        """The fit's :class:`~hapid.fit.FitStatus` (outside ``jit``)."""
+        return self.fit.status
+
+    @property
+    def refit_pd_eps(self) -> float | None:
+        """``PD_EPS`` when the boundary fit was refitted, else ``None`` (at the edge: a
+        concrete, unbatched result)."""
+        from ..fit._problem import PD_EPS
+
+        return float(PD_EPS) if bool(self.refitted) else None
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: the fit's :meth:`Fit.summary` and ``refitted``."""
+        return self.fit.summary() | {"refitted": jsonable(self.refitted)}
+
+
+def control_fit(frf, *, boundary_refit: bool = True, **options) -> ControlFit:
+    """THE NLS fit for control use (:class:`ControlFit`: the fit and whether it was
+    refitted), shared by ``hapid fit``, ``hapid posterior``, scenes and sweeps. The fit is
     :func:`fit` with ``"nls"`` and ``options``; with ``pd_eps = 0`` (the default) a fit that
     lands on the PSD boundary with a root of det Ẑ_H at ∞ or on the imaginary axis
     (:func:`controller_ready` false: hexapod6, whose hand acts on 3 of its 6 rod directions)
@@ -206,23 +243,22 @@ def control_fit(frf, *, boundary_refit: bool = True, **options) -> tuple[Fit, Bo
 
     f = fit(frf, "nls", **options)
     if not boundary_refit:
-        return f, jnp.asarray(False)
+        return ControlFit(f, jnp.asarray(False))
     pd_eps = options.get("pd_eps", 0.0)
     need = (jnp.asarray(pd_eps) == 0.0) & ~_ready(f.model)
     if not isinstance(need, jax.core.Tracer):
         if bool(need):
-            return fit(frf, "nls", **(dict(options) | {"pd_eps": PD_EPS})), jnp.asarray(True)
-        return f, jnp.asarray(False)
+            return ControlFit(fit(frf, "nls", **(dict(options) | {"pd_eps": PD_EPS})),
+                              jnp.asarray(True))  # fmt: skip
+        return ControlFit(f, jnp.asarray(False))
     o = dict(options) | {"pd_eps": jnp.where(need, PD_EPS, pd_eps)}
-    return _select(need, fit(frf, "nls", **o), f), need
+    return ControlFit(_select(need, fit(frf, "nls", **o), f), need)
 
 
 def fit_for_control(frf, *, boundary_refit: bool = True, **options) -> tuple[Fit, float | None]:
-    """``(fit, refit_pd_eps)`` of :func:`control_fit` at the edge: ``refit_pd_eps`` is
-    ``PD_EPS`` when the boundary fit was refitted, else ``None``. What ``hapid fit``,
-    ``hapid posterior`` and a scene's ``nls`` stage fit (a sweep's ``nls`` calls
-    :func:`control_fit` under ``vmap``). ``boundary_refit=False`` keeps the boundary fit."""
-    from ..fit._problem import PD_EPS
-
-    f, refitted = control_fit(frf, boundary_refit=boundary_refit, **options)
-    return f, (float(PD_EPS) if bool(refitted) else None)
+    """``(fit, refit_pd_eps)`` of :func:`control_fit` at the edge (its
+    :attr:`ControlFit.refit_pd_eps`: ``PD_EPS`` when the boundary fit was refitted, else
+    ``None``). The pair form ``hapid posterior``'s file stage still unpacks; new code calls
+    :func:`control_fit` and reads the :class:`ControlFit`."""
+    cf = control_fit(frf, boundary_refit=boundary_refit, **options)
+    return cf.fit, cf.refit_pd_eps

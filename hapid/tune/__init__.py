@@ -6,7 +6,7 @@
 * :class:`Requirements`, :class:`Family`, :func:`scenario_constraints`, :func:`aggregate` —
   the smooth bandwidth surrogate, margin constraints and their CVaR over scenarios.
 * :func:`tune` → :class:`TuneResult` — continuation penalty + BFGS (optimistix).
-* :func:`validate` — the non-smooth re-check (Nyquist verdict, iso bandwidth, GM/PM, disk
+* :func:`validate` → :class:`Validation` — the non-smooth re-check (Nyquist verdict, iso bandwidth, GM/PM, disk
   margin) on held-out plants, the true plant and in the time domain.
 """
 
@@ -41,6 +41,9 @@ from ._tune import TuneStatus as TuneStatus
 from ._tune import phase_counts as phase_counts
 from ._tune import smooth_bandwidth as smooth_bandwidth
 from ._tune import tune as tune
+from ._validate import StepResponse as StepResponse
+from ._validate import StepStatus as StepStatus
+from ._validate import Validation as Validation
 from ._validate import device_grid as device_grid
 from ._validate import step_response as step_response
 from ._validate import table_row as table_row

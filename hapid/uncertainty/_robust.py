@@ -34,7 +34,7 @@ per-plant arrays, listed in :attr:`RobustReport.not_computed`, ``None`` in
 raises; :attr:`RobustReport.worst` then ranks on the computed fields.
 
 The result, its summary statistics and the margin sign convention:
-:mod:`hapid.uncertainty._robust_report`. The compute path (``backend``, ``vectorize``,
+:mod:`hapid.uncertainty._robust_report`. The compute path (``vectorize``,
 ``chunk``): :mod:`hapid.uncertainty._robust_chunks`.
 """
 
@@ -52,7 +52,7 @@ from ..control import Compensator
 from ..defaults import GM_DB, PM_DEG
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
-from ._robust_chunks import _analyze_chunk, _pad, _reference_chunk, _spec
+from ._robust_chunks import _analyze_chunk, _pad, _spec
 from ._robust_report import FIELDS, METRICS, RobustReport
 from ._samples import PosteriorSamples
 
@@ -123,7 +123,6 @@ def robust_check(
     seed: int = 0,
     labels=None,
     vectorize: bool = False,
-    backend: str = "metrics",
     metrics: tuple = (),
 ) -> RobustReport:
     """Analyse the loop of a fixed controller with every plant of a batch.
@@ -139,10 +138,9 @@ def robust_check(
       model plants; :func:`robust_omega`, 0.05–450 Hz, for sampled plant arrays).
     - ``gm_db``, ``pm_deg``, ``p_stable_required``: requirements for ``passed``.
     - ``chunk``: plants per vmapped batch (memory: chunk × N × n² complex per array).
-    - ``backend``: ``"metrics"`` (default): :func:`~hapid.control.loop_metrics` (XLA
-      kernels, refined crossings); ``"reference"``: :func:`~hapid.control.analyze_loop` once
-      per plant (LAPACK, grid values). See "Compute path".
-    - ``vectorize`` (``backend="metrics"``): ``False`` (default) runs the grid pass once per
+    - Every plant is analysed by :func:`~hapid.control.loop_metrics`'s program (XLA kernels,
+      refined crossings; :mod:`hapid.uncertainty._robust_chunks`).
+    - ``vectorize``: ``False`` (default) runs the grid pass once per
       plant and the refinement vmapped over each chunk; ``True`` vmaps the whole analysis
       over each chunk (slower on CPU for large chunks).
     - ``metrics``: what to compute beyond the verdict, the isotropic bandwidth and the loci
@@ -152,8 +150,6 @@ def robust_check(
 
     Returns a :class:`RobustReport`.
     """
-    if backend not in ("metrics", "reference"):
-        raise ValueError(f"robust_check: backend must be 'metrics' or 'reference', got {backend!r}")
     metrics = (
         tuple(METRICS)
         if metrics == "all"
@@ -218,11 +214,7 @@ def robust_check(
         j = min(S, i + chunk)
         Pc, pc = get(i, j)  # (not `pol`: the array path's `get` reads that name)
         pc = jnp.asarray(pc, dtype=jnp.float64) + c_rhp
-        if backend == "metrics":
-            r = _analyze_chunk(_pad(Pc, chunk), _pad(pc, chunk), G, om, vectorize, spec, j - i)
-        else:  # analyze_loop computes every field: keep the asked ones, as the default backend
-            r = _reference_chunk(Pc, pc, G, om)
-            r |= {f: np.full_like(r[f], np.nan, dtype=float) for f in FIELDS if f not in computed}
+        r = _analyze_chunk(_pad(Pc, chunk), _pad(pc, chunk), G, om, vectorize, spec, j - i)
         parts.append({k: v[: j - i] for k, v in r.items()})
     res = _distributed.gather(parts)  # every process's chunks, in order (one process: concat)
     if labels is not None and len(labels) != S:

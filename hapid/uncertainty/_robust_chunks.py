@@ -3,7 +3,7 @@
 with their open-loop RHP pole counts ``p_ol (S,)``, one controller ``G (N, n, n)`` on ω
 (rad/s).
 
-Compute path. ``backend="metrics"`` (the default): every plant is analysed by
+Compute path: every plant is analysed by
 :func:`hapid.control.loop_metrics`'s program (XLA small-matrix kernels for det/inverse/σ̄ and
 the eigenvalues of the loci, no LAPACK inside; exact values only where the cheap bounds do
 not decide; refined crossings) in its two passes (:mod:`hapid.control._metrics`): the
@@ -14,9 +14,8 @@ plant (``vectorize=False``, the default); or the whole analysis ``vmap``-ed over
 (``vectorize=True``; the last chunk padded, ``p_ol`` an array: one compile). The grid pass
 per plant is the faster: under ``vmap`` the batch axis sits in front of the kernels'
 entry-major ``(n, n, N)`` layout (timings: benchmarks/README.md, "Per-plant program, not
-vmap"). Same verdicts as the reference (benchmarks/bench_fast.py,
-tests/test_control_metrics.py). ``backend="reference"``:
-:func:`hapid.control.analyze_loop` (the LAPACK reference, grid values) once per plant.
+vmap"). Same verdicts as :func:`hapid.control.analyze_loop` (the LAPACK reference, a test
+oracle; benchmarks/bench_fast.py, tests/test_control_metrics.py).
 """
 
 from __future__ import annotations
@@ -28,11 +27,8 @@ import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
 from .._aot import cached_jit
-from ..control import MetricsSpec, analyze_loop
+from ..control import MetricsSpec
 from ..control._metrics import grid_pass, metrics_screened, refine_many
-from ._robust_report import FIELDS
-
-_KEYS = ("stable", "n_closed_loop_rhp", "nyquist_resolved") + FIELDS + ("gm_freq_hz", "pm_freq_hz")
 
 
 def _spec(metrics: tuple) -> MetricsSpec:
@@ -53,18 +49,6 @@ def _fields(m: dict, spec: MetricsSpec) -> dict:
     else:
         out["disk_margin"] = out["disk_gm_db"] = out["disk_pm_deg"] = nan
     return out
-
-
-@eqx.filter_jit
-def _reference_one(P, p_ol, G, omega):
-    r = analyze_loop(P, G, omega, p_ol)
-    return {k: getattr(r, k) for k in _KEYS}
-
-
-def _reference_chunk(P, p_ol, G, omega):
-    """The LAPACK reference, one plant per call of a jitted ``analyze_loop`` (grid values)."""
-    outs = [_reference_one(P[i], p_ol[i], G, omega) for i in range(P.shape[0])]
-    return {k: np.stack([np.asarray(o[k]) for o in outs]) for k in _KEYS}
 
 
 @eqx.filter_jit

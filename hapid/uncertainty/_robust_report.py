@@ -53,7 +53,9 @@ class RobustReport:
     :class:`hapid.control.LoopReport`); ``labels`` (optional names per plant);
     requirements ``gm_req_db``, ``pm_req_deg``, ``p_stable_required``; ``computed``: the
     fields of :data:`FIELDS` that were computed (the others are NaN and not reported — see
-    "What is computed" in the module docstring; default: all).
+    "What is computed" in the module docstring; default: all). ``draws``: which family of
+    plants was checked and how it was drawn (plain values; e.g. the loop GP of
+    :func:`hapid.robust.loop_gp_check`), or ``None``.
     """
 
     stable: np.ndarray
@@ -76,6 +78,7 @@ class RobustReport:
     loop: str = ""
     uncovered: tuple = ()
     nyquist_resolved: np.ndarray | None = None
+    draws: dict | None = None
 
     @property
     def check(self) -> Check:
@@ -213,10 +216,10 @@ class RobustReport:
 
     def numbers(self) -> dict:
         """Plain-python summary: P(stable), 5 %/50 % quantiles, worst plant, pass/fail, the
-        check (``verdict``, ``reason``, ``remedy``), ``status`` (its value) and ``ok``; fields
-        not computed are ``None`` and listed under ``not_computed``. Non-finite quantiles (an
-        unstable plant's ``-inf`` margin) stay ``±inf`` (for arithmetic; :meth:`summary` is
-        the JSON form)."""
+        check (``verdict``, ``reason``, ``remedy``), ``status`` (its value) and ``ok``, then
+        :attr:`draws` when set; fields not computed are ``None`` and listed under
+        ``not_computed``. Non-finite quantiles (an unstable plant's ``-inf`` margin) stay
+        ``±inf`` (for arithmetic; :meth:`summary` is the JSON form)."""
         w = self.worst
         out = {"n": self.n, "p_stable": self.p_stable}
         for f in FIELDS:
@@ -235,7 +238,8 @@ class RobustReport:
         out |= {"verdict": ck.verdict.value, "reason": ck.reason, "remedy": ck.remedy,
                 "check": ck.name, "loop": self.loop}  # fmt: skip
         out["evidence"] = None if self.cover is None else self.cover.summary()
-        return out | {"status": self.status.value, "ok": self.ok}
+        out |= {"status": self.status.value, "ok": self.ok}
+        return out if self.draws is None else out | {"draws": self.draws}
 
     def summary(self) -> dict:
         """Strict-JSON dict: :meth:`numbers` with non-finite values as ``None``."""
