@@ -272,7 +272,7 @@ def test_robust_result(tmp_path, frf):
     res = fit_nls(frf, f_max_hz=None)
     rng = np.random.default_rng(1)
     theta = np.asarray(res.theta) + 1e-3 * rng.standard_normal((6, res.theta.shape[0]))
-    names = tuple(param_names(2, model_error=False))
+    names = tuple(param_names(2))
     io.save_samples(tmp_path / "s.npz", PosteriorSamples(theta, np.zeros(6), res.scale, 2, names))
     io.save_model(tmp_path / "m.npz", res.model)
     kw = dict(draws="params", max_samples=6, n_freq=60)

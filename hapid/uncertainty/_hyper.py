@@ -126,7 +126,7 @@ def _quadratic_form_corr_jit(post: LogPosterior, h, y0, Jc, idx, q: int):
 def marginal_hyper(post: LogPosterior, h0, *, max_steps: int = 2000) -> tuple[np.ndarray, bool]:
     """``(hyper, converged)``: the gp hyperparameters that maximize their *marginal*
     posterior, the six matrices integrated out in closed form (type-II maximum likelihood
-    with the hyperparameters' prior; ``gp_hyper="marginal"`` of :func:`make_log_posterior`).
+    with the hyperparameters' prior; ``GPCorr(hyper="marginal")``, the default).
 
     For fixed hyperparameters the residual ``r(v) = y₀ − J v`` is linear in the free matrix
     entries ``v`` (matrix parameterization) and Gaussian, so with the prior
@@ -136,7 +136,7 @@ def marginal_hyper(post: LogPosterior, h0, *, max_steps: int = 2000) -> tuple[np
 
     ``z = L⁻¹ y₀``, ``W = L⁻¹ J`` per element (``C = L Lᴴ``), ``b = 2 Re Σ Wᴴ z``,
     ``P = 2 Re Σ Wᴴ W + I/prior_scale²``, ``c = −Σ log det(π C)``. Unlike the joint mode
-    (``gp_hyper="map"``), whose θ absorbs part of the misfit and whose model-error scales
+    (``hyper="map"``), whose θ absorbs part of the misfit and whose model-error scales
     come out small, this counts the ``q`` fitted degrees of freedom (as REML does).
     BFGS (optimistix) from ``h0``."""
     if not isinstance(post.error, GPCorr) or post.n_tau == 0:

@@ -125,7 +125,7 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
     any grid), including the model-error term — not only parameter uncertainty.
 
     Per draw ``(θ, τ, ℓ, β, κ)``: ``Z(θ)`` of the second-order model plus the model-error
-    function drawn from its posterior *given that draw's fit residuals* (with ``gp_hyper="map"``,
+    function drawn from its posterior *given that draw's fit residuals* (with ``hyper="map"``,
     the default, the hyperparameters are the same in every draw — their posterior mode — and
     only θ varies; files with six gp columns are read with κ = 0):
 
