@@ -22,8 +22,10 @@ from .. import (
     pipeline,
 )
 from .._grids import nyquist_grid as device_grid
+from ..closed_loop import closed_loop, simulate_loop
 from ..control import Compensator
 from ..defaults import GM_DB, PM_DEG
+from ..uncertainty import posterior_omega, robust_check
 
 _LOOP_KEYS = ("stable", "iso_bandwidth_hz", "gm_db", "pm_deg", "disk_margin", "disk_gm_db",
               "disk_pm_deg", "t_peak_db", "t_peak_hz", "nyquist_resolved")  # fmt: skip
@@ -64,8 +66,6 @@ def step_response(g: Compensator, model, device, *, n_samples: int = 800, direct
     off-direction |R_I| over the run), ``settle_s`` (last time outside ±5 % of the final
     value), ``R_D``, ``R_I`` arrays, ``t`` (s).
     """
-    from ..closed_loop import closed_loop, simulate_loop
-
     ctrl = pipeline.controller(model, g, ts=device.ts).discrete()
     cl = closed_loop(device, ctrl)
     rho = float(cl.spectral_radius())
@@ -129,8 +129,6 @@ def validate(
     Returns a dict with ``posterior`` / ``variants`` (RobustReport summaries, ``report``
     the full report), ``true_plant`` (loop numbers) and ``time_domain``.
     """
-    from ..uncertainty import posterior_omega, robust_check
-
     out: dict = {}
     if samples is not None:
         omc = posterior_omega() if omega_c is None else np.asarray(omega_c, dtype=float)
