@@ -114,7 +114,7 @@ def cmd_frf(a):
 
 def cmd_demo(a):
     from . import io, plot  # local: CLI start-up (matplotlib)
-    from .experiment import Protocol, estimate_frf, periodic_run  # local: CLI start-up
+    from .experiment import Protocol, estimate_frf, periodic_run  # local: CLI start-up (hapid.io)
     from .impedance import span_db  # local: CLI start-up (hapid.io, equinox)
 
     out = Path(a.out)

@@ -40,7 +40,7 @@ def cmd_robust(a):
         return
 
     from .io import to_json  # local: CLI start-up (hapid.io, equinox)
-    from .robust import robust_from_files, side_by_side  # local: CLI start-up (uncertainty)
+    from .robust import robust_from_files, side_by_side  # local: CLI start-up (hapid.uncertainty)
 
     dev = device_or_none(a)
     if len(a.model) == 1:

@@ -55,7 +55,7 @@ def load_samples(path, n: int | None = None) -> PosteriorSamples:
     # reads a file (hapid analyze's start-up), for the one reader that builds its samples
 
     from ..fit._pd import Scale, n_params  # local: CLI start-up (hapid.fit, optimistix)
-    from ..uncertainty._samples import PosteriorSamples  # local: CLI start-up (~0.7 s)
+    from ..uncertainty._samples import PosteriorSamples  # local: CLI start-up (hapid.uncertainty)
 
     path = Path(path)
     if not path.exists():
