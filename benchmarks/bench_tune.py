@@ -17,7 +17,7 @@ P(stable) 0.99 → 0.99, meeting both margins 73.5 % → 72.5 %; step overshoot 
 
 ``--devices SPEC [SPEC …]`` (``preset[:delay=S][:compliance=F]``, development devices only):
 instead, ``hapid tune``'s default route on each device — paper protocol, NLS fit
-(``fit_for_control``), loop draws conditioned on the measured FRF, evidence 1–100 Hz with
+(``control_fit``), loop draws conditioned on the measured FRF, evidence 1–100 Hz with
 the 1 kHz controller, certificate and fallback (60 training / 100 held-out draws, 200-point
 grid, 150 BFGS steps per stage) — and the paper g and the returned g on the device's true
 sampled plant: the collapse check of docs/robust-design.md ("The collapse").

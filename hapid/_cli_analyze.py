@@ -4,6 +4,9 @@ command (start-up time)."""
 
 from __future__ import annotations
 
+import numpy as np
+
+from ._analyze_check import loop_check, loop_label, margin_words
 from ._cli_device import device_from_args
 from ._cli_errors import CLIError
 from ._cli_verdict import check_line
@@ -13,17 +16,14 @@ FEW_FRF_FREQUENCIES = 200  # an FRF with fewer points may leave the Nyquist coun
 
 def cmd_analyze(a):
 
-    import numpy as np
-
-    from . import io, pipeline, scene
-    from ._analyze_check import loop_check, loop_label, margin_words
-    from .control import max_siso_gain
+    from . import io, pipeline, scene  # local: CLI start-up (hapid.fit, optimistix)
+    from .control import max_siso_gain  # local: CLI start-up (hapid.io, equinox)
 
     model = io.load_model(a.model)
     cfg = scene.merge({})
     note = ""
     if a.design:
-        from .tune import load_design
+        from .tune import load_design  # local: CLI start-up (hapid.tune, ~0.8 s)
 
         g, _ = load_design(a.design)  # --k with --design: refused by hapid._cli_checks
     else:

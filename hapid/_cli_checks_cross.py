@@ -9,19 +9,21 @@ cross-option rules have no entry.
 
 from __future__ import annotations
 
+import copy
+import json
 import math
 from pathlib import Path
 
+from . import scene as _scene
 from ._cli_checks_io import check_model_matches_device
 from ._cli_checks_rules import MOVE_LIMIT_M, SEED, _int, between, ge, gt, int_ge
 from ._cli_checks_scene import check_scene, load_scene_checked
 from ._cli_device import variant_flags
+from .experiment._excitation import check_on_grid, paper_frequencies
 
 
 # ---- cross-option rules ---------------------------------------------------------------------
 def _protocol_cross(a):
-    from .experiment._excitation import check_on_grid, paper_frequencies
-
     f = paper_frequencies() if a.freqs == "paper" else [float(x) for x in a.freqs.split(",")]
     try:
         check_on_grid(f, a.fs, a.period)
@@ -76,8 +78,6 @@ def _robust_cross(a):
 
 
 def _run_cross(a):
-    from . import scene as _scene
-
     cfg = load_scene_checked(a.scene)
     for kv in a.set or []:
         key, eq, val = kv.partition("=")
@@ -126,7 +126,7 @@ def _sweep_cross(a):
             raise ValueError(f"--vary {key} given twice")
         seen.add(key)
         if key not in SWEEP_KEYS:  # any other numeric option: the sweep's own rules (hapid.sweep)
-            from . import sweep as _sweep
+            from . import sweep as _sweep  # local: CLI start-up (hapid.fit, optimistix)
 
             try:
                 _sweep.classify(
@@ -156,9 +156,7 @@ def _sweep_cross(a):
 def _check_swept_value(cfg: dict, key: str, text: str, x: float) -> None:
     """A swept value of any scene option obeys that option's scene rule (an integer option
     takes whole numbers only)."""
-    import copy
-
-    from . import sweep as _sweep
+    from . import sweep as _sweep  # local: CLI start-up (hapid.fit, optimistix)
 
     sec, k, i = _sweep._parse(key)
     cur = cfg[sec][k] if i is None else None
@@ -178,8 +176,6 @@ _CROSS = {"simulate": _protocol_cross, "analyze": _analyze_cross, "tune": _tune_
 
 
 def _parse_value(val: str):
-    import json
-
     try:
         return json.loads(val)
     except json.JSONDecodeError:

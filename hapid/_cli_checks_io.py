@@ -6,6 +6,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from . import io
+from .device import preset
+
 
 def _same_file(a, b) -> bool:
     try:
@@ -33,8 +36,6 @@ def check_model_matches_device(model_paths, device: str | None) -> None:
     """``hapid robust``: every ``--model`` must have the ``--device`` preset's number of rods."""
     if device is None:
         return
-    from . import io
-    from .device import preset
 
     n_dev = preset(device).n
     for p in model_paths or []:

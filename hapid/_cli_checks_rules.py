@@ -11,8 +11,11 @@ against.
 
 from __future__ import annotations
 
+import inspect
 import math
 from pathlib import Path
+
+from .device._presets import PRESETS
 
 # ---- value tests ----------------------------------------------------------------------------
 
@@ -64,16 +67,10 @@ ROT_LIMIT_RAD = 0.5
 
 
 def _presets():
-    from .device._presets import PRESETS
-
     return tuple(sorted(PRESETS))
 
 
 def _nyquist_hz(preset: str = "cu5") -> float:
-    import inspect
-
-    from .device._presets import PRESETS
-
     return 0.5 * float(inspect.signature(PRESETS[preset]).parameters["fs_hz"].default)
 
 

@@ -9,8 +9,10 @@ booleans).
 
 from __future__ import annotations
 
+import tomllib
 from pathlib import Path
 
+from . import scene as _scene
 from ._cli_checks_rules import (
     ANY,
     FLAG,
@@ -28,15 +30,13 @@ from ._cli_checks_rules import (
     one_of,
 )
 from ._cli_checks_table import COMMON, _solvers, _walkers
+from .experiment._excitation import check_on_grid, paper_frequencies
+from .scene import OUTPUTS
 
 
 # ---- scene files ----------------------------------------------------------------------------
 def load_scene_checked(path) -> dict:
     """Read a scene TOML (merged over the defaults), with a clear error for anything else."""
-    import tomllib
-
-    from . import scene as _scene
-
     p = Path(path)
     raw = p.read_bytes()
     try:
@@ -80,7 +80,6 @@ def _scene_freqs(v):
 def _scene_rules() -> dict:
     nyq = _nyquist_hz()
     pos = lambda x: _num(x) and 0 < x < nyq  # noqa: E731
-    from .scene import OUTPUTS
 
     return {
         "device.preset": (lambda v: v in _presets(), f"one of {', '.join(_presets())}"),
@@ -143,7 +142,6 @@ def check_scene(cfg: dict, source: str) -> None:
             test, allowed = rules.get(key) or _by_type(v)
             if not test(v):
                 raise ValueError(f"{source}: {key} must be {allowed}, got {v!r}")
-    from .experiment._excitation import check_on_grid, paper_frequencies
 
     fr = cfg["protocol"]["freqs"]
     try:

@@ -186,13 +186,13 @@ PER_COMMAND: dict[str, dict] = {
 
 
 def _estimators():
-    from .pipeline import ESTIMATORS
+    from .pipeline import ESTIMATORS  # local: CLI start-up (hapid.fit, optimistix)
 
     return ESTIMATORS
 
 
 def _solvers():
-    from .fit import SOLVERS
+    from .fit import SOLVERS  # local: CLI start-up (hapid.fit, optimistix)
 
     return SOLVERS
 

@@ -39,7 +39,7 @@ def add_device_args(p, *, default: str | None = "cu5", device_group=None, what: 
 def device_options(a) -> dict:
     """The scene-style ``[device]`` options of the parsed ``--device`` arguments (the scene
     defaults for everything the command line does not set)."""
-    from .scene import DEFAULTS
+    from .scene import DEFAULTS  # local: CLI start-up (hapid.io, equinox)
 
     o = dict(DEFAULTS["device"])
     o.update(preset=a.device, delay_samples=a.delay, rod_compliance=a.rod_compliance,
@@ -51,7 +51,7 @@ def device_from_args(a, fs_hz: float | None = None):
     """The device of the parsed ``--device/--delay/--rod-compliance/--move`` arguments
     (:func:`hapid.pipeline.device` of :func:`device_options`); ``fs_hz``: the sampling rate
     (Hz; default the preset's)."""
-    from . import pipeline
+    from . import pipeline  # local: CLI start-up (hapid.fit, optimistix)
 
     return pipeline.device(device_options(a), fs_hz=fs_hz)
 

@@ -24,10 +24,14 @@ from collections.abc import Callable
 
 import numpy as np
 
+from . import io
 from ._cli_lab import matrices_report
 from ._constants import TWO_PI
 from ._grids import band_mask
 from .defaults import FIT_BAND_HZ, NLS_MAX_STEPS
+from .device import preset
+from .experiment import estimate_frf
+from .impedance_frf import model_units
 
 
 class FitCommandError(ValueError):
@@ -59,7 +63,7 @@ def _nls_refuse(res, a):
 
 # ---- the haptic hand/total pair ---------------------------------------------------------------
 def _pair_wls(frf, a, band) -> Fitted:
-    from .fit import positize, wls
+    from .fit import positize, wls  # local: CLI start-up (hapid.fit, optimistix)
 
     raw = wls(frf, omega_c=TWO_PI * a.omega_c_hz)
     if a.positize:
@@ -68,7 +72,7 @@ def _pair_wls(frf, a, band) -> Fitted:
 
 
 def _pair_nls(frf, a, band) -> Fitted:
-    from . import pipeline
+    from . import pipeline  # local: CLI start-up (hapid.fit, optimistix)
 
     o = dict(weight=a.weight, solver=a.solver, f_max_hz=None, omega_c_hz=a.omega_c_hz,
              max_steps=a.max_steps)  # fmt: skip
@@ -93,7 +97,7 @@ def _pair_nls(frf, a, band) -> Fitted:
 def _pair_ml(frf, a, band=None) -> Fitted:
     """Sample maximum likelihood on the run's spectra (``hapid.fit.fit_ml``); the run is the
     file read by :func:`run_fit` (``a.ml_run``), ``frf`` its banded FRF (for the report)."""
-    from .fit import crb_band_db, fit_ml
+    from .fit import crb_band_db, fit_ml  # local: CLI start-up (hapid.fit, optimistix)
 
     run = getattr(a, "ml_run", None)
     if run is None:  # pragma: no cover - run_fit always sets it for --method ml
@@ -122,7 +126,7 @@ def _pair_ml(frf, a, band=None) -> Fitted:
 # ---- a single impedance ----------------------------------------------------------------------
 def _single(method: str):
     def run(zfrf, a, band) -> Fitted:
-        from .fit import fit_impedance
+        from .fit import fit_impedance  # local: CLI start-up (hapid.fit, optimistix)
 
         if a.weight not in ("relative", "noise"):
             raise FitCommandError(
@@ -174,8 +178,7 @@ def extra_quality_lines(quality, fitted: Fitted, data, a):
     name = getattr(a, "true_device", None)
     if not name or not hasattr(data, "Z_T"):
         return quality
-    from .device import preset
-    from .fit import pphat_band_db
+    from .fit import pphat_band_db  # local: CLI start-up (hapid.fit, optimistix)
 
     dev = preset(name)
     if dev.n != data.n:
@@ -218,7 +221,7 @@ def fit_band(sel, single: bool, a, band: tuple[float, float]):
     cut to ``band``, Hz) with the options ``a`` of its parser — the :class:`Fitted`, its
     :class:`hapid.fit.FitQuality` over the band (extra lines included) and the metadata the
     model file stores. Raises :class:`FitCommandError` for a fit the command refuses."""
-    from .fit import pair_quality
+    from .fit import pair_quality  # local: CLI start-up (hapid.fit, optimistix)
 
     table = SINGLE_METHODS if single else PAIR_METHODS
     fitted = table[a.method](sel, a, band)
@@ -243,9 +246,7 @@ def fit_data(data, single: bool, a):
 
 def run_fit(a) -> None:
     """``hapid fit``: read, dispatch on file kind and method, report, write (all or nothing)."""
-    from . import io
-    from .fit import crhp_report, pphat_band_db
-    from .impedance_frf import model_units
+    from .fit import crhp_report, pphat_band_db  # local: CLI start-up (hapid.fit, optimistix)
 
     kind = io.file_kind(a.frf, "an FRF file (freq_hz with Z_H, Z_T or Z)")
     if a.method == "ml":
@@ -255,7 +256,6 @@ def run_fit(a) -> None:
                 "per-period R_A, R_I, L: an FRF has lost the noise covariances), e.g. "
                 "hapid simulate --out run.npz; hapid fit run.npz --method ml"
             )
-        from .experiment import estimate_frf
 
         a.ml_run = io.load_run(a.frf)
         kind = "frf"

@@ -71,7 +71,7 @@ def run_frf_lab(a) -> None:
         else:
             print(f"note: {note}")
     if a.plot:
-        from . import plot
+        from . import plot  # local: CLI start-up (matplotlib)
 
         fig, _ = plot.impedance_h1(f, np.asarray(z.Z), z.coherence, unit=z.unit,
                                    title=f"{a.run}: H1 ({how})")  # fmt: skip

@@ -7,13 +7,15 @@ from __future__ import annotations
 import warnings
 from pathlib import Path
 
+import numpy as np
+
 from ._cli_device import describe, device_from_args
 from ._cli_errors import CLIError
 from .defaults import NPERSEG
 
 
 def _protocol(a):
-    from .experiment import Protocol, paper_frequencies
+    from .experiment import Protocol, paper_frequencies  # local: CLI start-up (hapid.io, equinox)
 
     freqs = paper_frequencies() if a.freqs == "paper" else [float(x) for x in a.freqs.split(",")]
     return Protocol(
@@ -25,8 +27,8 @@ def _protocol(a):
 
 
 def cmd_simulate(a):
-    from . import io
-    from .experiment import periodic_run, time_domain_run
+    from . import io  # local: CLI start-up (hapid.io, equinox)
+    from .experiment import periodic_run, time_domain_run  # local: CLI start-up (hapid.io, equinox)
 
     dev, prot = device_from_args(a, fs_hz=a.fs), _protocol(a)
     if a.time_domain or a.friction:
@@ -53,10 +55,8 @@ def _run_frf(a, run, estimate_frf, estimate_frf_h1):
 
 
 def cmd_frf(a):
-    import numpy as np
-
-    from . import io
-    from .experiment import estimate_frf, estimate_frf_h1, low_coherence_note
+    from . import io  # local: CLI start-up (hapid.io, equinox)
+    from .experiment import estimate_frf, estimate_frf_h1, low_coherence_note  # local: CLI start-up
 
     kind = (
         "timeseries"
@@ -64,7 +64,7 @@ def cmd_frf(a):
         else io.file_kind(a.run, "a run file or a time-series file")
     )
     if kind in ("timeseries", "unknown"):  # unknown: the reader names the arrays it found
-        from ._cli_lab import run_frf_lab
+        from ._cli_lab import run_frf_lab  # local: CLI start-up (hapid.io, equinox)
 
         return run_frf_lab(a)  # lab records → single impedance Z = F/x
     if kind != "run":
@@ -105,7 +105,7 @@ def cmd_frf(a):
                 warnings.warn(f"{name}: {low} (noise, leakage or nonlinearity there)",
                               stacklevel=1)  # fmt: skip
     if a.plot:
-        from . import plot
+        from . import plot  # local: CLI start-up (matplotlib)
 
         fig, _ = plot.frf_overview(frf)
         plot.save(fig, a.plot)
@@ -113,11 +113,9 @@ def cmd_frf(a):
 
 
 def cmd_demo(a):
-    import numpy as np
-
-    from . import io, plot
-    from .experiment import Protocol, estimate_frf, periodic_run
-    from .impedance import span_db
+    from . import io, plot  # local: CLI start-up (matplotlib)
+    from .experiment import Protocol, estimate_frf, periodic_run  # local: CLI start-up (hapid.io)
+    from .impedance import span_db  # local: CLI start-up (hapid.io, equinox)
 
     out = Path(a.out)
     dev = device_from_args(a)
@@ -136,6 +134,6 @@ def cmd_demo(a):
 
 
 def cmd_fit(a):
-    from ._cli_fit import run_fit
+    from ._cli_fit import run_fit  # local: CLI start-up (hapid.fit, optimistix)
 
     run_fit(a)

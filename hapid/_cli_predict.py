@@ -5,9 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import io
+from ._cli_device import add_device_args, describe, device_from_args
 from ._constants import TWO_PI
 from ._grids import log_grid_hz
 from .defaults import FIT_BAND_HZ, FS_HZ
+from .frf import FRF
+from .io import load_samples
 
 
 class CommandError(ValueError):
@@ -20,9 +24,7 @@ def _grid(a):
 
 
 def cmd_predict(a):
-    from . import io
-    from .io import load_samples
-    from .uncertainty import plant_draws
+    from .uncertainty import plant_draws  # local: CLI start-up (hapid.uncertainty, ~0.7 s)
 
     if a.draws == "loop_gp" and a.no_model_error:
         raise CommandError("--no-model-error applies to --draws params (loop draws are of the "
@@ -77,10 +79,6 @@ CALIBRATION_HELP = (
 
 
 def cmd_plant(a):
-    from . import io
-    from ._cli_device import describe, device_from_args
-    from .frf import FRF
-
     f = _grid(a)
     dev = device_from_args(a, fs_hz=a.fs)
     if f[-1] >= 0.5 * dev.fs_hz:
@@ -153,7 +151,6 @@ def register(sub):
     pl = sub.add_parser("plant", help="write a simulated device's true plant as an FRF file",
                         description="The true sampled Z_H, Z_T (hence P) of a preset device as an FRF "
                         "file without noise, readable by hapid analyze --frf.")  # fmt: skip
-    from ._cli_device import add_device_args
 
     add_device_args(pl)
     pl.add_argument(

@@ -3,6 +3,8 @@ reports (:mod:`hapid._distributed` is imported only when a command asks)."""
 
 from __future__ import annotations
 
+from ._distributed import is_main
+
 _PROCESSES_HELP = (
     "split the work over N local processes joined by jax.distributed (results "
     "identical to one process); on a cluster set HAPID_COORDINATOR, "
@@ -11,6 +13,4 @@ _PROCESSES_HELP = (
 
 
 def _is_main() -> bool:
-    from ._distributed import is_main
-
     return is_main()

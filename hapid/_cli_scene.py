@@ -4,16 +4,18 @@ commands (start-up time)."""
 
 from __future__ import annotations
 
+import json
+import time
 from pathlib import Path
+
+import numpy as np
 
 from ._cli_errors import CLIError
 from ._cli_processes import _is_main
 
 
 def cmd_paper(a):
-    import time
-
-    from . import scene
+    from . import scene  # local: CLI start-up (hapid.io, equinox)
 
     cfg = scene.load_scene(a.scene) if a.scene else scene.merge({})
     want = ["fig5", "fig6", "fig7", "fig8", "fig9", "fig10", "summary", "frf_file", "model_files"]
@@ -31,9 +33,7 @@ def cmd_paper(a):
 
 
 def cmd_run(a):
-    import time
-
-    from . import scene
+    from . import scene  # local: CLI start-up (hapid.io, equinox)
 
     cfg = scene.load_scene(a.scene)
     for kv in a.set or []:
@@ -50,8 +50,6 @@ def cmd_run(a):
 
 
 def _parse_value(val: str):
-    import json
-
     try:
         return json.loads(val)
     except json.JSONDecodeError:
@@ -59,11 +57,7 @@ def _parse_value(val: str):
 
 
 def cmd_sweep(a):
-    import time
-
-    import numpy as np
-
-    from . import scene, sweep
+    from . import scene, sweep  # local: CLI start-up (hapid.fit, optimistix)
 
     cfg = scene.load_scene(a.scene)
     vary = {}

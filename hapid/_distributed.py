@@ -36,7 +36,10 @@ import sys
 import threading
 import time
 
+import jax
 import numpy as np
+from jax._src import distributed
+from jax.experimental import multihost_utils
 
 ENV_COORDINATOR = "HAPID_COORDINATOR"
 ENV_NUM_PROCESSES = "HAPID_NUM_PROCESSES"
@@ -79,9 +82,6 @@ def initialize() -> bool:
     s = _env_settings()
     if s is None:
         return False
-    import jax
-
-    from . import _config  # noqa: F401  (float64 before anything is created)
 
     coord, n, i = s
     if coord == "auto":
@@ -96,7 +96,6 @@ def process_count() -> int:
     """Processes in the run (1 without ``jax.distributed``)."""
     if not _STATE["initialized"]:
         return 1
-    import jax
 
     return int(jax.process_count())
 
@@ -105,7 +104,6 @@ def process_index() -> int:
     """This process's rank, 0 … ``process_count() − 1`` (0 without ``jax.distributed``)."""
     if not _STATE["initialized"]:
         return 0
-    import jax
 
     return int(jax.process_index())
 
@@ -154,8 +152,6 @@ def barrier() -> None:
     """Wait until every process is here (the ``jax.distributed`` coordination service; timeout
     ``HAPID_GATHER_TIMEOUT_S``, default 24 h). The CPU collective (gloo) itself waits only 30 s
     for its peers, less than one process may spend on its last chunk while another is done."""
-    from jax._src import distributed
-
     _STATE["barriers"] = _STATE.get("barriers", 0) + 1
     timeout_s = float(os.environ.get("HAPID_GATHER_TIMEOUT_S", 86400))
     distributed.global_state.client.wait_at_barrier(
@@ -166,8 +162,6 @@ def barrier() -> None:
 def allgather_bytes(b: np.ndarray) -> list[np.ndarray]:
     """Every process's ``uint8`` array, on every process, in rank order (a JAX collective,
     after a :func:`barrier`)."""
-    from jax.experimental import multihost_utils
-
     barrier()
     lens = np.asarray(multihost_utils.process_allgather(np.array([b.size], np.int64))).reshape(-1)
     pad = np.zeros(max(int(lens.max()), 1), np.uint8)

@@ -24,7 +24,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
+
+from . import io
 
 _PKG_ROOT = Path(__file__).resolve().parent
 
@@ -128,7 +131,6 @@ def _cls(name: str):
 
 def decode(tree, arrays):
     """Inverse of :func:`encode` (classes restricted to the ``hapid`` package)."""
-    import jax.numpy as jnp
 
     def dec(t):
         if t is None or isinstance(t, bool | str):
@@ -160,15 +162,11 @@ def decode(tree, arrays):
 
 
 def _load(path: Path):
-    from . import io
-
     arrays, meta = io.load_cache_entry(path)
     return decode(json.loads(meta), arrays)
 
 
 def _store(path: Path, result) -> bool:
-    from . import io
-
     try:
         tree, arrays = encode(result)
     except Unencodable:

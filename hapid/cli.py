@@ -9,9 +9,11 @@ import os
 import sys
 import warnings
 
+from . import _distributed
 from ._cli_analyze import FEW_FRF_FREQUENCIES, cmd_analyze  # noqa: F401  (the command's API)
 from ._cli_device import add_device_args
 from ._cli_errors import CLIError
+from ._cli_help import annotate
 from ._cli_kw import uncertified_warning  # noqa: F401  (part of the CLI's API)
 from ._cli_measure import cmd_demo, cmd_fit, cmd_frf, cmd_simulate
 from ._cli_processes import _PROCESSES_HELP
@@ -60,7 +62,7 @@ def _protocol_args(p):
 
 
 def _register_lab_frf_args(f):
-    from ._cli_lab import register_lab_frf_args
+    from ._cli_lab import register_lab_frf_args  # local: CLI start-up (hapid.io, equinox)
 
     register_lab_frf_args(f)
 
@@ -110,7 +112,6 @@ def build_parser() -> argparse.ArgumentParser:
 
     for register in _EXTRA:
         register(sub)
-    from ._cli_help import annotate
 
     return annotate(p)  # missing help texts; every option's default in its help
 
@@ -140,7 +141,7 @@ def _register_scene(sub):
 
 
 def _register_stages(sub):
-    from ._cli_fit import register_fit
+    from ._cli_fit import register_fit  # local: CLI start-up (hapid.fit, optimistix)
 
     register_fit(sub, cmd_fit)
 
@@ -344,7 +345,7 @@ def _register_tune(sub):
 
 
 def _register_predict(sub):
-    from ._cli_predict import register
+    from ._cli_predict import register  # local: CLI start-up (hapid.io, equinox)
 
     register(sub)
 
@@ -355,7 +356,7 @@ def _parse_command(argv: list[str]) -> argparse.Namespace:
 
 
 def _register_design(sub):
-    from ._cli_design import register
+    from ._cli_design import register  # local: CLI start-up (hapid.io, equinox)
 
     register(sub, _parse_command)
 
@@ -397,12 +398,10 @@ def main(argv=None) -> int:
     warnings.simplefilter("default")
     warnings.formatwarning = lambda m, c, *_: f"hapid: warning: {m}\n"
     try:
-        from ._cli_checks import check_args
+        from ._cli_checks import check_args  # local: CLI start-up (hapid.io, equinox)
 
         check_args(parser, a)  # every option and scene key, before any work
         if hasattr(a, "processes"):  # sweep, robust: hapid._distributed (HAPID_* or --processes)
-            from . import _distributed
-
             if a.processes is not None and _distributed.local_launch_needed(a.processes):
                 args = sys.argv[1:] if argv is None else list(argv)
                 return _distributed.launch_local(args, a.processes)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import warnings
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
@@ -119,8 +120,6 @@ def _is_low_precision(dtype) -> bool:
 
 def require_x64(what: str) -> None:
     """Raise a clear error when JAX's float64 has been switched off after ``import hapid``."""
-    import jax
-
     if not jax.config.jax_enable_x64:
         raise RuntimeError(
             f"{what}: hapid computes in float64, but jax_enable_x64 is off (switched off "
@@ -176,8 +175,6 @@ def check_coherence(Z_H, **coherences) -> None:
 
 
 def _is_concrete(x) -> bool:
-    import jax
-
     return x is not None and not isinstance(x, jax.core.Tracer)
 
 

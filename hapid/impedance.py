@@ -14,6 +14,7 @@ import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from . import _config  # noqa: F401  (float64)
+from ._linalg import svdvals
 
 
 def _check_square_triplet(M, B, K, name: str) -> None:
@@ -171,8 +172,6 @@ def plant(Z_H: Complex[Array, "N n n"], Z_T: Complex[Array, "N n n"]) -> Complex
 
 def singular_values(A: Complex[Array, "N n n"]) -> Float[Array, "N n"]:
     """Singular values per frequency, descending, ``(N, n)`` (deadlock-safe, see ``_linalg``)."""
-    from ._linalg import svdvals
-
     return svdvals(A)
 
 

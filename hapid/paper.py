@@ -10,7 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
+from . import io
 from ._constants import TWO_PI
+from .fit import anisotropy_reduction, pphat_band_db
+from .impedance import span_db
 
 PAPER = {
     "plant_span_db": "25–50",
@@ -25,7 +28,7 @@ PAPER = {
 
 
 def figure(num: int, out_dir, *deps) -> str:
-    from . import plot
+    from . import plot  # local: CLI start-up (matplotlib)
 
     out = Path(out_dir) / f"fig{num}.png"
     if num == 5:
@@ -96,9 +99,6 @@ def loop_numbers(rep) -> dict:
 def summary(out_dir, device, frf, wls, nls, mimo, siso, tuned=None, tuned_mimo=None) -> dict:
     """The summary table (``summary.json``, ``summary.md``) from the scene's stage results;
     ``tuned``/``tuned_mimo`` (the scene's tuned-g stages) fill the third column."""
-    from .fit import anisotropy_reduction, pphat_band_db
-    from .impedance import span_db
-
     w = frf.omega
     P_true = np.asarray(device.sampled_P(w))
     f = np.asarray(frf.freq_hz)
@@ -134,19 +134,16 @@ def summary(out_dir, device, frf, wls, nls, mimo, siso, tuned=None, tuned_mimo=N
     res["siso"] = {k: {"c": _f(v["c"]), **loop_numbers(v["report"])} for k, v in siso.items()}
     # third column: the same NLS + PD model with g(s) tuned by gradients (the scene's tuned stages)
     if tuned is not None and tuned_mimo is not None:
-        from . import io
-
         dfile = Path(out_dir) / "design_tuned.npz"
         io_save = getattr(io, "save_design", None)
         if io_save is None:
-            from .tune import save_design as io_save
+            from .tune import save_design as io_save  # local: CLI start-up (hapid.tune, ~0.8 s)
         io_save(dfile, tuned["g"], constraints=tuned["constraints"], history=tuned["history"])
         res["tuned"] = {"label": "hapid NLS + PD + tuned g", "mimo": loop_numbers(tuned_mimo["report"]),
                         "g": tuned["parameters"], "design_file": str(dfile),
                         "status": tuned.get("status"), "decision": tuned.get("decision")}  # fmt: skip
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    from . import io
 
     io.save_json(out / "summary.json", res)
     io.save_text(out / "summary.md", summary_markdown(res))

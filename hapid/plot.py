@@ -10,6 +10,7 @@ import matplotlib
 matplotlib.use("Agg", force=False)
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.lines import Line2D
 
 from ._constants import COHERENCE_LOW  # noqa: E402
 
@@ -252,8 +253,6 @@ def loci(reports: dict, *, title: str = "", f_range=(0.1, 500.0)):
     (top; solid ω > 0, dotted its mirror image ω < 0) and Bode magnitude and phase (bottom) per
     loop — the paper's Fig. 9. The phase is unwrapped only strictly below the Nyquist
     frequency (the grid's last point), where the discrete loci turn real and their angle jumps."""
-    from matplotlib.lines import Line2D
-
     k = len(reports)
     fig, axes = plt.subplots(3, k, figsize=(6.2 * k, 11), squeeze=False,
                              gridspec_kw={"height_ratios": [2.2, 1, 1]})  # fmt: skip

@@ -44,9 +44,11 @@ from pathlib import Path
 
 import numpy as np
 
+from . import io
 from ._grids import nyquist_grid
 from ._plain import jsonable
 from ._stages import Graph, Stage
+from .control import discretize_compensator, max_siso_gain
 from .defaults import FIT_BAND_HZ
 
 DEFAULTS: dict = {
@@ -112,19 +114,19 @@ def set_option(cfg: dict, dotted: str, value) -> dict:
 
 # ---- stage functions: each composes hapid.pipeline ------------------------------------------
 def _device(o):
-    from . import pipeline
+    from . import pipeline  # local: CLI start-up (hapid.fit, optimistix)
 
     return pipeline.device(o)
 
 
 def _protocol(o):
-    from . import pipeline
+    from . import pipeline  # local: CLI start-up (hapid.fit, optimistix)
 
     return pipeline.protocol(o)
 
 
 def _run(o, device):
-    from . import pipeline
+    from . import pipeline  # local: CLI start-up (hapid.fit, optimistix)
 
     return pipeline.experiment(
         device, _protocol(o), synthesis=o["synthesis"], friction=o["friction"]
@@ -132,7 +134,7 @@ def _run(o, device):
 
 
 def _frf(o, run):
-    from . import pipeline
+    from . import pipeline  # local: CLI start-up (hapid.fit, optimistix)
 
     return pipeline.frf(run)
 
@@ -143,7 +145,7 @@ NLS_KEYS = ("weight", "f_max_hz", "solver", "omega_c_hz", "max_steps", "rtol", "
 
 
 def _wls(o, frf):
-    from . import pipeline
+    from . import pipeline  # local: CLI start-up (hapid.fit, optimistix)
 
     f = pipeline.fit(frf, "wls+positize" if o["positize"] else "wls", omega_c_hz=o["omega_c_hz"])
     return {"fit": f, "model": f.model,
@@ -152,7 +154,7 @@ def _wls(o, frf):
 
 
 def _nls(o, frf):
-    from . import pipeline
+    from . import pipeline  # local: CLI start-up (hapid.fit, optimistix)
 
     o = dict(o)
     cf = pipeline.control_fit(frf, boundary_refit=o.pop("boundary_refit", True), **o)
@@ -164,7 +166,7 @@ def _nls(o, frf):
 
 def compensator(o):
     """g(s) of a scene's ``[controller]`` options (Hz → rad/s)."""
-    from . import pipeline
+    from . import pipeline  # local: CLI start-up (hapid.fit, optimistix)
 
     return pipeline.compensator(o)
 
@@ -176,7 +178,7 @@ def analysis_grid(o, fs_hz: float) -> np.ndarray:
 
 
 def _plant(o, device):
-    from . import pipeline
+    from . import pipeline  # local: CLI start-up (hapid.fit, optimistix)
 
     pl = pipeline.device_plant(device, analysis_grid(o, device.fs_hz))
     return {"omega": np.asarray(pl.omega), "P": np.asarray(pl.P), "ts": pl.ts, "plant": pl}
@@ -187,7 +189,7 @@ def _controller(o):
 
 
 def _mimo_one(model, g, plant):
-    from . import pipeline
+    from . import pipeline  # local: CLI start-up (hapid.fit, optimistix)
 
     ctrl = pipeline.controller(model, g, ts=plant["ts"])
     rep = pipeline.loop(ctrl, plant["plant"], pipeline.SPEC_FIGURES)  # figures 9, 10
@@ -200,8 +202,7 @@ def _mimo(o, plant, wls_out, nls_out, ctrl):
 
 
 def _siso(o, plant, ctrl):
-    from . import pipeline
-    from .control import discretize_compensator, max_siso_gain
+    from . import pipeline  # local: CLI start-up (hapid.fit, optimistix)
 
     gd = np.asarray(
         discretize_compensator(ctrl["g"], plant["ts"]).at_omega(plant["omega"])
@@ -222,7 +223,7 @@ def _siso(o, plant, ctrl):
 
 
 def _tuned(o, device, nls_out):
-    from .tune import tuned_design
+    from .tune import tuned_design  # local: CLI start-up (hapid.tune, ~0.8 s)
 
     return tuned_design(device, nls_out["model"], fast=o["fast"])
 
@@ -257,7 +258,7 @@ def _out_stage(name, deps, fn):
 
 def _fig(num):
     def fn(o, *deps):
-        from . import paper
+        from . import paper  # local: CLI start-up (hapid.paper pulls hapid.fit)
 
         return paper.figure(num, o["dir"], *deps)
 
@@ -279,20 +280,16 @@ OUT_STAGES = [
 
 
 def _summary(out_dir, *deps):
-    from . import paper
+    from . import paper  # local: CLI start-up (hapid.paper pulls hapid.fit)
 
     return paper.summary(out_dir, *deps)
 
 
 def _save_frf(out_dir, frf):
-    from . import io
-
     return str(io.save_frf(Path(out_dir) / "frf.npz", frf))
 
 
 def _save_models(out_dir, w, n):
-    from . import io
-
     a = io.save_model(Path(out_dir) / "model_wls.npz", w["model"], method="wls+positize")
     b = io.save_model(Path(out_dir) / "model_nls.npz", n["model"], method="nls", status=n["status"],
                       cost=n["cost"], covariance=np.asarray(n["result"].covariance))  # fmt: skip

@@ -43,9 +43,12 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from tqdm.auto import tqdm
 
-from . import _config, _distributed  # noqa: F401
+from . import _config, _distributed, pipeline  # noqa: F401
 from .fit import pphat_band_db
+from .io import save_csv
 
 STAND_IN_NOTE = (
     "note: the sweep's FRF is a statistically equivalent stand-in for the scene's experiment "
@@ -143,8 +146,6 @@ def _fit_options(fo: dict, estimator: str) -> dict:
 def point_fn(cfg: dict, keys: tuple[str, ...], estimator: str = ESTIMATOR_DEFAULT):
     """Pure function ``params (len(keys),) → metrics`` (dict of 0-d arrays) for one
     configuration of ``cfg`` with the traced options ``keys`` set from ``params``."""
-    from . import pipeline
-
     cfg = copy.deepcopy(cfg)
     if cfg["device"]["subject_seed"] is None and "device.subject_seed" in keys:
         cfg["device"]["subject_seed"] = -1.0
@@ -239,8 +240,6 @@ def run_sweep(cfg: dict, vary: dict[str, list], *, chunk: int = 64, progress: bo
     One compiled ``vmap`` per chunk and per distinct combination of static values. Under
     ``jax.distributed`` (:func:`hapid._distributed.initialize`) each process runs a contiguous
     block of the chunks and every process returns the whole result, identical to one process."""
-    from . import pipeline
-
     if estimator not in pipeline.ESTIMATORS:
         raise ValueError(
             f"unknown estimator {estimator!r}; known: {', '.join(sorted(pipeline.ESTIMATORS))}"
@@ -259,8 +258,6 @@ def run_sweep(cfg: dict, vary: dict[str, list], *, chunk: int = 64, progress: bo
     chunk += (-chunk) % ndev
     sharding = None
     if ndev > 1:
-        from jax.sharding import Mesh, NamedSharding, PartitionSpec
-
         sharding = NamedSharding(Mesh(np.array(jax.local_devices()), ("b",)), PartitionSpec("b"))
     groups: dict[tuple, list[int]] = {}
     for i in range(B):
@@ -271,8 +268,6 @@ def run_sweep(cfg: dict, vary: dict[str, list], *, chunk: int = 64, progress: bo
     mine = [tasks[t] for t in _distributed.block(len(tasks))]
     bar = None
     if progress and _distributed.is_main():
-        from tqdm.auto import tqdm
-
         procs = _distributed.process_count()
         bar = tqdm(total=len(mine), desc=f"sweep ({B} configurations, {len(groups)} compile(s), {ndev} device(s)"
                    + (f", {procs} processes" if procs > 1 else "") + ")", unit="chunk")  # fmt: skip
@@ -315,8 +310,6 @@ def run_sweep(cfg: dict, vary: dict[str, list], *, chunk: int = 64, progress: bo
 
 def run_single(cfg: dict, keys, params, estimator: str = ESTIMATOR_DEFAULT) -> dict:
     """One configuration, unbatched, through the same stages (``cfg`` with ``keys`` set)."""
-    from . import pipeline  # noqa: F401
-
     c = copy.deepcopy(cfg)
     for k, v in zip(keys, params, strict=True):
         _set(c, k, int(v) if k in _STATIC_INT else float(v))
@@ -326,8 +319,6 @@ def run_single(cfg: dict, keys, params, estimator: str = ESTIMATOR_DEFAULT) -> d
 
 def write_csv(path, keys, rows, metrics) -> Path:
     """The sweep table (one row per point: varied options, then :data:`METRICS`) as CSV."""
-    from .io import save_csv
-
     table = ([f"{v:g}" for v in rows[i]] + [f"{float(metrics[m][i]):.6g}" for m in METRICS]
              for i in range(rows.shape[0]))  # fmt: skip
     return save_csv(path, list(keys) + list(METRICS), table)
@@ -335,7 +326,7 @@ def write_csv(path, keys, rows, metrics) -> Path:
 
 def plot_sweep(keys, rows, metrics, path) -> Path:
     """Iso-bandwidth and P·P̂⁻¹ band against the first varied option (others as colours)."""
-    from . import plot
+    from . import plot  # local: CLI start-up (matplotlib)
 
     fig, _ = plot.sweep(keys, rows, metrics)
     plot.save(fig, path)

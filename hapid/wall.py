@@ -40,6 +40,7 @@ import numpy as np
 from jaxtyping import Array
 
 from . import _config  # noqa: F401
+from .closed_loop import closed_loop
 from .device import ParallelDevice
 from .lti import zoh
 
@@ -121,8 +122,6 @@ def closed_loop_wall_steady_state(device: ParallelDevice, controller, direction,
     """Exact steady state of the sampled loop (device + delay + controller) with the wall in
     contact (linear), for a constant push. Also returns the spectral radius of the loop with
     the wall closed (``< 1``: the contact is stable)."""
-    from .closed_loop import closed_loop
-
     n = device.n
     e = _unit(direction, n)
     cl = closed_loop(device, controller)

@@ -76,7 +76,8 @@ def test_posterior_is_built_around_the_model_hapid_fit_writes(tmp_path, boundary
     from hapid.uncertainty import laplace_samples
     from hapid.uncertainty._files import posterior_fit
 
-    nls, eps = posterior_fit(boundary_frf)
+    cf = posterior_fit(boundary_frf)
+    nls, eps = cf.fit.result, cf.refit_pd_eps
     assert eps == PD_EPS and _rel_diff(nls.model, model) < 1e-12
     lap = laplace_samples(nls, 20).physical()
     np.testing.assert_allclose(lap["M_H"], np.broadcast_to(_mats(model)[0], lap["M_H"].shape),
@@ -104,7 +105,8 @@ def test_keep_boundary_keeps_the_bare_fit_in_fit_and_posterior(tmp_path, boundar
         rc, out, err, _, _ = run_cli(["fit", "frf.npz", "--out", "m.npz", *flag], tmp_path)
         assert rc == 0, err
         assert ("pd_eps" in out) == (not keep)
-        nls, eps = posterior_fit(boundary_frf, boundary_refit=not keep)
+        cf = posterior_fit(boundary_frf, boundary_refit=not keep)
+        nls, eps = cf.fit.result, cf.refit_pd_eps
         assert (eps is None) == keep
         assert _rel_diff(nls.model, io.load_model(tmp_path / "m.npz")) < 1e-12
         rc, _, err, _, _ = run_cli(["posterior", "frf.npz", "--out", "s.npz", *flag], tmp_path)

@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from ._lapack import lu_det_solve
 
 MAX_UNROLLED_N = 12
 MAX_EIG_N = 6  # unrolled QR compiles in ~25 s at n = 6, minutes at n = 8
@@ -70,8 +71,6 @@ def det_inv(A, unroll: bool = False):
     """
     n = A.shape[0]
     if n > MAX_UNROLLED_N:
-        from ._lapack import lu_det_solve
-
         Am = from_entries(A)
         eye = jnp.eye(n, dtype=Am.dtype)
         det, X = lu_det_solve(Am, jnp.broadcast_to(eye, Am.shape))

@@ -10,6 +10,8 @@ kernel alone is fine. :func:`after` makes a value depend on others through
 """
 
 import jax
+import jax.numpy as jnp
+import jax.scipy.linalg as jsl
 
 
 def after(x, *deps):
@@ -19,9 +21,6 @@ def after(x, *deps):
 
 def lu_det_solve(A, B):
     """``det(A)`` and ``A⁻¹ B`` from a single LU factorization (batched over leading axes)."""
-    import jax.numpy as jnp
-    import jax.scipy.linalg as jsl
-
     lu, piv = jsl.lu_factor(A)
     n = A.shape[-1]
     swaps = jnp.sum(piv != jnp.arange(n, dtype=piv.dtype), axis=-1)

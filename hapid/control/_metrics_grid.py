@@ -14,7 +14,7 @@ from ._metrics_local import _windows
 from ._metrics_loci import _loci_candidates, _loci_pairs
 from ._metrics_sigma import _det_inv, _fill_where, _first_above, _peak_grid, _sigma_exact
 from ._metrics_spec import ISO_THRESHOLD, TWO_PI, MetricsSpec
-from ._nyquist import nyquist_encirclements, nyquist_verdict
+from ._nyquist import characteristic_loci, nyquist_encirclements, nyquist_verdict
 
 
 def _interval_task(L, lw, i, j):
@@ -121,8 +121,6 @@ def grid_pass(P, G, omega, p_ol, spec: MetricsSpec):
         t = _interval_task(L, lw, j, jnp.minimum(j + 1, N - 1))
         tasks["literal"] = t | dict(last=j == N - 1, none=~jnp.any(below))
     if spec.arrays:
-        from ._nyquist import characteristic_loci
-
         if spec.full_sv:
             sv = jnp.linalg.svd(after(S, stable), compute_uv=False)
         else:

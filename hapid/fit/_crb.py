@@ -10,13 +10,15 @@ import numpy as np
 
 from ..defaults import FIT_BAND_HZ
 from ..experiment import Run, estimate_frf
-from ..impedance import ImpedanceModel
+from ..impedance import ImpedanceModel, singular_values
 from ._checks import TWO_PI
 from ._ml import _sym_to_vec, _vec_to_sym, make_ml_problem, run_spectra
 from ._nls import pinv_psd
 from ._pd import (
     Scale,
+    model_to_scaled,
     model_to_theta,
+    scaled_to_model,
 )
 from ._problem import data_scale
 
@@ -36,9 +38,6 @@ def cramer_rao(run: Run, model: ImpedanceModel, *, f_max_hz: float | None = FIT_
 
 def _band_draws(model, cov, scale, omega, n_draws, seed):
     """Draws of the (min, max) dB of σ(P(θ̂)·P̂⁻¹) with ``P̂⁻¹`` linearized at the model."""
-    from ..impedance import singular_values
-    from ._pd import model_to_scaled, scaled_to_model
-
     n = model.n
     s = 1j * jnp.asarray(omega)
     v0 = _sym_to_vec(model_to_scaled(model, scale))

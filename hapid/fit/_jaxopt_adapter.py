@@ -31,7 +31,7 @@ def jaxopt_lm(
     try:
         with warnings.catch_warnings():  # "JAXopt is no longer maintained": known, see above
             warnings.simplefilter("ignore", DeprecationWarning)
-            import jaxopt
+            import jaxopt  # local: CLI start-up (jaxopt, ~0.3 s)
     except ImportError as e:  # pragma: no cover - jaxopt is a declared dependency
         raise ValueError("solver='jaxopt_lm' needs jaxopt, which is not installed") from e
     lm = jaxopt.LevenbergMarquardt(

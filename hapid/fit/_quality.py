@@ -73,7 +73,7 @@ def chi2_statistic(
 
 def inside_confidence(Z, Z_hat, Z_std, level: float = LEVEL):
     """``(N,)`` bool: the model lies inside the data's ``level`` confidence region."""
-    from scipy.stats import chi2
+    from scipy.stats import chi2  # local: CLI start-up (scipy.stats, ~0.4 s)
 
     n = np.shape(Z)[-1]
     stat = np.sum(

@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import jax.numpy as jnp
 import numpy as np
 
 from ._common import _atomic_write, _numeric, _read_arrays, _scalar
@@ -52,10 +53,9 @@ def load_samples(path, n: int | None = None) -> PosteriorSamples:
     ``ValueError``."""
     # imported here: hapid.uncertainty pulls emcee, optimistix and scipy into every command that
     # reads a file (hapid analyze's start-up), for the one reader that builds its samples
-    import jax.numpy as jnp
 
-    from ..fit._pd import Scale, n_params
-    from ..uncertainty._samples import PosteriorSamples
+    from ..fit._pd import Scale, n_params  # local: CLI start-up (hapid.fit, optimistix)
+    from ..uncertainty._samples import PosteriorSamples  # local: CLI start-up (hapid.uncertainty)
 
     path = Path(path)
     if not path.exists():

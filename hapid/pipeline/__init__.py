@@ -24,7 +24,6 @@ from ._estimate import Fit as Fit
 from ._estimate import control_fit as control_fit
 from ._estimate import controller_ready as controller_ready
 from ._estimate import fit as fit
-from ._estimate import fit_for_control as fit_for_control
 from ._estimate import register as register
 from ._experiment import analysis_grid as analysis_grid
 from ._experiment import base_device as base_device

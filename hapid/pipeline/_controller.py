@@ -20,6 +20,14 @@ from jaxtyping import Array, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
+from ..control import (
+    Compensator,
+    controller_unstable_poles,
+    discretize_controller,
+    discretize_siso_controller,
+    inverse_model_response,
+    siso_response,
+)
 
 KINDS = ("mimo", "siso")
 
@@ -42,8 +50,6 @@ class Controller(eqx.Module):
     def discrete(self):
         """The sampled realization (:class:`hapid.control.DiscreteStateSpace`, input R_E,
         output R_A) — for closed-loop eigenvalues and time simulation."""
-        from ..control import discretize_controller, discretize_siso_controller
-
         if self.ts is None:
             raise ValueError("a continuous controller has no sampled realization (give ts)")
         if self.kind == "mimo":
@@ -52,8 +58,6 @@ class Controller(eqx.Module):
 
     def response(self, omega: Float[Array, " N"]) -> Complex[Array, "N n n"]:
         """``G`` on ``omega`` (rad/s): ``G(e^{jω t_s})`` when sampled, ``G(jω)`` otherwise."""
-        from ..control import inverse_model_response, siso_response
-
         omega = jnp.asarray(omega, dtype=jnp.float64)
         if self.ts is not None:
             return self.discrete().at_omega(omega)
@@ -64,8 +68,6 @@ class Controller(eqx.Module):
     @property
     def p_rhp(self):
         """Open-loop unstable poles of G (0-d int array; jittable)."""
-        from ..control import controller_unstable_poles
-
         if self.kind == "mimo":
             return controller_unstable_poles(self.model, self.g)
         return self.n * self.g.state_space().n_unstable_poles()
@@ -96,7 +98,6 @@ def compensator(o: dict):
     """g(s) from scene-style options (Hz for frequencies): ``k``, ``lag_zero_hz``,
     ``lag_pole_hz``, ``notch_hz`` (list), ``zeta_num``, ``zeta_den``, ``lowpass_hz`` (list).
     Values may be traced scalars (sweeps)."""
-    from ..control import Compensator
 
     def hz(x):
         return TWO_PI * jnp.asarray(x, dtype=jnp.float64)

@@ -28,7 +28,11 @@ from jaxtyping import Array, Bool, Int
 
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
+from .._grids import NYQUIST_F_MIN_HZ
 from .._plain import jsonable
+from ..control import controller_is_stable
+from ..fit import crhp_report, fit_ml, fit_nls, positize, wls
+from ..fit._problem import PD_EPS
 from ..fit._result import FitStatus
 
 
@@ -69,8 +73,6 @@ class Fit(eqx.Module):
 
     @classmethod
     def closed_form(cls, model, raw=None, estimator: str = "") -> Fit:
-        from ..fit import crhp_report
-
         after = crhp_report(model)
         before = after if raw is None else crhp_report(raw)
         return cls(model, jnp.asarray(True), after.hand, after.total, before.hand, before.total,
@@ -78,8 +80,6 @@ class Fit(eqx.Module):
 
     @classmethod
     def from_nls(cls, res, estimator: str = "nls") -> Fit:
-        from ..fit import crhp_report
-
         r = crhp_report(res.model)
         return cls(res.model, res.ok, r.hand, r.total, r.hand, r.total, res, estimator)
 
@@ -103,8 +103,6 @@ def _omega_c(o):
 
 @register("wls")
 def _wls(frf, **o) -> Fit:
-    from ..fit import wls
-
     omega_c = _omega_c(o)
     f_max = o.pop("f_max_hz", None)
     _no_more(o, "wls")
@@ -113,8 +111,6 @@ def _wls(frf, **o) -> Fit:
 
 @register("wls+positize")
 def _wls_positize(frf, **o) -> Fit:
-    from ..fit import positize, wls
-
     omega_c = _omega_c(o)
     f_max = o.pop("f_max_hz", None)
     mode = o.pop("mode", "modulus")
@@ -125,8 +121,6 @@ def _wls_positize(frf, **o) -> Fit:
 
 @register("nls")
 def _nls(frf, **o) -> Fit:
-    from ..fit import fit_nls
-
     o = dict(o)
     omega_c = _omega_c(o)
     if "max_steps" in o:
@@ -138,8 +132,6 @@ def _nls(frf, **o) -> Fit:
 def _ml(run, **o) -> Fit:
     """Sample maximum likelihood (:func:`hapid.fit.fit_ml`): needs the periodic *run* (the
     experiment stage's output), not an FRF; ``omega_c_hz`` is ignored."""
-    from ..fit import fit_ml
-
     o = dict(o)
     o.pop("omega_c_hz", None)
     if "max_steps" in o:
@@ -166,9 +158,6 @@ def fit(frf, estimator: str = "nls", **options) -> Fit:
 
 def _ready(model) -> Bool[Array, ""]:
     """:func:`controller_ready` as a jittable bool array."""
-    from .._grids import NYQUIST_F_MIN_HZ
-    from ..control import controller_is_stable
-
     return controller_is_stable(model, tol=TWO_PI * NYQUIST_F_MIN_HZ)
 
 
@@ -214,8 +203,6 @@ class ControlFit(eqx.Module):
     def refit_pd_eps(self) -> float | None:
         """``PD_EPS`` when the boundary fit was refitted, else ``None`` (at the edge: a
         concrete, unbatched result)."""
-        from ..fit._problem import PD_EPS
-
         return float(PD_EPS) if bool(self.refitted) else None
 
     def summary(self) -> dict:
@@ -239,8 +226,6 @@ def control_fit(frf, *, boundary_refit: bool = True, **options) -> ControlFit:
     no refit is needed the second fit repeats the first, discarded: a warm start from the
     bare optimum was measured 8× slower, its L Lᵀ boundary crawl running to the patience
     stop)."""
-    from ..fit._problem import PD_EPS
-
     f = fit(frf, "nls", **options)
     if not boundary_refit:
         return ControlFit(f, jnp.asarray(False))
@@ -253,12 +238,3 @@ def control_fit(frf, *, boundary_refit: bool = True, **options) -> ControlFit:
         return ControlFit(f, jnp.asarray(False))
     o = dict(options) | {"pd_eps": jnp.where(need, PD_EPS, pd_eps)}
     return ControlFit(_select(need, fit(frf, "nls", **o), f), need)
-
-
-def fit_for_control(frf, *, boundary_refit: bool = True, **options) -> tuple[Fit, float | None]:
-    """``(fit, refit_pd_eps)`` of :func:`control_fit` at the edge (its
-    :attr:`ControlFit.refit_pd_eps`: ``PD_EPS`` when the boundary fit was refitted, else
-    ``None``). The pair form ``hapid posterior``'s file stage still unpacks; new code calls
-    :func:`control_fit` and reads the :class:`ControlFit`."""
-    cf = control_fit(frf, boundary_refit=boundary_refit, **options)
-    return cf.fit, cf.refit_pd_eps

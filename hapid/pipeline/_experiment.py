@@ -14,6 +14,15 @@ import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
 from .._grids import log_grid_hz, nyquist_grid
+from ..device import preset, virtual_subject
+from ..experiment import (
+    Protocol,
+    estimate_frf,
+    paper_frequencies,
+    periodic_run,
+    simulate_frf,
+    time_domain_run,
+)
 
 MOVE_KEYS = ("dx", "dy", "dz", "dyaw", "dpitch", "droll")
 
@@ -24,8 +33,6 @@ def base_device(o: dict, fs_hz: float | None = None):
     delay, samples) and ``rod_compliance`` (the chain's compliance factor) — the last two
     ``None`` or absent: the preset's own. ``fs_hz``: the sampling rate (Hz; default the
     preset's). Every preset takes every option."""
-    from ..device import preset
-
     kw = {"extra_modes": bool(o.get("extra_modes", True)),
           "light_damping": bool(o.get("light_damping", False)),
           "encoder": o.get("encoder", "motor")}  # fmt: skip
@@ -42,8 +49,6 @@ def vary_device(dev, move=(0.0,) * 6, subject_seed=None):
     """``dev`` moved by ``move`` (dx, dy, dz m; dyaw, dpitch, droll rad) and, when
     ``subject_seed`` is not ``None`` and ≥ 0, held by a virtual subject drawn from it.
     Traced values allowed (a negative traced seed keeps the nominal hand)."""
-    from ..device import virtual_subject
-
     mv = [jnp.asarray(v, dtype=jnp.float64) for v in list(move) + [0.0] * (6 - len(move))]
     dev = eqx.tree_at(lambda d: d.pose, dev, dev.pose.moved(*mv))
     if subject_seed is None:
@@ -66,8 +71,6 @@ def device(o: dict, fs_hz: float | None = None):
 
 def protocol(o: dict, fs_hz: float | None = None):
     """The :class:`hapid.experiment.Protocol` of scene-style options."""
-    from ..experiment import Protocol, paper_frequencies
-
     freqs = paper_frequencies() if o["freqs"] == "paper" else np.asarray(o["freqs"], dtype=float)
     kw = {} if fs_hz is None else {"fs_hz": float(fs_hz)}
     return Protocol(
@@ -81,8 +84,6 @@ def protocol(o: dict, fs_hz: float | None = None):
 def experiment(dev, prot, *, synthesis: str = "periodic", friction: bool = False):
     """Stage ``device + protocol → run`` (exact periodic steady state, or ``lax.scan`` time
     domain with optional Coulomb friction)."""
-    from ..experiment import periodic_run, time_domain_run
-
     if synthesis == "time_domain" or friction:
         return time_domain_run(dev, prot, friction=bool(friction))
     if synthesis != "periodic":
@@ -94,8 +95,6 @@ def experiment(dev, prot, *, synthesis: str = "periodic", friction: bool = False
 
 def frf(run, **options):
     """Stage ``run → FRF`` (:func:`hapid.experiment.estimate_frf`)."""
-    from ..experiment import estimate_frf
-
     return estimate_frf(run, **options)
 
 
@@ -103,8 +102,6 @@ def simulated_frf(dev, prot, seed, *, noise=None, position_noise=None, periods=N
     """Stages ``device + protocol → frf`` in one pure function
     (:func:`hapid.experiment.simulate_frf`: exact averaged-noise statistics, no quantization).
     ``seed`` and the overrides may be traced."""
-    from ..experiment import simulate_frf
-
     key = jax.random.PRNGKey(jnp.asarray(seed).astype(jnp.int32))
     return simulate_frf(
         dev, prot, key, force_noise=noise, position_noise=position_noise, n_periods=periods

@@ -44,10 +44,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _config  # noqa: F401  (float64)
+from .. import (
+    _config,  # noqa: F401  (float64)
+    pipeline,
+)
 from .._constants import KAPPA  # noqa: F401  (re-exported: σ̄(L) ≤ κ beyond the evidence)
+from .._grids import continuous_grid
 from ..control import Compensator
 from ..impedance import plant
+from ..pipeline import controller as make_controller
 from ..uncertainty._loopgp import measured_data, measured_plant
 from ._response import g_response
 
@@ -149,8 +154,6 @@ def beyond_gain(g: Compensator, ev: Evidence) -> float:
 def measured_loop(ev: Evidence, model, g: Compensator) -> np.ndarray:
     """``L = P_meas G`` ``(N, n, n)`` at the evidence frequencies: the measured plant in loop
     with the inverse-model controller of ``(model, g)`` (discretized with ``ev.ts``)."""
-    from ..pipeline import controller as make_controller
-
     return ev.P @ np.asarray(make_controller(model, g, ts=ev.ts).response(ev.omega))
 
 
@@ -183,9 +186,6 @@ def nominal_stable(model, g: Compensator) -> bool:
     continuous grid with the controller's RHP poles (roots of det Ẑ_H with Re > 0): a model
     whose Ẑ_H has RHP roots cancels them unstably, and no g fixes that — the Nyquist count
     inside the evidence band is the model's, so the certificate needs it."""
-    from .. import pipeline
-    from .._grids import continuous_grid
-
     om = continuous_grid(800)
     rep = pipeline.loop(pipeline.controller(model, g), pipeline.model_plant(model, om),
                         pipeline.SPEC_VERDICT)  # fmt: skip

@@ -8,8 +8,13 @@ tuning history, constraint values, validation table).
 
 from __future__ import annotations
 
+from .. import io
+from ..device import preset
 from ..io import load_design as load_design
+from ..io import load_samples
 from ..io import save_design as save_design
+from ..uncertainty._files import DRAWS, resolve_draws
+from ._recipe import robust_design
 
 
 def design_info(out: dict) -> dict:
@@ -33,9 +38,6 @@ def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf
     ``"loop_gp"`` (draws of ``Q = P P̂⁻¹`` conditioned on that FRF), ``"params"`` (the samples'
     own plants) or ``"auto"`` (default: ``loop_gp`` when a measured FRF is
     known, else the samples)."""
-    from .. import io
-    from ..uncertainty._files import DRAWS, resolve_draws
-    from ._recipe import robust_design
 
     if draw_family not in DRAWS:  # before any file is read
         raise ValueError(f"draw_family must be one of {DRAWS}, got {draw_family!r}")
@@ -44,8 +46,6 @@ def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf
         options["frf"] = io.load_frf(frf)
     samples = None
     if samples_path is not None:
-        from ..io import load_samples
-
         samples = load_samples(samples_path, n=model.n)
         if frf is None and samples.measured is not None:
             options["frf"] = samples.measured
@@ -53,8 +53,6 @@ def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf
     options["draw_family"] = kind
     dev = None
     if device is not None:
-        from ..device import preset
-
         dev = preset(device) if isinstance(device, str) else device
     res = robust_design(model, samples=samples, device=dev, **options)
     if out is not None:

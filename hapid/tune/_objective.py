@@ -53,6 +53,7 @@ from .._constants import TWO_PI
 from ..control import ISO_THRESHOLD
 from ..control._kernels import to_entries
 from ..defaults import GM_DB, PM_DEG
+from ._evidence import small_gain_constraint
 from ._params import ParamMap
 from ._response import g_response, smooth_sigma_max_entries
 from ._scenarios import Scenarios
@@ -185,8 +186,6 @@ def aggregate(g, families, u, req: Requirements, counted=None) -> dict[str, jax.
         log_dc = jnp.log(g.k) + jnp.sum(jnp.log(g.lag_zeros)) - jnp.sum(jnp.log(g.lag_poles))
         out["g/dc"] = np.log(req.min_dc_gain) - log_dc
     if req.sg_omega is not None:
-        from ._evidence import small_gain_constraint
-
         out["evidence/small_gain"] = small_gain_constraint(g, np.asarray(req.sg_omega), req.sg_g_max,
                                                            req.beta, req.sg_ts)  # fmt: skip
     for fam, cnt in zip(families, counted, strict=True):

@@ -14,7 +14,12 @@ import os
 
 import numpy as np
 
-from .. import _config  # noqa: F401  (float64)
+from .. import (
+    _config,  # noqa: F401  (float64)
+    pipeline,
+)
+from ._params import ParamMap
+from ._recipe import robust_design
 
 
 def tuned_design(device, model, *, fast: bool | None = None) -> dict:
@@ -23,9 +28,6 @@ def tuned_design(device, model, *, fast: bool | None = None) -> dict:
     ``device``'s variants (``status``: :attr:`.TuneResult.status`; ``decision``: why the
     tuned g or the start was returned, :func:`.robust_design`). ``fast`` (default
     ``HAPID_FAST=1``): a short tuning, fewer variants and steps (CI, notebooks)."""
-    from ._params import ParamMap
-    from ._recipe import robust_design
-
     if fast is None:
         fast = os.environ.get("HAPID_FAST", "0") == "1"
     opts = dict(n_subjects=4, n_freq=150, mu_schedule=(1e2, 1e4), max_steps=100) if fast else {}
@@ -47,8 +49,6 @@ def paper_column(device, model, omega, *, design: dict | None = None) -> dict:
     """``{"report": LoopMetrics, "parameters": {...}, "g": Compensator}`` for the tuned g on
     ``device.sampled_P(omega)`` (``design`` from :func:`tuned_design`, computed when
     ``None`` — the scene's ``tuned`` stage caches it)."""
-    from .. import pipeline
-
     design = tuned_design(device, model) if design is None else design
     plant = pipeline.device_plant(device, np.asarray(omega, dtype=float))
     rep = pipeline.loop(pipeline.controller(model, design["g"], ts=device.ts), plant)

@@ -37,6 +37,8 @@ from .._grids import below_nyquist_grid
 from .._grids import continuous_grid as posterior_grid
 from ..control import Compensator
 from ..defaults import TUNE_PM_ALLOWANCE_DEG
+from ..uncertainty import device_plants
+from ..uncertainty._loopgp import measured_data, measured_loop_gp
 from ._check import FRF_FLOOR, design_check, loop_label
 from ._evidence import KAPPA, beyond_grid, certificate, evidence_from_frf
 from ._objective import Family, Requirements
@@ -178,7 +180,6 @@ def robust_design(
     "tuned": v}, "table": {"start": row, "tuned": row}, "kept_start": bool, "decision": str}``
     (``v`` from :func:`.validate`, ``row`` from :func:`.table_row`).
     """
-    from ..uncertainty import device_plants
 
     if draw_family not in ("params", "loop_gp"):
         raise ValueError(
@@ -203,8 +204,6 @@ def robust_design(
     hold_models = None
     omc = posterior_grid(n_freq)
     if draw_family == "loop_gp":
-        from ..uncertainty._loopgp import measured_data, measured_loop_gp
-
         lgp = measured_loop_gp(measured_data(src), model)
         fam, hold_models, om_h = loop_draw_family(
             lgp, model, n_freq=n_freq, dense_factor=dense_factor, n_train=n_train,

@@ -17,6 +17,10 @@ import numpy as np
 from .. import _config  # noqa: F401  (float64)
 from .._grids import NYQUIST_F_MIN_HZ, below_nyquist_grid, log_grid_hz, nyquist_grid
 from .._grids import continuous_grid as posterior_grid
+from ..uncertainty import PosteriorSamples, predictive_plants
+from ..uncertainty._loopgp import loop_gp_plants
+from ._objective import Family
+from ._scenarios import make_scenarios
 
 TRAIN_OFFSETS = (
     (0.04, 0, 0),
@@ -31,16 +35,12 @@ HOLDOUT_OFFSETS = ((0.03, 0.03, 0), (-0.03, -0.03, 0), (0.03, 0, 0.03), (0, -0.0
 
 
 def _sample_models(samples, idx):
-    from ..uncertainty import PosteriorSamples
-
     if isinstance(samples, PosteriorSamples):
         return samples.models(np.asarray(idx))
     return jax.tree.map(lambda a: a[np.asarray(idx)], samples)
 
 
 def _n_models(samples) -> int:
-    from ..uncertainty import PosteriorSamples
-
     return (
         samples.n_samples
         if isinstance(samples, PosteriorSamples)
@@ -54,8 +54,6 @@ def _subset(samples, idx):
 
 
 def _has_error_term(samples) -> bool:
-    from ..uncertainty import PosteriorSamples
-
     return (isinstance(samples, PosteriorSamples) and samples.error_kind != "none"
             and samples.predictive is not None)  # fmt: skip
 
@@ -71,7 +69,6 @@ def predictive_scenario_plants(samples, idx, omega, seed: int = 0) -> tuple[np.n
     loops crossing over just above the band (docs/robust-design.md, Evidence E12); there the
     draw is its second-order model. The RHP poles are those of the draw's model (0 for PD
     matrices)."""
-    from ..uncertainty import predictive_plants
 
     sub = _subset(samples, idx)
     om_fit = np.asarray(samples.predictive["omega"])
@@ -123,9 +120,6 @@ def loop_draw_family(lgp, model, *, n_freq: int, dense_factor: int, n_train: int
     it, the continuous loop on :func:`posterior_grid` (why: docs/robust-design.md, Evidence
     E6, "One loop for training and re-check"). ``dense_factor > 1``: the same draws on a
     denser grid (one joint GP draw) for the tuner's grid exchange and Nyquist count."""
-    from ..uncertainty._loopgp import loop_gp_plants
-    from ._objective import Family
-    from ._scenarios import make_scenarios
 
     grid = posterior_grid if ts is None else (lambda n: nyquist_grid(1.0 / ts, n))
     om = grid(n_freq)

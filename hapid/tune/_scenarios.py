@@ -24,7 +24,7 @@ import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from .. import _config  # noqa: F401  (float64)
-from ..control import discretize_state_space, impedance_ratio_state_space
+from ..control import controller_unstable_poles, discretize_state_space, impedance_ratio_state_space
 from ..impedance import ImpedanceModel
 
 
@@ -78,8 +78,6 @@ def make_scenarios(P, model: ImpedanceModel, omega, *, ts: float | None = None, 
     ``model``: the nominal model the controller inverts. ``p_ol``: open-loop RHP poles of
     each plant (int or ``(S,)``); the controller's own (CRHP roots of det Ẑ_H) are added.
     """
-    from ..control import controller_unstable_poles
-
     P = np.asarray(P, dtype=complex)
     if P.ndim == 3:
         P = P[None]

@@ -27,8 +27,10 @@ from .. import (
 )
 from .._grids import nyquist_grid as device_grid
 from .._plain import jsonable
+from ..closed_loop import closed_loop, simulate_loop
 from ..control import Compensator
 from ..defaults import GM_DB, PM_DEG
+from ..uncertainty import posterior_omega, robust_check
 from ..verdict import Verdict
 
 
@@ -96,7 +98,6 @@ def step_response(
 ) -> StepResponse:
     """Closed-loop eigenvalue verdict and a 1 N force step along ``direction`` (default rod
     1) of ``n_samples`` samples (sampled loop with delay): a :class:`StepResponse`."""
-    from ..closed_loop import closed_loop, simulate_loop
 
     ctrl = pipeline.controller(model, g, ts=device.ts).discrete()
     cl = closed_loop(device, ctrl)
@@ -227,7 +228,6 @@ def validate(
     Returns a :class:`Validation` (``posterior``, ``variants``, ``true_plant``,
     ``time_domain``; ``None`` where not checked).
     """
-    from ..uncertainty import posterior_omega, robust_check
 
     out: dict = {"gm_db": float(gm_db), "pm_deg": float(pm_deg)}
     if samples is not None:

@@ -8,6 +8,13 @@ import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
 from ..defaults import DRAWS, FIT_BAND_HZ
+from ..io import load_frf, save_samples
+from ..pipeline import control_fit
+from ._laplace import posterior_laplace_samples
+from ._likelihood import boundary_fixed
+from ._loopgp import measured_data
+from ._posterior import make_log_posterior
+from ._sampler import sample_posterior
 
 
 def posterior_from_files(
@@ -29,7 +36,7 @@ def posterior_from_files(
     """FRF file → NLS fit (start point) → posterior samples file (``.npz``).
 
     The fit is ``hapid fit``'s, made by the same call: the FRF cut to ``0–f_max_hz`` and
-    :func:`hapid.pipeline.fit_for_control` (relative weights, 40 Hz band by default; a fit
+    :func:`hapid.pipeline.control_fit` (relative weights, 40 Hz band by default; a fit
     whose inverse-model controller would be improper or marginal is refitted with
     ``pd_eps = PD_EPS`` unless ``boundary_refit`` is false, ``hapid posterior
     --keep-boundary``), so the posterior is built around the model ``hapid fit`` writes for
@@ -51,18 +58,13 @@ def posterior_from_files(
     ``sampler_options`` (``n_walkers``, ``moves``, ``max_steps``…) to ``sample_posterior``.
     Returns the :class:`PosteriorSamples`.
     """
-    from ..io import load_frf, save_samples
-    from ._laplace import posterior_laplace_samples
-    from ._likelihood import boundary_fixed
-    from ._loopgp import measured_data
-    from ._posterior import make_log_posterior
-    from ._sampler import sample_posterior
 
     if method not in ("emcee", "laplace"):
         raise ValueError(f"method must be 'emcee' or 'laplace', got {method!r}")
     frf = load_frf(frf_path)
     fit_options = {"weight": "relative", "f_max_hz": FIT_BAND_HZ} | dict(fit_options or {})
-    nls, refit = posterior_fit(frf, boundary_refit=boundary_refit, **fit_options)
+    cf = posterior_fit(frf, boundary_refit=boundary_refit, **fit_options)
+    nls, refit = cf.fit.result, cf.refit_pd_eps
     popts = {"f_max_hz": fit_options["f_max_hz"]} | dict(posterior_options or {})
     if fix_boundary and nls.boundary and "fixed" not in popts:
         popts["fixed"] = boundary_fixed(nls)
@@ -85,16 +87,16 @@ def posterior_from_files(
 def posterior_fit(
     frf, *, f_max_hz: float | None = FIT_BAND_HZ, boundary_refit: bool = True, **options
 ):
-    """``(nls, refit_pd_eps)``: the fit :func:`posterior_from_files` builds the posterior
-    around — ``hapid fit``'s NLS fit, by the same call: ``frf`` cut to ``0–f_max_hz`` (Hz)
-    and :func:`hapid.pipeline.fit_for_control` (``options``: its NLS options; the
-    PSD-boundary refit unless ``boundary_refit`` is false). ``nls`` is the
-    :class:`~hapid.fit.NLSResult` (``FitFailedError`` if it did not converge)."""
-    from ..pipeline import fit_for_control
-
+    """The fit :func:`posterior_from_files` builds the posterior around — ``hapid fit``'s
+    NLS fit, by the same call: ``frf`` cut to ``0–f_max_hz`` (Hz) and
+    :func:`hapid.pipeline.control_fit` (``options``: its NLS options; the PSD-boundary refit
+    unless ``boundary_refit`` is false). Returns the :class:`~hapid.pipeline.ControlFit`
+    (``.fit.result`` the :class:`~hapid.fit.NLSResult`, ``.refit_pd_eps``); raises
+    ``FitFailedError`` if the fit did not converge."""
     band = frf if f_max_hz is None else frf.band(0.0, float(f_max_hz))  # as hapid fit cuts it
-    f, refit = fit_for_control(band, boundary_refit=boundary_refit, f_max_hz=None, **options)
-    return f.result.raise_if_failed(), refit
+    cf = control_fit(band, boundary_refit=boundary_refit, f_max_hz=None, **options)
+    cf.fit.result.raise_if_failed()
+    return cf
 
 
 def resolve_draws(draws: str, measured) -> str:

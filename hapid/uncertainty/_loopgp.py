@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
@@ -97,8 +98,6 @@ class LoopGP:
 
 def measured_delta(omega, P_meas, model) -> np.ndarray:
     """``Δ_k = P_meas(ω_k) P̂(ω_k)⁻¹ − I`` ``(K, n, n)``."""
-    import jax.numpy as jnp
-
     Ph = model.P(1j * jnp.asarray(omega, dtype=float))
     Q = np.asarray(plant(jnp.asarray(P_meas), Ph))  # right division P P̂⁻¹
     return Q - np.eye(Q.shape[-1])
@@ -294,8 +293,6 @@ def loop_gp_plants(gp: LoopGP, model, omega, n_draws: int, seed: int = 0, *,
     """Plants ``P_d = Q_d P̂`` ``(S, N, n, n)`` on ``omega`` rad/s (for
     :func:`hapid.tune.make_scenarios`: its ``P P̂⁻¹`` gives back ``Q_d``); ``mean``: the
     conditional mean loop (:func:`loop_gp_draws`)."""
-    import jax.numpy as jnp
-
     Q = loop_gp_draws(gp, omega, n_draws, seed, mean=mean)
     Ph = np.asarray(model.P(1j * jnp.asarray(omega, dtype=float)))
     return Q @ Ph[None]
@@ -303,8 +300,6 @@ def loop_gp_plants(gp: LoopGP, model, omega, n_draws: int, seed: int = 0, *,
 
 def measured_plant(Z_H, Z_T) -> np.ndarray:
     """``P = Z_H Z_T⁻¹`` of measured impedances ``(N, n, n)``."""
-    import jax.numpy as jnp
-
     return np.asarray(plant(jnp.asarray(Z_H), jnp.asarray(Z_T)))
 
 
@@ -327,7 +322,6 @@ def measured_noise_var(data: dict, model) -> np.ndarray | None:
     ``data`` (:func:`measured_data`) has no std."""
     if "Z_H_std" not in data:
         return None
-    import jax.numpy as jnp
 
     omega = np.asarray(data["omega"], dtype=float)
     Ph = np.asarray(model.P(1j * jnp.asarray(omega)))

@@ -5,7 +5,7 @@ true sampled plant ``P(ω)`` at that pose is analysed in closed loop with
 
 - the **nominal** controller ``G₀ = g Ẑ_T,0 Ẑ_H,0⁻¹`` identified once at the home pose, and
 - a **re-identified** controller ``G_pose``: ``periodic_run → estimate_frf → fit → G`` (the
-  control fit of ``hapid fit``: :func:`hapid.pipeline.fit_for_control`)
+  control fit of ``hapid fit``: :func:`hapid.pipeline.control_fit`)
   at that pose (same protocol, fit options and g).
 
 The paper's "future work": how far can the stylus move before the home-pose controller
@@ -20,7 +20,10 @@ import numpy as np
 from .. import _config  # noqa: F401  (float64)
 from ..control import Compensator
 from ..defaults import FIT_BAND_HZ
-from ._robust import FIELDS, robust_check, robust_omega
+from ..device import cu5
+from ..experiment import Protocol, estimate_frf, periodic_run
+from ..pipeline import control_fit
+from ._robust import FIELDS, _sampled_P, robust_check, robust_omega
 
 DEFAULT_OFFSETS = (
     (0.0, 0.0, 0.0),
@@ -62,15 +65,12 @@ def pose_grid(
 
 def identify(device, protocol=None, *, noise_seed: int = 0, **fit_options):
     """``periodic_run → estimate_frf →`` the NLS fit for control use
-    (:func:`hapid.pipeline.fit_for_control`: PSD-boundary refit included; ``fit_options``
+    (:func:`hapid.pipeline.control_fit`: PSD-boundary refit included; ``fit_options``
     are its options, e.g. ``boundary_refit``, ``f_max_hz``, ``omega_c_hz``) on a device;
     returns the NLS result."""
-    from ..experiment import Protocol, estimate_frf, periodic_run
-    from ..pipeline import fit_for_control
-
     protocol = Protocol() if protocol is None else protocol
     frf = estimate_frf(periodic_run(device, protocol, noise_seed=noise_seed))
-    return fit_for_control(frf, **fit_options)[0].result
+    return control_fit(frf, **fit_options).fit.result
 
 
 def pose_study(
@@ -91,7 +91,7 @@ def pose_study(
     - ``offsets``: ``(dx, dy, dz)`` grip-point offsets in m (default: home and ±4 cm per axis;
       see :func:`pose_grid`).
     - ``g``: compensator (default the paper's); ``protocol``: experiment (default
-      ``Protocol()``); ``fit_options``: for :func:`hapid.pipeline.fit_for_control` (default relative
+      ``Protocol()``); ``fit_options``: for :func:`hapid.pipeline.control_fit` (default relative
       weights, 40 Hz).
     - ``nominal_model``: the home-pose model (default: identified here at home).
     - ``reidentify``: also identify a controller at each pose (the costly part).
@@ -100,8 +100,6 @@ def pose_study(
     ``reidentified``, ``{prefix}_stable``, ``{prefix}_{gm_db, pm_deg, disk_margin, …,
     iso_bandwidth_hz, t_peak_db}`` (NaN bandwidth/peak when unstable), plus ``fit_status``.
     """
-    from ..device import cu5
-
     device = cu5() if device is None else device
     g = Compensator.paper() if g is None else g
     fit_options = {"weight": "relative", "f_max_hz": FIT_BAND_HZ} | dict(fit_options or {})
@@ -113,7 +111,6 @@ def pose_study(
         nominal_model = (
             identify(device, protocol, noise_seed=noise_seed, **fit_options).raise_if_failed().model
         )
-    from ._robust import _sampled_P
 
     rows = []
     for dx, dy, dz in offsets:

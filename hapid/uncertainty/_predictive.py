@@ -26,7 +26,19 @@ from .. import _config  # noqa: F401  (float64)
 from .._linalg import svdvals
 from ..fit._pd import theta_to_model
 from ..impedance import plant
+from ._gp import (
+    GP_CORR_KERNEL,
+    KERNELS,
+    corr_warp,
+    gp_corr_covariance,
+    gp_covariance,
+    hm_correlation,
+    kernel,
+    split_hyper,
+    warp,
+)
 from ._samples import PosteriorSamples
+from ._weights import element_weights, gp_amplitudes
 
 QUANTITIES = ("abs_Z_H", "abs_Z_T", "sv_Z_H", "sv_Z_T", "sv_P", "sv_P_Phatinv")
 
@@ -152,10 +164,6 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
     ``Z_T`` carries ``e_H + e_M`` (``Z_T = Z_H + Z_M``). Returns ``{"omega": (N,), "Z_H",
     "Z_T", "P": (S', N, n, n)}`` with at most ``max_samples`` draws (random subset, ``seed``).
     """
-    from ..fit._pd import theta_to_model
-    from ._gp import gp_covariance, kernel, split_hyper, warp
-    from ._weights import gp_amplitudes
-
     omega = np.asarray(omega, dtype=np.float64)
     if (
         omega.ndim != 1
@@ -287,16 +295,6 @@ def _gp_corr_errors(ps: PosteriorSamples, idx, ms, omega, rng):
     in the complex circular form: a joint prior draw of the shared latent ``f₁`` and of ``f₂``
     on fit ∪ new frequencies, corrected by ``Cov(e_*, r) C⁻¹ (r − r̃)``;
     :func:`hapid.uncertainty._likelihood.gp_corr_blocks`)."""
-    from ._gp import (
-        GP_CORR_KERNEL,
-        KERNELS,
-        corr_warp,
-        gp_corr_covariance,
-        hm_correlation,
-        split_hyper,
-    )
-    from ._weights import element_weights, gp_amplitudes
-
     data = ps.predictive
     n, E = ps.n, ps.n * ps.n
     hyper = ps.samples[idx, ps.n_theta :]

@@ -50,8 +50,10 @@ from .._grids import continuous_grid as posterior_omega
 from .._grids import sampled_grid as robust_omega
 from ..control import Compensator
 from ..defaults import GM_DB, PM_DEG
+from ..device import virtual_subject
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
+from ..pipeline import controller as make_controller
 from ._robust_chunks import _analyze_chunk, _pad, _spec
 from ._robust_report import FIELDS, METRICS, RobustReport
 from ._samples import PosteriorSamples
@@ -98,7 +100,6 @@ def controller_response(controller, omega):
             raise ValueError(
                 "controller must be (nominal ImpedanceModel, Compensator) or G (N, n, n)"
             )
-        from ..pipeline import controller as make_controller
 
         ctrl = make_controller(model, g)  # continuous inverse-model controller (hapid.pipeline)
         return ctrl.response(omega), int(ctrl.p_rhp)
@@ -247,8 +248,6 @@ def device_plants(
 
     Pass the result to :func:`robust_check` (``p_ol_rhp`` 0: passive mechanics).
     """
-    from ..device import virtual_subject
-
     omega = jnp.asarray(robust_omega() if omega is None else omega, dtype=jnp.float64)
     labels, Ps = [], []
     if include_nominal:

@@ -19,6 +19,7 @@ from pathlib import Path
 import emcee
 import jax
 import numpy as np
+from tqdm.auto import tqdm
 
 from .. import _config  # noqa: F401  (float64)
 from ..fit._result import NLSResult
@@ -144,8 +145,6 @@ def _adaptive_bar(progress, max_steps: int):
     (it usually stops earlier, at 50 τ); ``None`` without ``progress``."""
     if not progress:
         return None
-    from tqdm.auto import tqdm
-
     return tqdm(total=int(max_steps), desc="emcee (to 50 τ)", unit="step")
 
 

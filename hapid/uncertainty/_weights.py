@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
-from ..fit._pd import Scale
+from ..fit._pd import Scale, theta_to_model
 
 
 def gp_amplitudes(
@@ -35,8 +35,6 @@ def gp_amplitudes(
 def reference_amplitudes(ref_theta, scale: Scale, omega) -> tuple[np.ndarray, np.ndarray]:
     """``(a_H, a_M)`` (N,) in N/m: RMS element sizes ``‖Z(jω)‖_F / n`` of the reference
     model's hand and mechanism impedances on ``omega`` (rad/s) — the GP amplitude scale."""
-    from ..fit._pd import theta_to_model
-
     m = theta_to_model(jnp.asarray(ref_theta), scale)
     s = 1j * jnp.asarray(omega, dtype=jnp.float64)
     n = m.n
@@ -59,8 +57,6 @@ def element_weights(ref_theta, scale: Scale, omega) -> tuple[np.ndarray, np.ndar
     error is then *relative per element*: ``τ`` is the relative size of the misfit in every
     element, large and small. The RMS weight over the elements is 1, so the total error size
     ``τ a(ω)`` is that of ``GPCorr(scale="shared")``. Fixed by the fit: no hyperparameter."""
-    from ..fit._pd import theta_to_model
-
     m = theta_to_model(jnp.asarray(ref_theta), scale)
     om = np.asarray(omega, dtype=np.float64)
     out = []
