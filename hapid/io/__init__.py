@@ -9,7 +9,7 @@ file and the problem in its error.
 * ``_frf`` — FRF files, predictive draws and single-impedance FRFs.
 * ``_model`` — model, single-impedance model and design files.
 * ``_timeseries`` — lab time series (``.npz``, ``.mat``, ``.csv``).
-* ``_samples`` — posterior samples (:func:`load_samples` imports :mod:`hapid.uncertainty`
+* ``_samples`` — posterior samples (:func:`load_samples` imports :mod:`hapid.samples`
   only when called).
 * ``_reports`` — strict JSON, text, CSV tables, bytes, :func:`file_sha256`.
 * ``_cache`` — stage-cache entries; ``_kind`` — :func:`file_kind`.

@@ -13,7 +13,7 @@ import numpy as np
 from ._common import _atomic_write, _numeric, _read_arrays, _scalar
 
 if TYPE_CHECKING:
-    from ..uncertainty._samples import PosteriorSamples
+    from ..samples import PosteriorSamples
 
 
 def save_samples(path, ps) -> Path:
@@ -51,11 +51,8 @@ def load_samples(path, n: int | None = None) -> PosteriorSamples:
     """Read a :func:`save_samples` file. ``n`` (optional): the rod count expected — a file
     for a different ``n``, or whose sample width does not match its ``n``, is a
     ``ValueError``."""
-    # imported here: hapid.uncertainty pulls emcee, optimistix and scipy into every command that
-    # reads a file (hapid analyze's start-up), for the one reader that builds its samples
-
     from ..fit._pd import Scale, n_params  # local: CLI start-up (hapid.fit, optimistix)
-    from ..uncertainty._samples import PosteriorSamples  # local: CLI start-up (hapid.uncertainty)
+    from ..samples import PosteriorSamples  # local: CLI start-up (hapid.fit, optimistix)
 
     path = Path(path)
     if not path.exists():

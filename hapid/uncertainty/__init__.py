@@ -22,6 +22,8 @@
 """
 
 from .. import _config  # noqa: F401  (float64)
+from ..samples import PosteriorSamples as PosteriorSamples
+from ..samples import SamplesStatus as SamplesStatus
 from ._coords import fold_theta as fold_theta
 from ._coords import matrix_to_theta as matrix_to_theta
 from ._coords import theta_to_matrix as theta_to_matrix
@@ -70,5 +72,3 @@ from ._robust import robust_omega as robust_omega
 from ._sampler import MOVES as MOVES
 from ._sampler import ShortChainWarning as ShortChainWarning
 from ._sampler import sample_posterior as sample_posterior
-from ._samples import PosteriorSamples as PosteriorSamples
-from ._samples import SamplesStatus as SamplesStatus

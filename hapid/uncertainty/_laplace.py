@@ -18,6 +18,7 @@ import numpy as np
 from .. import _config  # noqa: F401  (float64)
 from ..fit._pd import MATRIX_NAMES, n_from_params
 from ..fit._result import NLSResult
+from ..samples import PosteriorSamples
 from ._coords import fold_theta
 from ._likelihood import LogPosterior, param_names
 from ._mode import (
@@ -25,7 +26,6 @@ from ._mode import (
     _map_hessian,
     initial_point,
 )
-from ._samples import PosteriorSamples
 
 # --- Laplace ---------------------------------------------------------------------------
 

@@ -21,10 +21,10 @@ from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
 from .._plain import jsonable
 from ..fit._pd import theta_to_model
+from ..samples import PosteriorSamples
 from ._files import resolve_draws
 from ._loopgp import loop_gp_plants, measured_data, measured_loop_gp
 from ._predictive import predictive_plants
-from ._samples import PosteriorSamples
 
 
 class DrawsStatus(enum.StrEnum):

@@ -26,6 +26,7 @@ from .. import _config  # noqa: F401  (float64)
 from .._linalg import svdvals
 from ..fit._pd import theta_to_model
 from ..impedance import plant
+from ..samples import PosteriorSamples
 from ._gp import (
     GP_CORR_KERNEL,
     KERNELS,
@@ -37,7 +38,6 @@ from ._gp import (
     split_hyper,
     warp,
 )
-from ._samples import PosteriorSamples
 from ._weights import element_weights, gp_amplitudes
 
 QUANTITIES = ("abs_Z_H", "abs_Z_T", "sv_Z_H", "sv_Z_T", "sv_P", "sv_P_Phatinv")

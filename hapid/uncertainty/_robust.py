@@ -54,9 +54,9 @@ from ..device import virtual_subject
 from ..fit._pd import theta_to_model
 from ..impedance import ImpedanceModel
 from ..pipeline import controller as make_controller
+from ..samples import PosteriorSamples
 from ._robust_chunks import _analyze_chunk, _pad, _spec
 from ._robust_report import FIELDS, METRICS, RobustReport
-from ._samples import PosteriorSamples
 
 __all__ = [
     "FIELDS",

@@ -23,6 +23,7 @@ from tqdm.auto import tqdm
 
 from .. import _config  # noqa: F401  (float64)
 from ..fit._result import NLSResult
+from ..samples import PosteriorSamples
 from ._laplace import _mvn, laplace_posterior
 from ._likelihood import (
     LogPosterior,
@@ -33,7 +34,6 @@ from ._mode import (
     check_initial_state,
     initial_point,
 )
-from ._samples import PosteriorSamples
 
 MOVES = ("de", "stretch", "de_mix", "laplace_de")
 TAU_MULTIPLE = 50.0

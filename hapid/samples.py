@@ -1,6 +1,6 @@
 # ruff: noqa: F722  (jaxtyping shape strings in annotations)
-"""The :class:`PosteriorSamples` value object and its ``.npz`` file (:func:`save_samples`,
-:func:`load_samples`)."""
+"""The :class:`PosteriorSamples` value object (posterior draws of the impedance model; files:
+:func:`hapid.io.save_samples`, :func:`hapid.io.load_samples`); exported by :mod:`hapid.uncertainty`."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _config  # noqa: F401  (float64)
-from .._plain import jsonable
-from ..fit._pd import Scale, n_params, theta_to_model
-from ..impedance import ImpedanceModel
+from . import _config  # noqa: F401  (float64)
+from ._plain import jsonable
+from .fit._pd import Scale, n_params, theta_to_model
+from .impedance import ImpedanceModel
 
 
 class SamplesStatus(enum.StrEnum):
