@@ -27,7 +27,7 @@ from .uncertainty._cover import EvidenceCover
 from .uncertainty._files import DRAWS, resolve_draws
 from .uncertainty._loopgp import loop_gp_plants, measured_data, measured_loop_gp
 from .uncertainty._robust import FIELDS, device_plants, posterior_omega, robust_check
-from .verdict import Verdict
+from .verdict import Verdict, combine
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,10 +44,7 @@ class RobustResult:
 
     @property
     def status(self) -> Verdict:
-        v = {r.status for r in (self.posterior, self.device) if r is not None}
-        if Verdict.FAILED in v:
-            return Verdict.FAILED
-        return Verdict.NOT_ESTABLISHED if Verdict.NOT_ESTABLISHED in v else Verdict.PASSED
+        return combine(r.status for r in (self.posterior, self.device) if r is not None)
 
     @property
     def ok(self) -> bool:

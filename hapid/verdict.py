@@ -71,8 +71,17 @@ class Check:
         return f"{head}: {self.reason}{tail}"
 
 
+def combine(verdicts) -> Verdict:
+    """The combined verdict of an iterable of :class:`Verdict`: failed if any failed, else not
+    established if any is, else passed. Raises ``ValueError`` when it is empty."""
+    verdicts = list(verdicts)
+    if not verdicts:
+        raise ValueError("combine() needs at least one verdict")
+    return max(verdicts, key=_RANK.__getitem__)
+
+
 def worst(*checks: Check) -> Verdict:
-    """The combined verdict: failed if any failed, else not established if any is, else passed."""
+    """The combined verdict of ``checks`` (:func:`combine` of their verdicts)."""
     if not checks:
         raise ValueError("worst() needs at least one check")
-    return max((c.verdict for c in checks), key=_RANK.__getitem__)
+    return combine(c.verdict for c in checks)

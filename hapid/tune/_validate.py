@@ -31,7 +31,7 @@ from ..closed_loop import closed_loop, simulate_loop
 from ..control import Compensator
 from ..defaults import GM_DB, PM_DEG
 from ..uncertainty import posterior_omega, robust_check
-from ..verdict import Verdict
+from ..verdict import Verdict, combine
 
 
 def true_plant_loop(g: Compensator, model, device, omega=None, spec=None):
@@ -176,12 +176,8 @@ class Validation:
 
     @property
     def status(self) -> Verdict:
-        v = set(self.verdicts().values())
-        if Verdict.FAILED in v:
-            return Verdict.FAILED
-        if Verdict.NOT_ESTABLISHED in v or not v:
-            return Verdict.NOT_ESTABLISHED
-        return Verdict.PASSED
+        v = self.verdicts().values()
+        return combine(v) if v else Verdict.NOT_ESTABLISHED  # nothing checked
 
     @property
     def ok(self) -> bool:

@@ -13,6 +13,7 @@ from ..pipeline import control_fit
 from ._laplace import posterior_laplace_samples
 from ._likelihood import boundary_fixed
 from ._loopgp import measured_data
+from ._model_error import GP
 from ._posterior import make_log_posterior
 from ._sampler import sample_posterior
 
@@ -68,7 +69,7 @@ def posterior_from_files(
     popts = {"f_max_hz": fit_options["f_max_hz"]} | dict(posterior_options or {})
     if fix_boundary and nls.boundary and "fixed" not in popts:
         popts["fixed"] = boundary_fixed(nls)
-    if getattr(popts.get("model_error"), "is_gp", False):
+    if isinstance(popts.get("model_error"), GP):
         popts.setdefault("reference", nls)
     post = make_log_posterior(frf, nls.scale, **popts)
     if method == "laplace":

@@ -21,7 +21,7 @@ from ..fit._result import NLSResult
 from ._gp import N_GP_CORR_HYPER, N_GP_HYPER, gp_corr_covariance
 from ._likelihood import LogPosterior
 from ._mode import initial_point, posterior_mode
-from ._model_error import GPCorr
+from ._model_error import GP, GPCorr
 
 
 def fix_hyperparameters(post: LogPosterior, reference=None) -> LogPosterior:
@@ -31,9 +31,13 @@ def fix_hyperparameters(post: LogPosterior, reference=None) -> LogPosterior:
     the prior means); ``"map"`` — at the joint posterior mode from the NLS start
     (``reference``, an :class:`~hapid.fit.NLSResult`); numbers — at those values
     (:func:`fix_gp_hyper`)."""
-    how = getattr(post.error, "hyper", "sample")
-    if not post.error.is_gp or how == "sample" or post.hyper_fixed is not None:
+    if (
+        not isinstance(post.error, GP)
+        or post.error.hyper == "sample"
+        or post.hyper_fixed is not None
+    ):
         return post
+    how = post.error.hyper
     if how == "marginal":
         h, _ = marginal_hyper(post, jnp.asarray(post.hyper_mean()))
         return fix_gp_hyper(post, h)
@@ -57,7 +61,7 @@ def fix_gp_hyper(post: LogPosterior, hyper) -> LogPosterior:
     autodiff, ``−∇²ℓ = RᵀR``, one Newton refinement of ``μ``); each evaluation is then one
     ``q × q`` triangular matrix-vector product (q = 90 at n = 5) instead of ``n²`` Cholesky
     factorizations of ``2N × 2N``. Draws carry ``hyper`` in their model-error columns."""
-    if not post.error.is_gp:
+    if not isinstance(post.error, GP):
         raise ValueError("fix_gp_hyper: the posterior has no gp model error")
     h = jnp.asarray(hyper, dtype=jnp.float64)
     corr = isinstance(post.error, GPCorr)

@@ -76,12 +76,6 @@ class ModelError:
         """Model-error coordinates sampled after θ (when not fixed)."""
         return len(self.hyper_names)
 
-    @property
-    def is_gp(self) -> bool:
-        """Whether the error is a Gaussian process in frequency (its hyperparameters can be
-        fixed, and its amplitudes need the reference model)."""
-        return False
-
     def hyper_mean(self) -> np.ndarray:
         """Prior means of the hyperparameters ``(n_hyper,)``."""
         return np.zeros(0)
@@ -95,10 +89,6 @@ class ModelError:
         imaginary parts of ``r_H = Ẑ_H − Z_H`` and ``r_T``) under the data of ``post`` (a
         :class:`~hapid.uncertainty.LogPosterior`) and hyperparameters ``h``."""
         return _independent_log_likelihood(post, 0.0, 0.0, reH, imH, reT, imT)
-
-    def summary(self) -> dict:
-        """The kind and its options (strict JSON)."""
-        return {"model_error": self.name} | dataclasses.asdict(self)
 
 
 def _independent_log_likelihood(post, vH, vM, reH, imH, reT, imT):
@@ -189,10 +179,6 @@ class GP(White):
 
     def _fixings(self) -> tuple[str, ...]:
         return ("map", "sample")
-
-    @property
-    def is_gp(self) -> bool:
-        return True
 
     def hyper_mean(self) -> np.ndarray:
         extra = [self.log_ell_mean] * 2 + [0.0] * (self.n_hyper - 4)

@@ -20,7 +20,7 @@ from ..frf import FRF
 from ._coords import fold_theta
 from ._hyper import fix_hyperparameters
 from ._likelihood import DEFAULT_PRIOR_SCALE, LogPosterior
-from ._model_error import GPCorr, ModelError, White, as_model_error
+from ._model_error import GP, GPCorr, ModelError, White, as_model_error
 from ._weights import element_weights
 
 
@@ -98,7 +98,7 @@ def make_log_posterior(
     rms = lambda Z: jnp.linalg.norm(Z, axis=(-2, -1)) / n  # noqa: E731
     a_H, a_M, ref_theta = rms(Z_H), rms(Z_T - Z_H), None
     w_H = w_M = None
-    if error.is_gp:
+    if isinstance(error, GP):
         ref_theta = _reference_theta(reference, scale, n)
         if isinstance(error, GPCorr) and error.scale == "element":
             w_H, w_M = (jnp.asarray(w) for w in element_weights(ref_theta, scale, band.omega))
