@@ -39,8 +39,21 @@ import hapid  # noqa: E402,F401
 from hapid._constants import TWO_PI
 from hapid.control import Compensator  # noqa: E402
 from hapid.scene import merge, run_scene  # noqa: E402
-from hapid.tune import Box, Family, ParamMap, Requirements, make_scenarios, penalized, robust_design  # noqa: E402
-from hapid.uncertainty import laplace_samples  # noqa: E402
+from hapid.tune import (  # noqa: E402
+    Box,
+    Family,
+    ParamMap,
+    Recipe,
+    Requirements,
+    make_scenarios,
+    penalized,
+    robust_design,
+)
+from hapid.uncertainty import (  # noqa: E402
+    LoopDraws,
+    ParamDraws,
+    laplace_samples,  # noqa: E402
+)
 
 
 def _fmt(v):
@@ -76,10 +89,11 @@ def run(quick: bool = False, out: str = "out/bench") -> Section:
     _, first, med = measure(lambda: vg(z))
     sec.add(table([{"case": f"objective + gradient, {sc.n_scenarios} plants × {N} freqs × n = {dev.n}",
                     "compile+first": fs(first), "per call": fs(med)}]))  # fmt: skip
-    d = robust_design(model, samples=ps, device=dev, n_train=10 if quick else 40, n_holdout=20 if quick else 200,
-                      n_subjects=2 if quick else 4, n_holdout_subjects=2 if quick else 4, n_freq=N,
-                      mu_schedule=(1e2, 1e4) if quick else (1e2, 1e3, 1e4), max_steps=150 if quick else 300)  # fmt: skip
-    r = d["result"]
+    recipe = Recipe(n_train=10 if quick else 40, n_holdout=20 if quick else 200,
+                    n_subjects=2 if quick else 4, n_holdout_subjects=2 if quick else 4, n_freq=N,
+                    mu_schedule=(1e2, 1e4) if quick else (1e2, 1e3, 1e4), max_steps=150 if quick else 300)  # fmt: skip
+    d = robust_design(model, ParamDraws(ps), evidence=ps.predictive, device=dev, recipe=recipe)
+    r = d.result
     sec.add(
         f"tuning: {r.wall_s:.1f} s, {sum(h['steps'] for h in r.history)} BFGS steps, claimed robust "
         f"bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, smooth constraints met: {r.feasible}"
@@ -92,13 +106,13 @@ def run(quick: bool = False, out: str = "out/bench") -> Section:
             ]
         )
     )
-    t = d["table"]
+    t = d.table
     rows = [
         {"quantity": k, "paper g": _fmt(t["start"][k]), "tuned g": _fmt(t["tuned"][k])}
         for k in t["tuned"]
     ]
     sec.add(table(rows))
-    sec.rows = {"table": t, "families": d["families"]}
+    sec.rows = {"table": t, "families": d.families}
     tp, tt = t["start"], t["tuned"]
     bw_ok = (tt.get("true_iso_bandwidth_hz") or 0) >= 2 * (
         tp.get("true_iso_bandwidth_hz") or np.inf
@@ -135,14 +149,14 @@ def devices_table(specs, n_train: int = 60, n_holdout: int = 100, seed: int = 0)
         dev = parse_device(spec)
         frf, fit = setup(dev, seed)
         t0 = time.perf_counter()
-        out = robust_design(fit.model, frf=frf, draw_family="loop_gp", n_train=n_train,
-                            n_holdout=n_holdout, n_freq=200, max_steps=150, seed=seed,
-                            evidence_ts=dev.ts)  # fmt: skip
+        out = robust_design(fit.model, LoopDraws(frf), ts=dev.ts,
+                            recipe=Recipe(n_train=n_train, n_holdout=n_holdout, n_freq=200,
+                                          max_steps=150, seed=seed))  # fmt: skip
         wall = time.perf_counter() - t0
-        tab = out["table"]
-        ret = "returned" if "returned" in tab else "start" if out["kept_start"] else "tuned"
+        tab = out.table
+        ret = "returned" if "returned" in tab else "start" if out.kept_start else "tuned"
         for name, g, row in (("paper", Compensator.paper(), tab["start"]),
-                             (f"returned ({ret})", out["result"].g, tab[ret])):  # fmt: skip
+                             (f"returned ({ret})", out.g, tab[ret])):  # fmt: skip
             t = true_plant_loop(g, fit.model, dev).numbers()
             bw = t.get("iso_bandwidth_hz")
             lines.append(
@@ -150,9 +164,9 @@ def devices_table(specs, n_train: int = 60, n_holdout: int = 100, seed: int = 0)
                 f"{_fmt(t.get('pm_deg'))} | {100 * row.get('posterior_frac_meeting_margins', np.nan):.0f} % | "
                 f"{row.get('certified')} | {t['stable']} | {'' if name == 'paper' else f'{wall:.0f}'} |"
             )
-        c = out["candidate"]
+        c = out.candidate
         notes.append(f"{spec}: gain back-off {c.gain_backoff:.3g}, claimed {c.bandwidth0_hz:.3g} → "
-                     f"{c.bandwidth_hz:.3g} Hz; {out['decision']}")  # fmt: skip
+                     f"{c.bandwidth_hz:.3g} Hz; {out.decision.reason}")  # fmt: skip
     return "\n".join(lines + [""] + notes)
 
 

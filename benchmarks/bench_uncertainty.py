@@ -36,7 +36,7 @@ from hapid.control import Compensator  # noqa: E402
 from hapid.device import cu5  # noqa: E402
 from hapid.experiment import Protocol, estimate_frf, periodic_run  # noqa: E402
 from hapid.fit import fit_nls, wls  # noqa: E402
-from hapid.tune._recipe import TRAIN_OFFSETS  # noqa: E402
+from hapid.tune._recipe_plants import TRAIN_OFFSETS  # noqa: E402
 from hapid.uncertainty import (  # noqa: E402
     ShortChainWarning,
     batched_log_prob,

@@ -81,9 +81,10 @@ def recheck(g, model, prob, n_holdout: int, n_freq: int = 600) -> dict:
     ``n_freq`` points of the continuous grid, fraction meeting 6 dB / 30°, non-smooth) and the
     evidence certificate (measured-FRF return difference, loop gain beyond the FRF)."""
     from hapid._grids import continuous_grid
-    from hapid.tune import table_row, validate
+    from hapid.tune import validate
+    from hapid.tune._check import FRF_FLOOR
     from hapid.tune._evidence import certificate
-    from hapid.tune._recipe import FRF_FLOOR
+    from hapid.tune._validate import table_row
     from hapid.uncertainty._loopgp import loop_gp_plants
 
     om = continuous_grid(n_freq)

@@ -111,7 +111,7 @@ def loop_grid(freq_hz, n: int = 300, f_lo: float = 0.1, f_hi: float = 100.0, exc
 def draw_plants(kind: str, frf, nls, omega, n_draws: int, seed: int = 0, cache=None) -> np.ndarray:
     """Plant draws ``(S, N, n, n)`` of one kind (module docstring) on ``omega`` (rad/s).
     ``cache`` (a dict): posterior samples per error model, reused across kinds."""
-    from hapid.tune._recipe import posterior_plants, predictive_scenario_plants
+    from hapid.tune._recipe_plants import posterior_plants, predictive_scenario_plants
     from hapid.uncertainty import (
         boundary_fixed,
         laplace_samples,

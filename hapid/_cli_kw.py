@@ -43,12 +43,14 @@ def tune_kw(a) -> dict:
 
         g0 = extend_structure(Compensator.paper(), lag_hz=a.extra_lag or (),
                               notch_hz=a.extra_notch or ())  # fmt: skip
+    from .tune import Recipe  # local: CLI start-up (hapid.tune, ~0.8 s)
+
+    recipe = Recipe(n_train=a.n_train, n_holdout=a.n_holdout, quantile=a.quantile,
+                    n_subjects=a.subjects, seed=a.seed, max_steps=a.max_steps,
+                    keep_dc_gain=not a.free_dc, evidence_bandwidth=a.evidence_bandwidth)  # fmt: skip
     return dict(device=device_or_none(a), frf=a.frf, g0=g0,
-                evidence_ts=None if a.fs is None else 1.0 / a.fs, n_train=a.n_train,
-                n_holdout=a.n_holdout, quantile=a.quantile, n_subjects=a.subjects,
-                seed=a.seed, max_steps=a.max_steps, keep_dc_gain=not a.free_dc,
-                model_error_draws=a.predictive, evidence_bandwidth=a.evidence_bandwidth,
-                draw_family="loop_gp" if a.loop_draws else a.draws)  # fmt: skip
+                ts=None if a.fs is None else 1.0 / a.fs, recipe=recipe,
+                model_error=a.predictive, draws="loop_gp" if a.loop_draws else a.draws)  # fmt: skip
 
 
 def uncertified_warning(row: dict) -> str:

@@ -128,14 +128,14 @@ def cmd_tune(a):
         res = tune_from_files(a.model, a.samples, a.out, **tune_kw(a), progress=bar)
     finally:
         bar.close()
-    r = res["result"]
+    r = res.result
     if r.check is not None:  # the verdict first: passed / failed / not established, for which loop
         print(check_line(r.check))
-    tab = res.get("table", {})
-    note = no_bandwidth_note(tab, res.get("kept_start", False))
+    tab = res.table
+    note = no_bandwidth_note(tab, res.kept_start)
     if note:
         print(note)
-    print(res.get("decision", ""))
+    print(res.decision.reason)
     print(f"tuned in {r.wall_s:.1f} s: claimed robust bandwidth {r.bandwidth0_hz:.2f} → {r.bandwidth_hz:.2f} Hz, "
           f"smooth constraints {'met' if r.feasible else 'NOT met'} on the training scenarios")  # fmt: skip
     if r.gain_backoff < 1.0:  # a gain back-off: the first sign of a collapse
@@ -148,16 +148,15 @@ def cmd_tune(a):
 
         print("non-smooth re-check (held-out samples / true plant / time domain):")
         print(recheck_table(tab["start"], tab["tuned"]))
-        ret = tab.get("returned") or tab["start" if res.get("kept_start") else "tuned"]
-        warn = uncertified_warning(ret)
+        warn = uncertified_warning(res.returned_row)
         if warn:
             print(warn)
     if a.report:
         from .io import save_json  # local: CLI start-up (hapid.io, equinox)
 
         save_json(a.report, {"start": tab.get("start"), "tuned": tab.get("tuned"), "constraints": r.constraints,
-                             "history": r.history, "parameters": r.parameters(), "loop": res.get("loop"),
-                             "returned": tab.get("returned"), "decision": res.get("decision", ""), "note": note,
+                             "history": r.history, "parameters": r.parameters(), "loop": res.loop,
+                             "returned": tab.get("returned"), "decision": res.decision.reason, "choice": res.decision.choice.value, "note": note,
                              "bandwidth_claimed_hz": r.bandwidth_hz, "tune_wall_s": r.wall_s}
                   | ({} if r.check is None else {"verdict": r.check.verdict.value, "reason": r.check.reason,
                                                  "remedy": r.check.remedy}))  # fmt: skip

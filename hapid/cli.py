@@ -20,7 +20,20 @@ from ._cli_processes import _PROCESSES_HELP
 from ._cli_scene import cmd_paper, cmd_run, cmd_sweep
 from ._cli_uq import cmd_posterior, cmd_robust, cmd_tune
 from ._constants import TUNE_EXPECTED_S
-from .defaults import DRAWS, FIT_BAND_HZ, FS_HZ, GM_DB, N_DRAWS, NLS_MAX_STEPS, PM_DEG
+from .defaults import (
+    DRAWS,
+    FIT_BAND_HZ,
+    FS_HZ,
+    GM_DB,
+    N_DRAWS,
+    NLS_MAX_STEPS,
+    PM_DEG,
+    TUNE_MAX_STEPS,
+    TUNE_N_HOLDOUT,
+    TUNE_N_SUBJECTS,
+    TUNE_N_TRAIN,
+    TUNE_QUANTILE,
+)
 
 EXAMPLES = """examples:
   hapid simulate --device cu5 --out run.npz            # the paper's protocol on cu5
@@ -298,26 +311,36 @@ def _register_tune(sub):
     add_device_args(tu, default=None,
                     what=": tune on its pose/subject variants, validate on its true plant")  # fmt: skip
     tu.add_argument("--frf", help="the measured FRF file (whole range): the evidence the design must hold on "
-                    "(default: the samples' fit data); beyond its top frequency the loop is kept small-gain")  # fmt: skip
+                    "(default: the measured FRF the samples file stores); beyond its top frequency the loop is kept small-gain")  # fmt: skip
     tu.add_argument("--fs", type=float, help="sampling rate (Hz) the controller runs at: the measured loop and "
                     "the small gain beyond it use the discretized controller (default: continuous)")  # fmt: skip
     tu.add_argument("--out", required=True, help="design file (.npz)")
     tu.add_argument("--report", help="JSON report of the re-check")
-    tu.add_argument("--n-train", type=int, default=150, help="posterior samples used for tuning")
     tu.add_argument(
-        "--n-holdout", type=int, default=200, help="held-out posterior samples for the re-check"
+        "--n-train", type=int, default=TUNE_N_TRAIN, help="posterior samples used for tuning"
+    )
+    tu.add_argument(
+        "--n-holdout",
+        type=int,
+        default=TUNE_N_HOLDOUT,
+        help="held-out posterior samples for the re-check",
     )
     tu.add_argument(
         "--quantile",
         type=float,
-        default=0.975,
+        default=TUNE_QUANTILE,
         help="fraction of training samples that must meet the margins (chance constraint; "
         "held-out samples check it)",
     )
     tu.add_argument(
-        "--subjects", type=int, default=16, help="virtual subjects among the device variants"
+        "--subjects",
+        type=int,
+        default=TUNE_N_SUBJECTS,
+        help="virtual subjects among the device variants",
     )
-    tu.add_argument("--max-steps", type=int, default=300, help="BFGS steps per continuation stage")
+    tu.add_argument(
+        "--max-steps", type=int, default=TUNE_MAX_STEPS, help="BFGS steps per continuation stage"
+    )
     tu.add_argument("--free-dc", action="store_true",
                     help="let |g(0)| drop below the paper g's (trades static force accuracy for bandwidth)")  # fmt: skip
     tu.add_argument("--predictive", action="store_true",

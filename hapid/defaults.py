@@ -51,3 +51,18 @@ TUNE_TOL_WORST = 1e-8
 """The same tolerance when every family is worst-case (quantile 1: the device's variants of
 ``hapid paper``'s tuned column): no draws to over-fit, and a loose solve leaves the penalty's
 constraints unmet. Why: docs/robust-design.md, Evidence E5."""
+
+TUNE_N_TRAIN = 150
+"""Training draws of the tuner's chance constraint (``hapid tune --n-train``)."""
+
+TUNE_N_HOLDOUT = 200
+"""Held-out draws the tuned and the start g are re-checked on (``hapid tune --n-holdout``)."""
+
+TUNE_QUANTILE = 0.975
+"""Fraction of the draws on which a tuned design must meet the margins (chance level)."""
+
+TUNE_N_SUBJECTS = 16
+"""Virtual subjects among a device's training variants (``hapid tune --subjects``)."""
+
+TUNE_MAX_STEPS = 300
+"""BFGS steps per continuation stage of the tuner (``hapid tune --max-steps``)."""

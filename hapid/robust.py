@@ -18,14 +18,14 @@ from ._constants import TWO_PI
 from ._grids import continuous_grid, nyquist_grid
 from ._plain import jsonable
 from .control import Compensator
-from .defaults import GM_DB, N_DRAWS, PM_DEG
+from .defaults import DRAWS, GM_DB, N_DRAWS, PM_DEG
 from .device import preset
 from .io import load_frf, load_model, load_samples, save_json
 from .tune._evidence import certificate, evidence_from_frf
 from .tune._response import g_response
 from .uncertainty._cover import EvidenceCover
-from .uncertainty._files import DRAWS, resolve_draws
-from .uncertainty._loopgp import loop_gp_plants, measured_data, measured_loop_gp
+from .uncertainty._draws import LoopDraws, draws_from
+from .uncertainty._loopgp import loop_gp_plants, measured_data
 from .uncertainty._robust import FIELDS, device_plants, posterior_omega, robust_check
 from .verdict import Verdict, combine
 
@@ -96,22 +96,19 @@ def loop_gp_check(
     ``beyond_loop_gain``, ``certified``), ``beyond_covered``, ``loop``, and the isotropic
     bandwidth as ``iso_bandwidth_nominal_hz`` (of the conditional-mean loop, the nominal
     estimate from the measured FRF; ``None`` if that loop is not stable) with the draws'
-    5–95 % ``iso_bandwidth_interval_hz`` (stable draws).
-
-    Measured (benchmarks/calibrate_robust.py, five devices no one tuned on, 25 controllers
-    of known answer): P(stable) 0.755–1.0 for the truth-stable controllers, ≤ 0.86 for the
-    others (0.86 at the edge, GM −0.1 dB; most 0), P(meeting 6 dB / 30°) right for all 25;
-    second-order parameter draws gave 0.52–1.0 whatever the truth (docs/robust-design.md).
+    5–95 % ``iso_bandwidth_interval_hz`` (stable draws). Its calibration on held-out devices:
+    benchmarks/calibrate_robust.py, docs/robust-design.md.
     """
 
+    source = LoopDraws(measured)
     data = measured_data(measured)
-    gp = measured_loop_gp(data, model)
+    gp = source.gp(model)
     kw = dict(gm_db=gm_db, pm_deg=pm_deg, p_stable_required=p_stable_required,
               max_samples=None, metrics=metrics)  # fmt: skip
     # the draws and, last, the conditional-mean loop (the nominal bandwidth): one batch
     omega = continuous_grid(n_freq) if ts is None else nyquist_grid(1.0 / ts, n_freq)
     S = int(n_draws)
-    P = np.concatenate([loop_gp_plants(gp, model, omega, S, seed),
+    P = np.concatenate([source.plants(model, omega, S, seed, gp=gp),
                         loop_gp_plants(gp, model, omega, 1, seed, mean=True)])  # fmt: skip
     if ts is None:
         rep = robust_check(P, (model, g), omega, **kw)
@@ -199,9 +196,9 @@ def robust_from_files(
     model = load_model(model_path)
     ps = None if samples_path is None else load_samples(samples_path, n=model.n)
     measured = load_frf(frf_path) if frf_path is not None else getattr(ps, "measured", None)
-    kind = resolve_draws(draws, measured)
+    source = draws_from(draws, samples=ps, measured=measured)
     g = Compensator.paper() if g is None else g
-    if kind == "loop_gp":
+    if isinstance(source, LoopDraws):
         n_meas = np.shape(measured["Z_H"] if isinstance(measured, dict) else measured.Z_H)[-1]
         if n_meas != model.n:
             raise ValueError(
@@ -213,8 +210,6 @@ def robust_from_files(
         post = loop_gp_check(measured, model, g, n_draws=max_samples, seed=seed, gm_db=gm_db,
                              pm_deg=pm_deg, metrics=metrics, ts=ts, **kw)  # fmt: skip
     else:
-        if ps is None:
-            raise ValueError("the robust check on parameter draws needs a samples file")
         om = posterior_omega() if n_freq is None else posterior_omega(int(n_freq))
         rep = robust_check(ps, (model, g), om, gm_db=gm_db, pm_deg=pm_deg,
                            max_samples=max_samples, metrics=metrics, seed=seed)  # fmt: skip

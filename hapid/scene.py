@@ -223,7 +223,7 @@ def _siso(o, plant, ctrl):
 
 
 def _tuned(o, device, nls_out):
-    from .tune import tuned_design  # local: CLI start-up (hapid.tune, ~0.8 s)
+    from .tune._paper import tuned_design  # local: CLI start-up (hapid.tune, ~0.8 s)
 
     return tuned_design(device, nls_out["model"], fast=o["fast"])
 

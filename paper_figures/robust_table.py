@@ -54,8 +54,10 @@ def design(
     import hapid  # noqa: F401  (float64 first)
     from hapid import scene
     from hapid.control import Compensator
-    from hapid.tune import robust_design, true_plant_loop
+    from hapid.tune import Recipe, robust_design, true_plant_loop
     from hapid.uncertainty import (
+        LoopDraws,
+        ParamDraws,
         laplace_samples,
         make_log_posterior,
         model_error_from,
@@ -71,9 +73,9 @@ def design(
     n_train = options.pop("n_train", None) or 150
     n_holdout = options.pop("n_holdout", None) or (100 if quick else 200)
     n_draws = max(200 if quick else 400, n_train + n_holdout)
+    model_error = options.pop("model_error", False)
     if draws == "loop_gp":  # draws of Q = P P̂⁻¹ conditioned on the FRF: no posterior
         ps = None
-        options["draw_family"] = "loop_gp"
     elif draws == "nls":  # Laplace of the NLS fit (hapid.uncertainty.laplace_samples)
         ps = laplace_samples(nls, n_draws, key=seed)
     else:  # Laplace of the white/gp log-posterior (hapid posterior --method laplace)
@@ -82,36 +84,43 @@ def design(
         ps = posterior_laplace_samples(post, n_draws, nls, key=seed)
     g0 = Compensator.paper() if g0 is None else g0
     t0 = time.perf_counter()
-    out = robust_design(model, samples=ps, frf=frf, g0=g0, n_train=n_train,
-                        n_holdout=n_holdout, n_freq=200 if quick else 300,
-                        max_steps=150 if quick else 300, seed=seed,
-                        evidence_ts=dev.ts if sampled else None, **options)  # fmt: skip
+    source = LoopDraws(frf) if ps is None else ParamDraws(ps, model_error=model_error)
+    recipe = Recipe(
+        n_train=n_train,
+        n_holdout=n_holdout,
+        n_freq=200 if quick else 300,
+        max_steps=150 if quick else 300,
+        seed=seed,
+        **options,
+    )
+    out = robust_design(model, source, evidence=frf, g0=g0, recipe=recipe,
+                        ts=dev.ts if sampled else None)  # fmt: skip
     wall = time.perf_counter() - t0
-    g = out["candidate"].g  # the tuner's g; out["result"].g is the start when it was kept
+    g = out.candidate.g  # the tuner's g; out.g is the start when it was kept
     rows = {}
     for name, gg in (("paper g", g0), ("tuned g", g)):
         t = true_plant_loop(gg, model, dev).numbers()
-        tab = out["table"]["start" if name == "paper g" else "tuned"]
+        tab = out.table["start" if name == "paper g" else "tuned"]
         rows[name] = {"stable": t["stable"], "iso_bandwidth_hz": t["iso_bandwidth_hz"],
                       "gm_db": t["gm_db"], "pm_deg": t["pm_deg"],
                       "held_out_frac": tab.get("posterior_frac_meeting_margins"),
                       "certified": tab.get("certified"),
                       "frf_min_sigma": tab.get("frf_min_sigma_I_plus_L"),
                       "beyond_gain": tab.get("beyond_loop_gain")}  # fmt: skip
-    if "returned" in out["table"]:  # the certified fallback (neither start nor tuned certified)
-        t, tab = true_plant_loop(out["result"].g, model, dev).numbers(), out["table"]["returned"]
+    if "returned" in out.table:  # the certified fallback (neither start nor tuned certified)
+        t, tab = true_plant_loop(out.g, model, dev).numbers(), out.table["returned"]
         rows["returned g"] = {"stable": t["stable"], "iso_bandwidth_hz": t["iso_bandwidth_hz"],
                               "gm_db": t["gm_db"], "pm_deg": t["pm_deg"],
                               "held_out_frac": tab.get("posterior_frac_meeting_margins"),
                               "certified": tab.get("certified"),
                               "frf_min_sigma": tab.get("frf_min_sigma_I_plus_L"),
                               "beyond_gain": tab.get("beyond_loop_gain")}  # fmt: skip
-    cand = out["candidate"]
-    return {"device": device, "rows": rows, "decision": out["decision"], "kept_start": out["kept_start"],
+    cand = out.candidate
+    return {"device": device, "rows": rows, "decision": out.decision.reason, "kept_start": out.kept_start,
             "wall_s": wall, "parameters": cand.parameters(), "constraints": cand.constraints,
             "claimed_bandwidth_hz": [cand.bandwidth0_hz, cand.bandwidth_hz],
-            "history": cand.history, "families": out["families"],
-            "evidence": out["families"].get("evidence")}, out  # fmt: skip
+            "history": cand.history, "families": out.families,
+            "evidence": out.families.get("evidence")}, out  # fmt: skip
 
 
 def oracle(device: str, *, cache=None) -> list[dict]:
@@ -233,7 +242,7 @@ def main(argv=None):
         "n_holdout": a.n_holdout,
         "keep_dc_gain": not a.free_dc,
         "evidence_bandwidth": a.evidence_bandwidth,
-        "model_error_draws": a.predictive,
+        "model_error": a.predictive,
     }
     if a.quantile is not None:
         opts["quantile"] = a.quantile

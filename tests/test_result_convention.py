@@ -47,7 +47,17 @@ from hapid.fit import (
 from hapid.impedance import ImpedanceModel, SecondOrder
 from hapid.robust import RobustResult, robust_from_files
 from hapid.scene import SceneRun, SceneStatus
-from hapid.tune import StepResponse, StepStatus, TuneResult, TuneStatus, Validation, validate
+from hapid.tune import (
+    Choice,
+    Decision,
+    RobustDesign,
+    StepResponse,
+    StepStatus,
+    TuneResult,
+    TuneStatus,
+    Validation,
+    validate,
+)
 from hapid.tune._tune import scale_gain
 from hapid.uncertainty import (
     DrawsStatus,
@@ -319,6 +329,28 @@ def test_tune_result():
     assert assert_convention(unstable, TuneStatus, ok) is TuneStatus.UNSTABLE_ON_TRAINING
 
 
+def test_robust_design_and_decision():
+    """robust_design's result: the returned design's verdict is its status (not established
+    when it was not re-checked), the Decision says which g and is strict JSON."""
+    g = Compensator.paper()
+    x = np.zeros(1)
+    res = TuneResult(g, g, x, x, 12.0, 10.0, {"gm": -0.1}, [], [], None, 1.0)
+    kept = Decision(Choice.START, "kept the start: no improvement", "held out")
+    ok = (Verdict.PASSED,)
+    unchecked = RobustDesign(res, res, kept, {"device": {"train": 3}})
+    assert assert_convention(unchecked, Verdict, ok) is Verdict.NOT_ESTABLISHED
+    assert unchecked.kept_start and unchecked.returned_row == {}
+    assert unchecked.summary()["decision"] == {"choice": "start", "rule": "held out",
+                                               "reason": kept.reason, "gain_scale": 1.0}  # fmt: skip
+    for verdict in Verdict:
+        check = Check(verdict, reason="" if verdict is Verdict.PASSED else "why", name="GM")
+        d = RobustDesign(dataclasses.replace(res, check=check), res,
+                         Decision(Choice.TUNED, "tuned g kept", "held out"), {},
+                         {"start": {"a": 1.0}, "tuned": {"a": 2.0}})  # fmt: skip
+        assert assert_convention(d, Verdict, ok) is verdict
+        assert not d.kept_start and d.returned_row == {"a": 2.0}
+
+
 def test_design_report_and_check(tmp_path):
     passed, failed = (
         Check(Verdict.PASSED, name="GM"),
@@ -365,7 +397,7 @@ RESULT_TYPES = {
     RobustReport: Verdict, TuneResult: TuneStatus, PosteriorSamples: SamplesStatus,
     PlantDraws: DrawsStatus, DesignReport: DesignStatus, Check: Verdict,
     pipeline.ControlFit: FitStatus, SceneRun: SceneStatus, RobustResult: Verdict,
-    Validation: Verdict, StepResponse: StepStatus,
+    Validation: Verdict, StepResponse: StepStatus, RobustDesign: Verdict,
 }  # fmt: skip
 
 

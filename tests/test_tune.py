@@ -368,8 +368,8 @@ def test_sampled_families_train_with_the_pm_allowance_and_are_judged_without_it(
     }
     req = Requirements(gm_db=7.0, pm_deg=35.0)
     with pytest.raises(Stop):
-        R.robust_design(model, frf=frf, draw_family="loop_gp", requirements=req, n_train=4,
-                        n_holdout=3, n_freq=60, n_holdout_freq=80, seed=0)  # fmt: skip
+        R.robust_design(model, R.LoopDraws(frf), requirements=req,
+                        recipe=R.Recipe(n_train=4, n_holdout=3, n_freq=60, n_holdout_freq=80))  # fmt: skip
     assert min(seen["q"]) < 1.0
     assert seen["req"].pm_deg == pytest.approx(35.0 + TUNE_PM_ALLOWANCE_DEG)
     assert seen["req"].gm_db == 7.0 and req.pm_deg == 35.0  # the caller's requirement untouched

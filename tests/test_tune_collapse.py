@@ -86,7 +86,8 @@ def test_quad4_with_two_samples_of_delay_does_not_collapse():
     from calibrate_robust import parse_device, setup
 
     from hapid.control import Compensator
-    from hapid.tune import robust_design, true_plant_loop
+    from hapid.tune import Recipe, robust_design, true_plant_loop
+    from hapid.uncertainty import LoopDraws
 
     dev = parse_device("quad4:delay=2")
     frf, fit = setup(dev)
@@ -94,9 +95,10 @@ def test_quad4_with_two_samples_of_delay_does_not_collapse():
     assert paper["stable"]
     useful = []
     for seed in (0, 1, 2):
-        out = robust_design(fit.model, frf=frf, draw_family="loop_gp", n_train=60, n_holdout=100,
-                            n_freq=200, max_steps=150, seed=seed, evidence_ts=dev.ts)  # fmt: skip
-        got = true_plant_loop(out["result"].g, fit.model, dev).numbers()
-        assert got["stable"], (seed, out["decision"])
+        out = robust_design(fit.model, LoopDraws(frf), ts=dev.ts,
+                            recipe=Recipe(n_train=60, n_holdout=100, n_freq=200, max_steps=150,
+                                          seed=seed))  # fmt: skip
+        got = true_plant_loop(out.g, fit.model, dev).numbers()
+        assert got["stable"], (seed, out.decision.reason)
         useful.append(got["iso_bandwidth_hz"] >= 0.5 * paper["iso_bandwidth_hz"])
     assert sum(useful) >= 2, useful

@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 
 from hapid.control import Compensator, inverse_model_response
+from hapid.tune import Choice
+from hapid.tune._decision import compare
 from hapid.tune._evidence import (
     KAPPA,
     beyond_gain,
@@ -18,10 +20,16 @@ from hapid.tune._evidence import (
     evidence_from_frf,
     small_gain_constraint,
 )
-from hapid.tune._recipe import no_worse
 from tests.test_tune import _model
 
 F_HZ = np.array([1.0, 2.0, 4.0, 8.0, 15.0, 30.0, 50.0, 80.0, 100.0])
+
+
+def no_worse(start: dict, tuned: dict):
+    """``(tuned g returned, reason)`` of the decision table on two re-check rows."""
+    d = compare(start, tuned)
+    assert d.choice in (Choice.TUNED, Choice.START)
+    return d.keeps_tuned, d.reason
 
 
 def _frf(model, scale):
@@ -155,6 +163,31 @@ def test_never_worse_decides_on_the_evidence_first():
     # no better on the draws: the start stays, however the evidence figures moved
     assert not no_worse(base | mid, base | mid | {"frf_min_loci_distance": 0.6})[0]
     assert no_worse(base | good, base | good | better_draws)[0]
+
+
+def test_decision_table_names_the_deciding_rule_in_order():
+    """Each row of the decision table decides where it should, in the table's order: an
+    unstable true plant beats every other figure; the certificate beats the draws; with
+    nothing else to say, the held-out draws decide. The Decision is typed and its summary is
+    strict JSON."""
+    import json
+
+    from hapid.tune._decision import RULES, Decision
+
+    assert [name for name, _ in RULES] == ["true plant", "certificate", "evidence figures",
+                                           "measured FRF", "held out"]  # fmt: skip
+    base = {"true_stable": True, "posterior_frac_meeting_margins": 0.8,
+            "posterior_iso_bandwidth_hz_q50": 4.0, "evidence_hz": 100.0}  # fmt: skip
+    good = {"certified": True, "frf_min_loci_distance": 0.6, "beyond_loop_gain": 0.4}
+    bad = {"certified": False, "frf_min_loci_distance": 0.3, "beyond_loop_gain": 0.7}
+    better = {"posterior_frac_meeting_margins": 0.95, "posterior_iso_bandwidth_hz_q50": 6.0}
+    d = compare(base | bad, base | good | better | {"true_stable": False})
+    assert (d.rule, d.choice) == ("true plant", Choice.START)
+    d = compare(base | good, base | bad | better)
+    assert (d.rule, d.choice) == ("certificate", Choice.START)
+    d = compare(base | good, base | good | better)
+    assert (d.rule, d.choice) == ("held out", Choice.TUNED) and d.keeps_tuned
+    assert isinstance(d, Decision) and json.loads(json.dumps(d.summary()))["choice"] == "tuned"
 
 
 def test_cu5_soft_is_cu5_with_more_delay_and_compliant_rods(tmp_path):
@@ -293,8 +326,8 @@ def test_certified_gain_is_the_largest_gain_the_evidence_certifies():
     from helpers_fit import random_truth, synthetic_frf
 
     from hapid.control import Compensator
+    from hapid.tune._decision import certified_gain
     from hapid.tune._evidence import certificate, evidence_from_frf
-    from hapid.tune._recipe import certified_gain
 
     truth = random_truth(2, seed=3)
     frf = synthetic_frf(truth, rel_noise=1e-3, seed=4)
@@ -313,11 +346,11 @@ def test_certified_gain_is_the_largest_gain_the_evidence_certifies():
 
 
 def test_fallback_prefers_certified_candidates_at_the_chance_level():
-    """The certified fallback's choice (hapid.tune._recipe.pick_fallback): a candidate at the
+    """The certified fallback's choice (hapid.tune._decision.pick_fallback): a candidate at the
     chance level wins over one below it; with none at it a certified chosen design is kept
     (lowering the gain would trade one failed figure for another); an uncertified chosen
     design is replaced by the better certified candidate; no candidate, no change."""
-    from hapid.tune._recipe import pick_fallback
+    from hapid.tune._decision import pick_fallback
 
     def row(frac, bw):
         return {"certified": True, "posterior_frac_meeting_margins": frac,

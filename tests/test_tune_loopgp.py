@@ -147,13 +147,24 @@ def test_cli_loop_draws_without_frf_is_a_clean_error(tmp_path):
                        "--draws loop_gp needs the measured FRF")  # fmt: skip
 
 
-def test_robust_design_loop_gp_needs_an_frf():
+def test_robust_design_draws_are_objects_with_clear_errors():
+    """Loop draws without an FRF, an unknown --draws name, a string where the draws object
+    belongs, and neither draws nor a device: each a clear error naming the problem."""
     from hapid.tune import robust_design
+    from hapid.uncertainty import LoopDraws, draws_from
 
-    with pytest.raises(ValueError, match="needs a measured FRF"):
-        robust_design(_model(2, 0), draw_family="loop_gp")
-    with pytest.raises(ValueError, match="draw_family"):
-        robust_design(_model(2, 0), draw_family="gp_loop")
+    with pytest.raises(ValueError, match="loop draws need the measured FRF"):
+        LoopDraws(None)
+    with pytest.raises(ValueError, match="loop draws need the measured FRF"):
+        draws_from("loop_gp", measured=None)
+    with pytest.raises(ValueError, match="draws must be one of"):
+        draws_from("gp_loop", measured=None)
+    with pytest.raises(ValueError, match="parameter draws need a posterior-samples file"):
+        draws_from("params")
+    with pytest.raises(TypeError, match="ParamDraws or LoopDraws"):
+        robust_design(_model(2, 0), "loop_gp")
+    with pytest.raises(ValueError, match="draws .* a device"):
+        robust_design(_model(2, 0))
 
 
 def test_correlated_draws_equal_the_per_element_sum_and_have_the_covariance():

@@ -192,7 +192,7 @@ def test_robust_report_margin_convention_and_reasons():
 
 
 def test_tuner_never_worse_rule():
-    from hapid.tune._recipe import no_worse
+    from tests.test_tune_evidence import no_worse
 
     start = {
         "true_stable": True,
@@ -284,7 +284,7 @@ def test_paper_g_stable_on_cu5_predictive_plants():
     from hapid.device import preset
     from hapid.experiment import Protocol, estimate_frf, periodic_run
     from hapid.tune import true_plant_loop
-    from hapid.tune._recipe import predictive_scenario_plants
+    from hapid.tune._recipe_plants import predictive_scenario_plants
     from hapid.uncertainty import boundary_fixed
     from hapid.uncertainty._robust import controller_response
 

@@ -75,8 +75,7 @@ def _loci_pairs(L, spec, Le=None):
     the frequencies end a kept interval, at those only, gathered in one block of ``N/2``
     (:func:`._kernels.compacted`; a kernel launch costs per block), and the kept intervals
     paired likewise; else (and under ``vmap``, where a ``cond`` runs both branches) at every
-    frequency. Measured at N = 1000 (grid pass, one process): default loop draws of cu5
-    (a third of the intervals kept) 1.3× faster, parameter draws (93 % kept) 0.9×. With
+    frequency (the compaction pays when few intervals are kept: benchmarks/README.md). With
     ``kernels="lapack"`` (the reference) or ``arrays`` at every frequency. Paired between
     neighbours as the reference tracker does (optimal permutation for ``n ≤ 6`` by
     :func:`._kernels.pair_optimal`, greedy above)."""

@@ -36,7 +36,7 @@ from ..fit import FitFailedError
 from ..impedance_frf import ImpedanceFRF
 from ..io import load_samples, save_samples
 from ..robust import loop_gp_check
-from ..tune import design_info, tune_from_files
+from ..tune import tune_from_files
 from ..tune._progress import TuneProgress
 from ..uncertainty import posterior_from_files
 from ._commands import FILES, DesignOptions, commands, resolve
@@ -128,8 +128,8 @@ def _tune(parse, o, nls, post):
             res = tune_from_files(a.model, a.samples, None, **tune_kw(a), progress=bar)
         finally:
             bar.close()
-    return {"g": res["result"].g, "info": design_info(res), "decision": str(res.get("decision", "")),
-            "kept_start": bool(res.get("kept_start", False))}  # fmt: skip
+    return {"g": res.g, "info": res.summary(), "decision": res.decision.reason,
+            "kept_start": res.kept_start}  # fmt: skip
 
 
 def _timed(name: str, fn: Callable, say: Callable[[str], None]) -> Callable:

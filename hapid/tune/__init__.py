@@ -6,13 +6,16 @@
 * :class:`Requirements`, :class:`Family`, :func:`scenario_constraints`, :func:`aggregate` —
   the smooth bandwidth surrogate, margin constraints and their CVaR over scenarios.
 * :func:`tune` → :class:`TuneResult` — continuation penalty + BFGS (optimistix).
+* :func:`robust_design` (model, draws, evidence, :class:`Recipe`) → :class:`RobustDesign`,
+  whose :class:`Decision` says which g it returns and why (the table of :mod:`._decision`).
 * :func:`validate` → :class:`Validation` — the non-smooth re-check (Nyquist verdict, iso bandwidth, GM/PM, disk
   margin) on held-out plants, the true plant and in the time domain.
 """
 
 from .. import _config  # noqa: F401  (float64)
 from ._binding import binding_constraints as binding_constraints
-from ._files import design_info as design_info
+from ._decision import Choice as Choice
+from ._decision import Decision as Decision
 from ._files import load_design as load_design
 from ._files import save_design as save_design
 from ._files import tune_from_files as tune_from_files
@@ -23,13 +26,13 @@ from ._objective import aggregate as aggregate
 from ._objective import cvar as cvar
 from ._objective import penalized as penalized
 from ._objective import scenario_constraints as scenario_constraints
-from ._paper import paper_column as paper_column
-from ._paper import tuned_design as tuned_design
 from ._params import ParamMap as ParamMap
 from ._params import extend_structure as extend_structure
+from ._recipe import Recipe as Recipe
+from ._recipe import RobustDesign as RobustDesign
 from ._recipe import posterior_grid as posterior_grid
-from ._recipe import posterior_plants as posterior_plants
 from ._recipe import robust_design as robust_design
+from ._recipe_plants import posterior_plants as posterior_plants
 from ._response import g_response as g_response
 from ._response import smooth_sigma_max as smooth_sigma_max
 from ._scenarios import Scenarios as Scenarios
@@ -46,6 +49,5 @@ from ._validate import StepStatus as StepStatus
 from ._validate import Validation as Validation
 from ._validate import device_grid as device_grid
 from ._validate import step_response as step_response
-from ._validate import table_row as table_row
 from ._validate import true_plant_loop as true_plant_loop
 from ._validate import validate as validate

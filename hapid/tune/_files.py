@@ -3,58 +3,51 @@
 Design file: ``k ()``, ``lag_zeros (q,)``, ``lag_poles (q,)``, ``notch_omega (m,)``,
 ``notch_zeta_num (m,)``, ``notch_zeta_den (m,)``, ``lowpass (r,)`` — rad/s and
 dimensionless, the fields of :class:`hapid.control.Compensator` — plus ``json`` (a string:
-tuning history, constraint values, validation table).
+:meth:`.RobustDesign.summary`).
 """
 
 from __future__ import annotations
 
 from .. import io
+from ..defaults import DRAWS
 from ..device import preset
 from ..io import load_design as load_design
 from ..io import load_samples
 from ..io import save_design as save_design
-from ..uncertainty._files import DRAWS, resolve_draws
-from ._recipe import robust_design
-
-
-def design_info(out: dict) -> dict:
-    """The JSON-able part of a :func:`.robust_design` result."""
-    r = out["result"]
-    return {"bandwidth_claimed_hz": r.bandwidth_hz, "bandwidth0_claimed_hz": r.bandwidth0_hz,
-            "constraints": r.constraints, "feasible": r.feasible, "history": r.history,
-            "parameters": r.parameters(), "families": out["families"], "wall_s": r.wall_s,
-            "table": out.get("table", {}), "loop": out.get("loop")} | (
-                {} if out.get("check") is None else {"verdict": out["check"].verdict.value,
-                "reason": out["check"].reason, "remedy": out["check"].remedy})  # fmt: skip
+from ..uncertainty._draws import draws_from
+from ._recipe import Recipe, RobustDesign, robust_design
 
 
 def tune_from_files(model_path, samples_path=None, out=None, *, device=None, frf=None,
-                    draw_family: str = "auto", **options) -> dict:  # fmt: skip
+                    draws: str = "auto", model_error: bool = False, g0=None, requirements=None,
+                    recipe: Recipe | None = None, ts: float | None = None,
+                    progress=None) -> RobustDesign:  # fmt: skip
     """Load a model (and samples, and the measured FRF ``frf`` — the evidence), run
-    :func:`.robust_design`, write the design file. ``device``: a preset name or a device.
+    :func:`.robust_design`, write the design file ``out``. ``device``: a preset name or a
+    device.
 
     Without ``frf`` the measured FRF a samples file from ``hapid posterior`` stores
-    (``PosteriorSamples.measured``, every measured frequency) is the evidence. ``draw_family``:
-    ``"loop_gp"`` (draws of ``Q = P P̂⁻¹`` conditioned on that FRF), ``"params"`` (the samples'
-    own plants) or ``"auto"`` (default: ``loop_gp`` when a measured FRF is
-    known, else the samples)."""
+    (``PosteriorSamples.measured``, every measured frequency; older files: the fit data) is
+    the evidence. ``draws`` (:func:`hapid.uncertainty.draws_from`): ``"loop_gp"`` (the loop
+    conditioned on that FRF), ``"params"`` (the samples' own plants; with ``model_error``
+    their posterior-predictive plants) or ``"auto"`` (``loop_gp`` when a measured FRF is
+    known). The other keywords are :func:`.robust_design`'s. Raises ``ValueError`` for an
+    unknown ``draws`` (before any file is read) or draws the files cannot give."""
 
-    if draw_family not in DRAWS:  # before any file is read
-        raise ValueError(f"draw_family must be one of {DRAWS}, got {draw_family!r}")
+    if draws not in DRAWS:  # before any file is read
+        raise ValueError(f"draws must be one of {DRAWS}, got {draws!r}")
     model = io.load_model(model_path)
-    if frf is not None:
-        options["frf"] = io.load_frf(frf)
-    samples = None
-    if samples_path is not None:
-        samples = load_samples(samples_path, n=model.n)
-        if frf is None and samples.measured is not None:
-            options["frf"] = samples.measured
-    kind = resolve_draws(draw_family, options.get("frf"))
-    options["draw_family"] = kind
-    dev = None
-    if device is not None:
-        dev = preset(device) if isinstance(device, str) else device
-    res = robust_design(model, samples=samples, device=dev, **options)
+    measured = None if frf is None else io.load_frf(frf)
+    samples = None if samples_path is None else load_samples(samples_path, n=model.n)
+    if measured is None and samples is not None:
+        measured = samples.measured
+    evidence = measured if measured is not None else getattr(samples, "predictive", None)
+    source = None
+    if samples is not None or measured is not None or draws != "auto":
+        source = draws_from(draws, samples=samples, measured=measured, model_error=model_error)
+    dev = preset(device) if isinstance(device, str) else device
+    res = robust_design(model, source, evidence=evidence, device=dev, g0=g0,
+                        requirements=requirements, recipe=recipe, ts=ts, progress=progress)  # fmt: skip
     if out is not None:
-        save_design(out, res["result"].g, **design_info(res))
+        save_design(out, res.g, **res.summary())
     return res

@@ -17,7 +17,8 @@ import numpy as np
 from .. import _config  # noqa: F401  (float64)
 from .._grids import NYQUIST_F_MIN_HZ, below_nyquist_grid, log_grid_hz, nyquist_grid
 from .._grids import continuous_grid as posterior_grid
-from ..uncertainty import PosteriorSamples, predictive_plants
+from ..uncertainty import PosteriorSamples, device_plants, predictive_plants
+from ..uncertainty._draws import LoopDraws, ParamDraws
 from ..uncertainty._loopgp import loop_gp_plants
 from ._objective import Family
 from ._scenarios import make_scenarios
@@ -136,3 +137,89 @@ def loop_draw_family(lgp, model, *, n_freq: int, dense_factor: int, n_train: int
     fam = Family(make_scenarios(P, model, om, ts=ts), quantile=quantile, bandwidth=bandwidth,
                  bw_quantile=0.5, name="posterior", dense=dense)  # fmt: skip
     return fam, hold, om_h
+
+
+def draw_family(draws, model, recipe, rng, ts: float | None):
+    """The chance-constrained ``posterior`` family of ``draws`` (:class:`ParamDraws` or
+    :class:`LoopDraws`) and its held-out plants: ``(Family, held-out plants, held-out ω or
+    None, info dict)``. Held-out plants are a batched model (parameter draws) or
+    ``(S, N, n, n)`` arrays on the held-out ω (loop or predictive draws; ω ``None`` means
+    :func:`posterior_grid` with ``recipe.n_holdout_freq`` points)."""
+    r = recipe
+    if isinstance(draws, LoopDraws):
+        lgp = draws.gp(model)
+        fam, hold, om_h = loop_draw_family(
+            lgp, model, n_freq=r.n_freq, dense_factor=r.dense_factor, n_train=r.n_train,
+            n_holdout=r.n_holdout, n_holdout_freq=r.n_holdout_freq, quantile=r.quantile,
+            bandwidth=r.posterior_bandwidth, seed=r.seed, ts=ts,
+        )  # fmt: skip
+        info = {"train": int(r.n_train), "held_out": int(r.n_holdout),
+                "plants": "loop GP (Q = P P̂⁻¹ conditioned on the measured FRF)",
+                "loop_gp": {"ell": lgp.ell, "eta": lgp.eta, "sigma2": lgp.sigma2}}  # fmt: skip
+        return fam, hold, (om_h if ts is not None else None), info
+    if not isinstance(draws, ParamDraws):
+        raise TypeError(f"draws must be ParamDraws or LoopDraws, got {type(draws).__name__}")
+    samples = draws.samples
+    S = _n_models(samples)
+    if S < 2:
+        raise ValueError("robust_design: need at least 2 posterior samples (train + held out)")
+    perm = rng.permutation(S)
+    k = min(r.n_train, S // 2)
+    tr, ho = perm[:k], perm[k : k + r.n_holdout]
+    omc = posterior_grid(r.n_freq)
+    pred = draws.has_error_term
+    if pred:
+        P, pol = predictive_scenario_plants(samples, tr, omc, seed=r.seed)
+        hold = predictive_scenario_plants(samples, ho, posterior_grid(r.n_holdout_freq),
+                                          seed=r.seed + 1)[0]  # fmt: skip
+    else:
+        P, pol = posterior_plants(_sample_models(samples, tr), omc)
+        hold = _sample_models(samples, ho)
+    dense = None
+    if r.dense_factor > 1 and not pred:
+        omc_d = posterior_grid(r.dense_factor * r.n_freq)
+        P_d, pol_d = posterior_plants(_sample_models(samples, tr), omc_d)
+        dense = make_scenarios(P_d, model, omc_d, p_ol=pol_d)
+    fam = Family(make_scenarios(P, model, omc, p_ol=pol), quantile=r.quantile,
+                 bandwidth=r.posterior_bandwidth, bw_quantile=0.5, name="posterior", dense=dense)  # fmt: skip
+    info = {"train": int(k), "held_out": int(len(ho)),
+            "plants": f"predictive ({samples.error_kind} model error)" if pred else "models"}  # fmt: skip
+    return fam, hold, None, info
+
+
+def device_family(device, model, recipe):
+    """The worst-case ``device`` family: the device's true sampled plants at the
+    ``TRAIN_OFFSETS`` poses and ``recipe.n_subjects`` virtual subjects (not the nominal
+    plant), with their dense grid (:func:`count_grid`). ``(Family, info dict)``."""
+    r, seed = recipe, recipe.seed
+    omd = below_nyquist_grid(device.fs_hz, r.n_freq)
+    poses = [device.pose.moved(*o) for o in TRAIN_OFFSETS]
+    labels, P = device_plants(device, omd, poses=poses, n_subjects=r.n_subjects, key=seed + 1,
+                              include_nominal=False)  # fmt: skip
+    dense = None
+    if r.dense_factor > 1:
+        omd_d = count_grid(device.fs_hz, r.dense_factor, r.n_freq)
+        P_d = []  # in chunks of the training grid's size: the compiled plant program is reused
+        for chunk in omd_d.reshape(-1, r.n_freq):
+            labels_d, P_c = device_plants(device, chunk, poses=poses, n_subjects=r.n_subjects,
+                                          key=seed + 1, include_nominal=False)  # fmt: skip
+            if list(labels_d) != list(labels):
+                raise RuntimeError(
+                    "robust_design: dense device variants differ from the training ones"
+                )
+            P_d.append(np.asarray(P_c))
+        dense = make_scenarios(
+            np.concatenate(P_d, axis=1), model, omd_d, ts=device.ts, labels=labels
+        )
+    fam = Family(make_scenarios(P, model, omd, ts=device.ts, labels=labels), quantile=1.0,
+                 bw_quantile=0.5, name="device", dense=dense)  # fmt: skip
+    return fam, {"train": len(labels)}
+
+
+def held_out_variants(device, recipe):
+    """``(labels, P)`` of the device's held-out variants (``HOLDOUT_OFFSETS`` poses,
+    ``recipe.n_holdout_subjects`` other subjects) on :func:`hapid._grids.nyquist_grid`."""
+    hp = [device.pose.moved(*o) for o in HOLDOUT_OFFSETS]
+    return device_plants(device, nyquist_grid(device.fs_hz), poses=hp,
+                         n_subjects=recipe.n_holdout_subjects, key=recipe.seed + 1000,
+                         include_nominal=False)  # fmt: skip

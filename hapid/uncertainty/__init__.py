@@ -16,6 +16,8 @@
 - :func:`fit_loop_gp`, :func:`loop_gp_plants` — draws of the loop ``Q = P P̂⁻¹`` conditioned
   on the whole measured FRF, calibrated where the model class is wrong (the robust check on
   them, with the evidence on the measured FRF, is :func:`hapid.robust.loop_gp_check`).
+- :class:`ParamDraws`, :class:`LoopDraws` (:func:`draws_from`) — the two constructions of
+  draws of the true plant, one interface (``plants(model, omega, n_draws, seed)``).
 - :func:`plant_draws` → :class:`PlantDraws` — draws of the true P on any grid by either
   construction (``params`` or ``loop_gp``), the draws of ``hapid predict``.
 - :func:`pose_study` — nominal vs re-identified controller over a grid of stylus poses.
@@ -27,6 +29,10 @@ from ..samples import SamplesStatus as SamplesStatus
 from ._coords import fold_theta as fold_theta
 from ._coords import matrix_to_theta as matrix_to_theta
 from ._coords import theta_to_matrix as theta_to_matrix
+from ._draws import Draws as Draws
+from ._draws import LoopDraws as LoopDraws
+from ._draws import ParamDraws as ParamDraws
+from ._draws import draws_from as draws_from
 from ._files import posterior_from_files as posterior_from_files
 from ._hyper import fix_hyperparameters as fix_hyperparameters
 from ._laplace import laplace_posterior as laplace_posterior

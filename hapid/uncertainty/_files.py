@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
-from ..defaults import DRAWS, FIT_BAND_HZ
+from ..defaults import FIT_BAND_HZ
 from ..io import load_frf, save_samples
 from ..pipeline import control_fit
 from ._laplace import posterior_laplace_samples
@@ -98,17 +98,3 @@ def posterior_fit(
     cf = control_fit(band, boundary_refit=boundary_refit, f_max_hz=None, **options)
     cf.fit.result.raise_if_failed()
     return cf
-
-
-def resolve_draws(draws: str, measured) -> str:
-    """The draw family ``"loop_gp"`` or ``"params"`` that ``draws`` (one of :data:`DRAWS`)
-    names, given the measured FRF (``None``: not known): ``"auto"`` is ``"loop_gp"`` when an
-    FRF is known, else ``"params"``; ``"loop_gp"`` without an FRF is a ``ValueError``. The one
-    rule of ``hapid robust`` and ``hapid tune``."""
-    if draws not in DRAWS:
-        raise ValueError(f"draws must be one of {DRAWS}, got {draws!r}")
-    kind = draws if draws != "auto" else ("loop_gp" if measured is not None else "params")
-    if kind == "loop_gp" and measured is None:
-        raise ValueError("loop draws need the measured FRF: give an FRF file, or a samples file "
-                         "written by hapid posterior (it stores the FRF)")  # fmt: skip
-    return kind

@@ -22,8 +22,7 @@ from .._constants import TWO_PI
 from .._plain import jsonable
 from ..fit._pd import theta_to_model
 from ..samples import PosteriorSamples
-from ._files import resolve_draws
-from ._loopgp import loop_gp_plants, measured_data, measured_loop_gp
+from ._draws import ParamDraws, draws_from
 from ._predictive import predictive_plants
 
 
@@ -119,8 +118,8 @@ def plant_draws(
         raise ValueError(f"plant_draws: max_samples must be ≥ 1, got {max_samples}")
     if draws == "auto" and not include_error:
         draws = "params"  # parameter uncertainty only was asked for
-    kind = resolve_draws(draws, ps.measured)
-    if kind == "params":
+    source = draws_from(draws, samples=ps, measured=ps.measured, model_error=include_error)
+    if isinstance(source, ParamDraws):
         d = predictive_plants(ps, omega, max_samples=int(max_samples), seed=seed,
                               include_error=include_error)  # fmt: skip
         return PlantDraws(omega, d["P"], d["Z_H"], d["Z_T"], "params",
@@ -128,11 +127,9 @@ def plant_draws(
     if not include_error:
         raise ValueError("loop draws are of the measured plant (no separate model error): "
                          "leave out include_error=False / --no-model-error, or use params draws")  # fmt: skip
-    data = measured_data(ps.measured)
     model = nominal_model(ps)
-    gp = measured_loop_gp(data, model)
-    P = loop_gp_plants(gp, model, omega, int(max_samples), seed)
-    band = [float(data["omega"][0] / TWO_PI), float(data["omega"][-1] / TWO_PI)]
+    gp = source.gp(model)
+    P = source.plants(model, omega, int(max_samples), seed, gp=gp)
     info = {"ell": float(gp.ell), "eta": float(gp.eta), "sigma2": float(gp.sigma2),
-            "measured_hz": band}  # fmt: skip
+            "measured_hz": list(source.band_hz())}  # fmt: skip
     return PlantDraws(omega, P, None, None, "loop_gp", "loop_gp", info)
