@@ -58,6 +58,7 @@ from hapid.fit import (  # noqa: E402
     positize,
     pphat_band_db,
     project_pd,
+    solver_from,
     theta_to_model,
     wls,
 )
@@ -224,7 +225,8 @@ def estimators(f_max_hz):
            ("WLS + positize", "jax", lambda frf: positize(wls(frf)))]  # fmt: skip
     for s in SOLVERS:
         out.append((f"NLS {s}", "jax",
-                    lambda frf, s=s: fit_nls(frf, f_max_hz=f_max_hz, solver=s, max_steps=MAX_STEPS)))  # fmt: skip
+                    lambda frf, s=s: fit_nls(frf, f_max_hz=f_max_hz, solver=solver_from(s),
+                                             max_steps=MAX_STEPS)))  # fmt: skip
     return out
 
 

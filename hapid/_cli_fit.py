@@ -28,7 +28,7 @@ from . import io
 from ._cli_lab import matrices_report
 from ._constants import TWO_PI
 from ._grids import band_mask
-from .defaults import FIT_BAND_HZ, NLS_MAX_STEPS
+from .defaults import FIT_BAND_HZ, NLS_MAX_STEPS, NLS_SOLVER
 from .device import preset
 from .experiment import estimate_frf
 from .impedance_frf import model_units
@@ -97,7 +97,7 @@ def _pair_nls(frf, a, band) -> Fitted:
 def _pair_ml(frf, a, band=None) -> Fitted:
     """Sample maximum likelihood on the run's spectra (``hapid.fit.fit_ml``); the run is the
     file read by :func:`run_fit` (``a.ml_run``), ``frf`` its banded FRF (for the report)."""
-    from .fit import crb_band_db, fit_ml  # local: CLI start-up (hapid.fit, optimistix)
+    from .fit import crb_band_db, fit_ml, solver_from  # local: CLI start-up (hapid.fit, optimistix)
 
     run = getattr(a, "ml_run", None)
     if run is None:  # pragma: no cover - run_fit always sets it for --method ml
@@ -105,7 +105,7 @@ def _pair_ml(frf, a, band=None) -> Fitted:
     solver = a.solver if a.solver in ("lm", "dogleg", "gauss_newton", "bfgs", "nonlinear_cg") else "lm"  # fmt: skip
     f = np.asarray(frf.freq_hz)
     res = fit_ml(run, f_min_hz=float(f.min()), f_max_hz=float(f.max()),
-                 model_floor=a.model_floor, solver=solver, max_steps=a.max_steps)  # fmt: skip
+                 model_floor=a.model_floor, solver=solver_from(solver), max_steps=a.max_steps)  # fmt: skip
     if not bool(res.ok) and not a.allow_unconverged:
         raise FitCommandError(
             f"ML fit did not converge (status {res.status} after {int(res.n_steps)} steps); "
@@ -360,8 +360,8 @@ def register_fit(sub, func) -> None:
                    "this preset's true sampled plant (cu5, tripod3, hexapod6)")  # fmt: skip
     f.add_argument("--positize", action="store_true", help="positize the WLS model (paper 5.1)")
     f.add_argument("--weight", choices=["relative", "paper", "noise", "blend"], default="relative")
-    f.add_argument("--solver", default="lm", help="lm (default), dogleg, gauss_newton, bfgs, "
-                   "nonlinear_cg, jaxopt_lm")  # fmt: skip
+    f.add_argument("--solver", default=NLS_SOLVER, help=f"{NLS_SOLVER} (default), dogleg, "
+                   "gauss_newton, bfgs, nonlinear_cg, jaxopt_lm")  # fmt: skip
     f.add_argument("--f-min-hz", type=float,
                    help="fit band lower edge (Hz), every method; default: the file's lowest")  # fmt: skip
     f.add_argument("--f-max-hz", type=float,

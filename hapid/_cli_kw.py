@@ -14,9 +14,13 @@ def device_or_none(a):
 def posterior_kw(a) -> dict:
     """The options of ``hapid posterior`` (parsed ``a``) for
     :func:`hapid.uncertainty.posterior_from_files`, files aside."""
-    from .uncertainty import model_error_from  # local: CLI start-up: hapid.uncertainty (~0.7 s)
+    from .uncertainty import (  # local: CLI start-up: hapid.uncertainty (~0.7 s)
+        GP,
+        MODEL_ERRORS,
+        model_error_from,
+    )
 
-    gp = a.model_error in ("gp", "gp_corr")
+    gp = issubclass(MODEL_ERRORS[a.model_error], GP)
     error = model_error_from(a.model_error, gp_hyper=a.gp_hyper if gp else None,
                              error_scale=a.error_scale)  # fmt: skip
     return dict(

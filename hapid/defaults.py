@@ -31,6 +31,22 @@ draws), ``auto`` (``loop_gp`` when the measured FRF is known). ``hapid predict``
 NLS_MAX_STEPS = 500
 """Step limit of the NLS fit of ``hapid fit`` and of the fit ``hapid posterior`` centres on."""
 
+NLS_SOLVER = "lm"
+"""Solver of the NLS and ML fits, by the name the CLI (``--solver``) and the scenes
+(``fit.solver``) use: optimistix Levenberg–Marquardt. The library takes solver objects;
+``hapid.fit.solver_from`` maps names to them and ``hapid.fit.DEFAULT_SOLVER`` is this one with
+the two tolerances and the linear solver below."""
+
+NLS_RTOL = 1e-8
+"""Relative Cauchy tolerance of the fits' solver (on the parameters, scaled units)."""
+
+NLS_ATOL = 1e-10
+"""Absolute Cauchy tolerance of the fits' solver (on the residuals, scaled units)."""
+
+NLS_LINEAR_SOLVER = "cholesky"
+"""Linear solver of the least-squares fits' steps: the Cholesky normal equations (``"qr"`` is
+optimistix's default). Why: docs/conventions.md, "CPU pitfalls"."""
+
 NPERSEG = 2048
 """Samples per Welch segment of an H1 estimate (``hapid frf --h1`` on non-periodic records)."""
 

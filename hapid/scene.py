@@ -49,7 +49,7 @@ from ._grids import nyquist_grid
 from ._plain import jsonable
 from ._stages import Graph, Stage
 from .control import discretize_compensator, max_siso_gain
-from .defaults import FIT_BAND_HZ
+from .defaults import FIT_BAND_HZ, NLS_ATOL, NLS_MAX_STEPS, NLS_RTOL, NLS_SOLVER
 
 DEFAULTS: dict = {
     "device": {"preset": "cu5", "move": [0.0] * 6, "subject_seed": None, "light_damping": False,
@@ -60,7 +60,7 @@ DEFAULTS: dict = {
                  "position_noise": 0.0, "encoder_res": 2e-6, "synthesis": "periodic",
                  "friction": False},
     "fit": {"omega_c_hz": 7.0, "positize": True, "weight": "relative", "f_max_hz": FIT_BAND_HZ,
-            "solver": "lm", "max_steps": 500, "rtol": 1e-8, "atol": 1e-10, "ftol": 1e-8,
+            "solver": NLS_SOLVER, "max_steps": NLS_MAX_STEPS, "rtol": NLS_RTOL, "atol": NLS_ATOL, "ftol": 1e-8,
             "patience": 20, "blend_floor": 0.02, "p_weight": 1.0, "pd_eps": 0.0,
             "init_floor": 1e-6, "boundary_refit": True},
     "controller": {"k": 0.85, "lag_zero_hz": 30.0, "lag_pole_hz": 0.6,

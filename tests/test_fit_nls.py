@@ -8,14 +8,18 @@ import pytest
 from helpers_fit import PAPER_FREQ_HZ, batch_frfs, random_truth, synthetic_frf
 
 from hapid.fit import (
+    DEFAULT_SOLVER,
     FitFailedError,
+    JaxoptLM,
     crhp_report,
     fit_nls,
     fit_nls_batch,
     model_relative_errors,
     n_params,
     nls_cost,
+    solver_from,
 )
+from hapid.fit._solvers import is_default_lm
 from hapid.frf import FRF, as_frf
 
 
@@ -54,7 +58,7 @@ def test_solvers_agree(solver):
     truth = random_truth(3, seed=3)
     frf = synthetic_frf(truth, rel_noise=1e-3, seed=4)
     ref = fit_nls(frf, f_max_hz=None)
-    res = fit_nls(frf, f_max_hz=None, solver=solver, max_steps=3000)
+    res = fit_nls(frf, f_max_hz=None, solver=solver_from(solver), max_steps=3000)
     assert res.ok, res.summary()
     assert float(res.cost) <= float(ref.cost) * (1 + 1e-6)
     err = np.asarray(model_relative_errors(res.model, ref.model))
@@ -160,15 +164,27 @@ def test_grad_of_cost_matches_finite_differences():
     assert float(jnp.max(jnp.abs(g0))) < 1e-6 * float(jnp.max(jnp.abs(jnp.asarray(g))))
 
 
+def test_solver_names_map_to_objects_in_one_place():
+    """solver_from is the edges' map; the batched fast path is the default LM at any
+    tolerances, and only that."""
+    assert solver_from() == DEFAULT_SOLVER
+    assert is_default_lm(DEFAULT_SOLVER) and is_default_lm(solver_from("lm", rtol=1e-9))
+    assert not is_default_lm(solver_from("lm", linear_solver="qr"))
+    assert not is_default_lm(solver_from("dogleg")) and not is_default_lm("lm")
+    jx = solver_from("jaxopt_lm", rtol=1e-9)
+    assert isinstance(jx, JaxoptLM) and jx.rtol == 1e-9
+
+
 def test_non_converged_fit_never_looks_successful():
     truth = random_truth(3, seed=15)
     frf = synthetic_frf(truth, rel_noise=1e-3, seed=16)
-    res = fit_nls(frf, f_max_hz=None, solver="nonlinear_cg", max_steps=2, ftol=0.0)
+    cg = solver_from("nonlinear_cg")
+    res = fit_nls(frf, f_max_hz=None, solver=cg, max_steps=2, ftol=0.0)
     assert res.status == "max_steps" and not bool(res.ok)
     with pytest.raises(FitFailedError, match="did not converge"):
         res.raise_if_failed()
     with pytest.raises(Exception, match="did not converge"):
-        fit_nls(frf, f_max_hz=None, solver="nonlinear_cg", max_steps=2, ftol=0.0, throw=True)
+        fit_nls(frf, f_max_hz=None, solver=cg, max_steps=2, ftol=0.0, throw=True)
 
 
 def test_bad_input_errors():
@@ -204,8 +220,12 @@ def test_bad_input_errors():
     sing = as_frf(frf.freq_hz, frf.Z_H, Z_T)
     with pytest.raises(ValueError, match="Z_T is singular .* 5 Hz"):
         fit_nls(sing, use_P_residual=True)
-    with pytest.raises(ValueError, match="solver"):
-        fit_nls(frf, solver="newton")
+    with pytest.raises(ValueError, match="solver_from"):
+        fit_nls(frf, solver="lm")  # a name is the edges': solver_from maps it
+    with pytest.raises(ValueError, match="solver must be one of .*'lm'"):
+        solver_from("newton")
+    with pytest.raises(ValueError, match="linear_solver must be one of"):
+        solver_from("lm", linear_solver="lu")
     with pytest.raises(ValueError, match="weight"):
         fit_nls(frf, weight="inverse")
     with pytest.raises(ValueError, match="n = 4"):

@@ -14,9 +14,14 @@ from hapid.cli import main
 from hapid.fit import Scale, theta_to_model
 from hapid.io import save_samples
 from hapid.uncertainty import (
+    GP,
+    GPCorr,
+    NoError,
     PosteriorSamples,
+    White,
     fit_loop_gp,
     matrix_to_theta,
+    model_error_for,
     param_names,
     plant_draws,
 )
@@ -116,6 +121,25 @@ def test_params_draws_and_errors_of_the_library_call():
     assert plant_draws(psm, om, include_error=False, max_samples=5).draws == "params"
     with pytest.raises(ValueError, match="no separate model error"):
         plant_draws(psm, om, draws="loop_gp", include_error=False)
+
+
+def test_samples_map_to_their_model_error_object():
+    """The kind a samples file stores (its count of model-error columns) and gp_corr's
+    recorded error scale become a model-error object in one place, model_error_for."""
+    ps, _ = _samples(measured=False)
+
+    def with_columns(k, predictive=None):
+        extra = np.zeros((ps.n_samples, k))
+        return dataclasses.replace(ps, samples=np.concatenate([ps.samples, extra], axis=1),
+                                   names=ps.names + tuple(f"h{i}" for i in range(k)),
+                                   predictive=predictive)  # fmt: skip
+
+    assert model_error_for(ps) == NoError()
+    assert model_error_for(with_columns(2)) == White()
+    assert model_error_for(with_columns(6)) == model_error_for(with_columns(8)) == GP()
+    assert model_error_for(with_columns(10)) == GPCorr()
+    element = with_columns(10, {"error_scale": "element"})
+    assert model_error_for(element) == GPCorr(scale="element")
 
 
 def test_cli_draws_default_to_params_and_loop_gp_needs_the_file_s_frf(tmp_path, capsys):

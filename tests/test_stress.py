@@ -209,7 +209,7 @@ def test_diverging_gauss_newton_is_failed_and_returns_the_best_iterate():
     from hapid import as_frf
     from hapid.device import cu5
     from hapid.experiment import Protocol
-    from hapid.fit import fit_nls
+    from hapid.fit import fit_nls, solver_from
 
     f = np.asarray(Protocol().freq_hz)
     rng = np.random.default_rng(10)
@@ -222,7 +222,7 @@ def test_diverging_gauss_newton_is_failed_and_returns_the_best_iterate():
             std,
         ]
     frf = as_frf(f, out[0], out[2], out[1], out[3])
-    gn = fit_nls(frf, solver="gauss_newton", linear_solver="qr", max_steps=3000)
+    gn = fit_nls(frf, solver=solver_from("gauss_newton", linear_solver="qr"), max_steps=3000)
     lm = fit_nls(frf)
     assert lm.ok
     assert np.isfinite(float(gn.cost)) and float(gn.cost) < 1e3 * float(lm.cost)

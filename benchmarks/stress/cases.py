@@ -282,9 +282,10 @@ def case_x64_off(fast=False):
 
 @functools.partial(jax.jit, static_argnums=(2,))
 def _lm_jit(problem, theta0, max_steps):
-    from hapid.fit._nls import _run_solver
+    from hapid.fit import DEFAULT_SOLVER
+    from hapid.fit._solvers import run_solver
 
-    return _run_solver(problem, theta0, "lm", 1e-8, 1e-10, max_steps, "cholesky", 1e-8, 20)
+    return run_solver(problem, theta0, DEFAULT_SOLVER, max_steps, 1e-8, 20)
 
 
 def _lm_run(problem, theta0, max_steps=400):

@@ -4,7 +4,9 @@
   :func:`wls_batch_coefficients` — the same for a batch of FRFs on one grid (one fused pass).
 - :func:`positize`, :func:`crhp_report` — paper section 5.1 and its root check.
 - :func:`fit_nls` — hapid's fit: PSD hand and mechanism matrices (``L Lᵀ``, free-sign
-  diagonal), joint Z_H/Z_T residuals, optimistix solvers, Laplace covariance.
+  diagonal), joint Z_H/Z_T residuals, Laplace covariance; the solver an object (an optimistix
+  solver, :data:`DEFAULT_SOLVER`, or :class:`JaxoptLM`; a name maps to one in
+  :func:`solver_from`).
 - :func:`fit_ml` — sample maximum likelihood (errors-in-variables) on a periodic run's
   spectra with their noise covariances; Cramér–Rao bound and its P·P̂⁻¹ band.
 - diagnostics — singular values of Z vs Ẑ and of P P̂⁻¹, the paper's band and anisotropy
@@ -23,6 +25,7 @@ from ._diagnostics import model_relative_errors as model_relative_errors
 from ._diagnostics import pphat as pphat
 from ._diagnostics import pphat_band_db as pphat_band_db
 from ._diagnostics import pphat_singular_values as pphat_singular_values
+from ._jaxopt_adapter import JaxoptLM as JaxoptLM
 from ._ml import MLResult as MLResult
 from ._ml import fit_ml as fit_ml
 from ._ml import ml_cost as ml_cost
@@ -47,7 +50,6 @@ from ._positize import CRHPStatus as CRHPStatus
 from ._positize import crhp_report as crhp_report
 from ._positize import positize as positize
 from ._positize import positize_matrix as positize_matrix
-from ._problem import SOLVERS as SOLVERS
 from ._problem import WEIGHTS as WEIGHTS
 from ._problem import Problem as Problem
 from ._problem import data_scale as data_scale
@@ -63,6 +65,10 @@ from ._result import NLSResult as NLSResult
 from ._single import ImpedanceFit as ImpedanceFit
 from ._single import fit_impedance as fit_impedance
 from ._single import wls_single as wls_single
+from ._solvers import DEFAULT_SOLVER as DEFAULT_SOLVER
+from ._solvers import LINEAR_SOLVERS as LINEAR_SOLVERS
+from ._solvers import SOLVERS as SOLVERS
+from ._solvers import solver_from as solver_from
 from ._wls import OMEGA_C_PAPER as OMEGA_C_PAPER
 from ._wls import paper_weight as paper_weight
 from ._wls import wls as wls

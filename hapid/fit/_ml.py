@@ -68,7 +68,7 @@ from ..experiment._protocol import validate_run
 from ..frf import FRF
 from ..impedance import ImpedanceModel
 from ._checks import TWO_PI
-from ._nls import _run_solver, final_status, fit_nls, init_model, pinv_psd
+from ._nls import final_status, fit_nls, init_model, pinv_psd
 from ._pd import (
     Scale,
     boundary_report,
@@ -77,10 +77,16 @@ from ._pd import (
     theta_to_model,
     theta_to_scaled,
 )
-from ._problem import LEAST_SQUARES_SOLVERS, MINIMISERS, PD_EPS, data_scale
+from ._problem import PD_EPS, data_scale
 from ._result import NLSResult
-
-ML_SOLVERS = LEAST_SQUARES_SOLVERS + MINIMISERS
+from ._solvers import (
+    DEFAULT_SOLVER,
+    Solver,
+    check_solver,
+    run_solver,
+    solver_name,
+    with_array_tolerances,
+)
 
 #: relative variance always added to S_k (numerical safety: noise-free data): a floor of
 #: ``REL_JITTER × force power`` on the equations and ``× trace(S)/2n`` on the diagonal.
@@ -345,11 +351,9 @@ class MLResult(NLSResult):
 
 
 @eqx.filter_jit
-def _ml_core(problem: MLProblem, noise_only: MLProblem, theta0, dyn, static):
-    solver, linear_solver = static
-    theta, n_steps, code = _run_solver(problem, theta0, solver, dyn["rtol"], dyn["atol"],
-                                       dyn["max_steps"], linear_solver, dyn["ftol"],
-                                       dyn["patience"])  # fmt: skip
+def _ml_core(problem: MLProblem, noise_only: MLProblem, theta0, dyn):
+    theta, n_steps, code = run_solver(problem, theta0, dyn["solver"], dyn["max_steps"],
+                                      dyn["ftol"], dyn["patience"])  # fmt: skip
     cost = problem.cost(theta)
     fisher_inv = pinv_psd(problem.fisher(theta))
     crb = pinv_psd(noise_only.fisher_matrices(theta))
@@ -366,15 +370,12 @@ def fit_ml(
     f_max_hz: float | None = FIT_BAND_HZ,
     f_min_hz: float = 0.0,
     model_floor: float = 0.0,
-    solver: str = "lm",
+    solver: Solver = DEFAULT_SOLVER,
     max_steps: int = 500,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
     ftol: float = 1e-8,
     patience: int = 20,
     pd_eps: float = PD_EPS,
     init_floor: float = 1e-6,
-    linear_solver: str = "cholesky",
     boundary_rtol: float = 1e-6,
 ) -> MLResult:
     """Sample maximum-likelihood (errors-in-variables) fit of PSD hand and mechanism M, B, K.
@@ -387,9 +388,10 @@ def fit_ml(
     - ``f_max_hz``, ``f_min_hz``: only excited frequencies in this band enter (Hz;
       ``f_max_hz=None``: no upper edge). The start and the scale use the FRF up to ``f_max_hz``.
     - ``model_floor``: relative equation-error floor φ (module docstring; 0 = pure ML).
-    - ``solver``: ``"lm"`` (default), ``"dogleg"``, ``"gauss_newton"``, ``"bfgs"``,
-      ``"nonlinear_cg"``; ``max_steps``, ``rtol``, ``atol``, ``ftol``, ``patience``,
-      ``linear_solver``: as :func:`~hapid.fit.fit_nls`.
+    - ``solver``: an optimistix least-squares solver or minimiser, as
+      :func:`~hapid.fit.fit_nls` (default :data:`~hapid.fit.DEFAULT_SOLVER`; not
+      :class:`~hapid.fit.JaxoptLM`); ``max_steps``, ``ftol``, ``patience``: as
+      :func:`~hapid.fit.fit_nls`.
     - ``pd_eps``: ``pd_eps·I`` (scaled units, default 1e-3) added to every matrix: strictly
       PD, so a matrix the fit drives to the PSD boundary (a soft direction of the hand) does
       not put a root of det Ẑ at s = 0 or ∞ (closed RHP; docs/robust-design.md, Evidence E12).
@@ -397,6 +399,8 @@ def fit_ml(
 
     Returns an :class:`MLResult` (``weight == "ml"``): ``status`` converged / max_steps /
     failed, ``cost`` V(θ̂), ``crb`` and ``covariance`` of ``theta`` (in ``scale`` units).
+    Raises ``ValueError`` for an FRF or other non-run data, a solver not of those kinds,
+    ``max_steps`` not a positive int or a negative or non-finite ``model_floor``.
     """
     if isinstance(run, FRF):
         raise ValueError(
@@ -406,8 +410,7 @@ def fit_ml(
         )
     if not isinstance(run, Run):
         raise ValueError(f"fit_ml: expected a Run, got {type(run).__name__}")
-    if solver not in ML_SOLVERS:
-        raise ValueError(f"fit_ml: solver must be one of {ML_SOLVERS}, got {solver!r}")
+    check_solver(solver, "fit_ml", jaxopt=False)
     if not (isinstance(max_steps, int) and max_steps > 0):
         raise ValueError(f"fit_ml: max_steps must be a positive int, got {max_steps!r}")
     if not (np.isfinite(model_floor) and model_floor >= 0):
@@ -420,12 +423,10 @@ def fit_ml(
     init = init_model(init, run.n, data="run", what="fit_ml: ")
     theta0 = model_to_theta(init, scale, floor=init_floor)
     problem = make_ml_problem(spectra, scale, model_floor=model_floor, pd_eps=pd_eps)
-    dyn = dict(rtol=jnp.asarray(rtol), atol=jnp.asarray(atol), ftol=jnp.asarray(ftol),
+    dyn = dict(solver=with_array_tolerances(solver), ftol=jnp.asarray(ftol),
                max_steps=jnp.asarray(max_steps), patience=jnp.asarray(patience))  # fmt: skip
     noise_only = make_ml_problem(spectra, scale, model_floor=0.0, pd_eps=pd_eps)
-    theta, n_steps, code, cost, crb, sigma2, fisher_inv = _ml_core(
-        problem, noise_only, theta0, dyn, (solver, linear_solver)
-    )
+    theta, n_steps, code, cost, crb, sigma2, fisher_inv = _ml_core(problem, noise_only, theta0, dyn)
 
     model = theta_to_model(theta, scale, pd_eps)
     return MLResult(
@@ -440,7 +441,7 @@ def fit_ml(
         n_residuals=jnp.asarray(problem.n_residuals),
         at_boundary=boundary_report(theta_to_model(theta, scale), rtol=boundary_rtol),
         weight="ml",
-        solver=solver,
+        solver=solver_name(solver),
         crb=crb,
         dof=spectra.dof,
     )

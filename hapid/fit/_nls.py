@@ -37,9 +37,7 @@ import inspect
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
-import optimistix as optx
 from jaxtyping import Array, Float
 
 from .._linalg import pinv_psd
@@ -47,8 +45,7 @@ from ..defaults import FIT_BAND_HZ
 from ..frf import FRF
 from ..impedance import ImpedanceModel
 from ._compress import compress
-from ._iterate import iterate
-from ._jaxopt_adapter import jaxopt_lm
+from ._jaxopt_adapter import JaxoptLM
 from ._lm_batch import covariance_batch, lm_compressed
 from ._pd import (
     Scale,
@@ -58,56 +55,18 @@ from ._pd import (
     theta_to_model,
     theta_to_scaled,
 )
-from ._problem import (
-    LEAST_SQUARES_SOLVERS,
-    LINEAR_SOLVERS,
-    SOLVERS,
-    Problem,
-    _check_data,
-    _warn_jacobian_size,
-    make_problem,
-)
+from ._problem import Problem, _check_data, _warn_jacobian_size, make_problem
 from ._result import CONVERGED, FAILED, NLSResult
+from ._solvers import (
+    DEFAULT_SOLVER,
+    Solver,
+    check_solver,
+    is_default_lm,
+    run_solver,
+    solver_name,
+    with_array_tolerances,
+)
 from ._wls import OMEGA_C_PAPER, wls
-
-
-def _linear_solver(name: str):
-    if name == "cholesky":
-        return lx.Normal(lx.Cholesky())
-    return lx.QR()
-
-
-def _run_solver(
-    problem: Problem, theta0, solver, rtol, atol, max_steps, linear_solver, ftol, patience
-):
-    if solver == "jaxopt_lm":
-        return jaxopt_lm(problem, theta0, max_steps=max_steps, rtol=rtol, atol=atol)
-    if solver in LEAST_SQUARES_SOLVERS:
-        cls = {
-            "lm": optx.LevenbergMarquardt,
-            "dogleg": optx.Dogleg,
-            "gauss_newton": optx.GaussNewton,
-        }[solver]
-        opt = cls(rtol=rtol, atol=atol, linear_solver=_linear_solver(linear_solver))
-        fn = lambda th, args: (problem(th), None)  # noqa: E731
-        stall = True
-    else:
-        cls = {"bfgs": optx.BFGS, "nonlinear_cg": optx.NonlinearCG}[solver]
-        opt = cls(rtol=rtol, atol=atol)
-        fn = lambda th, args: (problem.cost(th), None)  # noqa: E731
-        # line-search minimisers legitimately have long runs of rejected trials early on,
-        # and their own Cauchy test on the scalar cost terminates: no stagnation rule
-        stall = False
-    return iterate(
-        opt,
-        fn,
-        problem.cost,
-        theta0,
-        max_steps=max_steps,
-        ftol=ftol,
-        patience=patience,
-        stall=stall,
-    )
 
 
 def laplace_covariance(
@@ -166,9 +125,10 @@ def _init_theta(frf: FRF, init, scale: Scale, omega_c, f_max_hz, init_floor):
 
 @eqx.filter_jit
 def _fit_core(frf, init, dyn, static):
-    """The jitted fit. ``dyn`` holds numeric options as arrays (one compile serves a sweep
-    over them); ``static`` the structural ones (weight, solver, ...)."""
-    weight, solver, use_P, linear_solver, throw, jaxopt_steps = static
+    """The jitted fit. ``dyn`` holds numeric options as arrays and the solver (its tolerances
+    arrays): one compile serves a sweep over them; ``static`` the structural options (weight,
+    solver label, ...)."""
+    weight, solver_label, use_P, throw, jaxopt_steps = static
     d = dyn
     problem = make_problem(
         frf,
@@ -185,16 +145,8 @@ def _fit_core(frf, init, dyn, static):
     # without the P term the residual is linear in the matrices: the solver and the Laplace
     # covariance work on its exact 6-rows-per-element compression (same cost and JᵀJ)
     work = problem if use_P else compress(problem)
-    theta, n_steps, code = _run_solver(
-        work,
-        theta0,
-        solver,
-        d["rtol"],
-        d["atol"],
-        max_steps,
-        linear_solver,
-        d["ftol"],
-        d["patience"],
+    theta, n_steps, code = run_solver(
+        work, theta0, d["solver"], max_steps, d["ftol"], d["patience"]
     )
     cov, sigma2, cost = laplace_covariance(work, theta, weight == "noise", problem.n_residuals)
     free = theta  # the solver's L (matrices L Lᵀ + pd_eps·I)
@@ -228,7 +180,7 @@ def _fit_core(frf, init, dyn, static):
         n_residuals=problem.n_residuals,
         at_boundary=boundary_report(theta_to_model(free, problem.scale), rtol=d["boundary_rtol"]),
         weight=weight,
-        solver=solver,
+        solver=solver_label,
     )
 
 
@@ -241,17 +193,14 @@ def fit_nls(
     weight: str = "relative",
     f_max_hz: float | None = FIT_BAND_HZ,
     omega_c: float = OMEGA_C_PAPER,
-    solver: str = "lm",
+    solver: Solver = DEFAULT_SOLVER,
     use_P_residual: bool = False,
     max_steps: int = 500,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
     throw: bool = False,
     blend_floor: float = 0.02,
     p_weight: float = 1.0,
     pd_eps: float = 0.0,
     init_floor: float = 1e-6,
-    linear_solver: str = "cholesky",
     boundary_rtol: float = 1e-6,
     ftol: float = 1e-8,
     patience: int = 20,
@@ -267,12 +216,16 @@ def fit_nls(
     - ``weight``: ``"relative"`` | ``"paper"`` | ``"noise"`` | ``"blend"`` (module docstring).
     - ``f_max_hz``: fit band upper edge in Hz (default 40, see module docstring; ``None`` = all).
     - ``omega_c``: paper-weight corner, rad/s (used by ``"paper"`` and the WLS start).
-    - ``solver``: optimistix ``"lm"`` (Levenberg–Marquardt, default), ``"dogleg"``,
-      ``"gauss_newton"``; optimistix minimisers of ½‖r‖² ``"bfgs"``, ``"nonlinear_cg"``; or
-      ``"jaxopt_lm"`` (cross-check backend).
+    - ``solver``: the solver object (:mod:`hapid.fit._solvers`): an optimistix least-squares
+      solver (run on the residual), an optimistix minimiser (run on ½‖r‖²) or
+      :class:`~hapid.fit.JaxoptLM` (cross-check backend); its ``rtol``, ``atol`` are the
+      Cauchy tolerances (on ``theta`` and on residuals, scaled units). Default
+      :data:`~hapid.fit.DEFAULT_SOLVER`: ``optx.LevenbergMarquardt(rtol=1e-8, atol=1e-10,
+      linear_solver=lx.Normal(lx.Cholesky()))`` (the Cholesky normal equations:
+      docs/conventions.md "CPU pitfalls"; ``lx.QR()`` is optimistix's default). By name:
+      :func:`~hapid.fit.solver_from`.
     - ``use_P_residual``: add ``(P̂ − P)/‖P‖_F·p_weight`` residuals (needs invertible Z).
-    - ``max_steps``, ``rtol``, ``atol``: solver budget and Cauchy tolerances (on ``theta`` and
-      on residuals, in scaled units).
+    - ``max_steps``: solver budget.
     - ``throw``: raise (also under ``jit``, via ``eqx.error_if``) if the fit did not converge.
     - ``blend_floor``: relative model-error floor of ``"blend"`` weights.
     - ``pd_eps``: add ``pd_eps·I`` (scaled units) to every matrix, making them strictly PD:
@@ -285,27 +238,26 @@ def fit_nls(
       matrices, floor included: ``theta_to_model(theta, scale)`` is ``model`` and
       ``nls_cost(theta, frf, scale=scale)`` is ``cost``; ``at_boundary`` flags the matrices
       whose ``L Lᵀ`` part (without the floor) is on the PSD boundary.
-    - ``linear_solver``: ``"cholesky"`` (normal equations, default; docs/conventions.md "CPU pitfalls")
-      or ``"qr"`` (optimistix's default) for the Gauss–Newton-type solvers.
     - ``boundary_rtol``: an eigenvalue ≤ boundary_rtol × largest counts as on the boundary.
-    - ``ftol``, ``patience``: (``lm``, ``dogleg``, ``gauss_newton``) also stop (as converged)
-      when the cost has not decreased by a
-      relative ``ftol`` over ``patience`` consecutive steps (``hapid.fit._iterate``: the
-      optimistix trust region otherwise never terminates on a cost flat to rounding).
-      ``jaxopt_lm`` uses its own Madsen–Nielsen test instead (``rtol`` → xtol, ``atol`` → gtol).
+    - ``ftol``, ``patience``: least-squares solvers also stop (as converged) when the cost
+      has not decreased by a relative ``ftol`` over ``patience`` consecutive steps
+      (``hapid.fit._iterate``: the optimistix trust region otherwise never terminates on a
+      cost flat to rounding). :class:`~hapid.fit.JaxoptLM` uses its own Madsen–Nielsen test
+      instead (``rtol`` → xtol, ``atol`` → gtol).
 
     Returns an :class:`NLSResult`; check ``result.ok`` or call ``result.raise_if_failed()``:
     a fit that hit ``max_steps`` or failed is never reported as converged. Jittable and
     vmappable (``jax.vmap(lambda f: fit_nls(f, ...))(batch)``, or :func:`fit_nls_batch`).
-    Raises ``ValueError`` for unknown options and (outside ``jit``) bad input: non-finite
+    Raises ``ValueError`` for unknown options (a solver that is not one of the objects
+    above, a string included) and (outside ``jit``) bad input: non-finite
     data, fewer than 3 frequencies in the band, missing/non-positive stds for noise weights,
     singular Z (P residual).
     """
     dyn, static = _options(
         weight=weight, f_max_hz=f_max_hz, omega_c=omega_c, solver=solver,
-        use_P_residual=use_P_residual, max_steps=max_steps, rtol=rtol, atol=atol, throw=throw,
+        use_P_residual=use_P_residual, max_steps=max_steps, throw=throw,
         blend_floor=blend_floor, p_weight=p_weight, pd_eps=pd_eps, init_floor=init_floor,
-        linear_solver=linear_solver, boundary_rtol=boundary_rtol, ftol=ftol, patience=patience,
+        boundary_rtol=boundary_rtol, ftol=ftol, patience=patience,
     )  # fmt: skip
     _check_data(frf, f_max_hz, weight, use_P_residual)
     _warn_jacobian_size(frf, use_P_residual)
@@ -313,23 +265,19 @@ def fit_nls(
 
 
 def _options(
-    *, weight, f_max_hz, omega_c, solver, use_P_residual, max_steps, rtol, atol, throw,
-    blend_floor, p_weight, pd_eps, init_floor, linear_solver, boundary_rtol, ftol, patience,
+    *, weight, f_max_hz, omega_c, solver, use_P_residual, max_steps, throw,
+    blend_floor, p_weight, pd_eps, init_floor, boundary_rtol, ftol, patience,
 ):  # fmt: skip
     """``(dyn, static)`` of :func:`fit_nls`'s options, every one given (the defaults live in
-    :func:`fit_nls`'s signature only: :data:`_NLS_DEFAULTS`), checked."""
-    if solver not in SOLVERS:
-        raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
-    if linear_solver not in LINEAR_SOLVERS:
-        raise ValueError(f"linear_solver must be one of {LINEAR_SOLVERS}, got {linear_solver!r}")
+    :func:`fit_nls`'s signature only: :data:`_NLS_DEFAULTS`), checked. ``dyn["solver"]`` is
+    the solver with array tolerances; ``static`` holds its label."""
+    check_solver(solver)
     if not (isinstance(max_steps, int) and max_steps > 0):
         raise ValueError(f"max_steps must be a positive int, got {max_steps!r}")
     num = dict(
         f_max_hz=np.inf if f_max_hz is None else f_max_hz,
         omega_c=omega_c,
         max_steps=max_steps,
-        rtol=rtol,
-        atol=atol,
         ftol=ftol,
         patience=patience,
         blend_floor=blend_floor,
@@ -342,8 +290,9 @@ def _options(
         k: jnp.asarray(v, dtype=jnp.int64 if k in ("max_steps", "patience") else jnp.float64)
         for k, v in num.items()
     }
-    static = (weight, solver, bool(use_P_residual), linear_solver, bool(throw))
-    static += (int(max_steps) if solver == "jaxopt_lm" else None,)
+    dyn["solver"] = with_array_tolerances(solver)
+    static = (weight, solver_name(solver), bool(use_P_residual), bool(throw))
+    static += (int(max_steps) if isinstance(solver, JaxoptLM) else None,)
     return dyn, static
 
 
@@ -357,7 +306,7 @@ def _fit_core_batch(frfs, init, dyn, static):
     only for fits whose information matrix is near singular); the ``pd_eps`` branch is taken
     once for the batch."""
 
-    weight, solver, use_P, linear_solver, throw, _ = static
+    weight, solver_label, use_P, throw, _ = static
     d = dyn
     n = frfs.n
 
@@ -374,7 +323,7 @@ def _fit_core_batch(frfs, init, dyn, static):
         return problem.scale, problem.n_residuals, compress(problem), theta0
 
     scale, m, work, theta0 = jax.vmap(setup)(frfs, init)
-    steps = (d["rtol"], d["atol"], d["max_steps"], d["ftol"], d["patience"])
+    steps = (d["solver"].rtol, d["solver"].atol, d["max_steps"], d["ftol"], d["patience"])
     free, n_steps, code = jax.vmap(lambda w, t: lm_compressed(w, t, *steps))(work, theta0)
     inv, cost = covariance_batch(work, free)
     p = free.shape[-1]
@@ -411,7 +360,7 @@ def _fit_core_batch(frfs, init, dyn, static):
         n_residuals=m,
         at_boundary=at_boundary,
         weight=weight,
-        solver=solver,
+        solver=solver_label,
     )
 
 
@@ -431,16 +380,16 @@ def fit_nls_batch(frfs: FRF, init: ImpedanceModel | None = None, **options) -> N
     ``ok`` a bool array). Each fit equals ``fit_nls`` of that FRF alone (same steps and
     status, cost to rounding; ``tests/test_fit_batch.py``).
 
-    The default path (``solver="lm"``, ``linear_solver="cholesky"``, no P residual) runs as
-    one batched program (:mod:`hapid.fit._lm_batch`); other options vmap :func:`fit_nls`.
+    The default path (the default solver, Levenberg–Marquardt on the Cholesky normal
+    equations, with any tolerances; no P residual) runs as one batched program
+    (:mod:`hapid.fit._lm_batch`); other options vmap :func:`fit_nls`.
     """
     unknown = set(options) - set(_NLS_DEFAULTS)
     if unknown:
         raise TypeError(f"fit_nls_batch: unknown option(s) {sorted(unknown)}")
     opts = _NLS_DEFAULTS | options
     fast = (
-        opts["solver"] == "lm"
-        and opts["linear_solver"] == "cholesky"
+        is_default_lm(opts["solver"])
         and not opts["use_P_residual"]
         and isinstance(frfs, FRF)
         and np.ndim(frfs.omega) == 2

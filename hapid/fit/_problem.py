@@ -1,6 +1,6 @@
 # ruff: noqa: F722  (jaxtyping shape strings in annotations)
 """The NLS fit's problem: data scaling, residual weights and the :class:`Problem` a solver
-minimises (:func:`make_problem`); the names of the weights and solvers it accepts."""
+minimises (:func:`make_problem`); the names of the weights it accepts."""
 
 from __future__ import annotations
 
@@ -25,10 +25,6 @@ from ._pd import (
 from ._wls import OMEGA_C_PAPER
 
 WEIGHTS = ("relative", "paper", "noise", "blend")
-LEAST_SQUARES_SOLVERS = ("lm", "dogleg", "gauss_newton")
-MINIMISERS = ("bfgs", "nonlinear_cg")
-SOLVERS = LEAST_SQUARES_SOLVERS + MINIMISERS + ("jaxopt_lm",)
-LINEAR_SOLVERS = ("cholesky", "qr")
 #: relative weights: a block's norm is floored at this fraction of the other block's
 RELATIVE_FLOOR = 1e-6
 #: default ``pd_eps`` of fit_ml, opt-in for fit_nls (scaled units, relative to the data scale):

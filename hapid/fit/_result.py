@@ -55,7 +55,8 @@ class NLSResult(eqx.Module):
     - ``sigma2``: the σ̂² used; ``n_residuals``: m (real residuals in the band).
     - ``at_boundary``: ``(6,)`` bool, a fitted ``M_H, B_H, K_H, M_M, B_M, K_M`` has an
       eigenvalue at the PSD boundary (≈ 0 relative to its largest).
-    - ``weight``, ``solver``: the options used (static).
+    - ``weight``: the weight used; ``solver``: the solver's label, its name in
+      :data:`~hapid.fit.SOLVERS` (else its class name) (static).
     """
 
     model: ImpedanceModel

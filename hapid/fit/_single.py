@@ -22,18 +22,21 @@ import dataclasses
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
+import optimistix as optx
 from jaxtyping import Array, Complex, Float
 
 from .._plain import jsonable
 from ..impedance import SecondOrder
 from ..impedance_frf import ImpedanceFRF
-from ._nls import _run_solver, laplace_covariance
+from ._nls import laplace_covariance
 from ._pd import Scale, _project_matrix
 from ._physics import CHI2_SCALE_ABOVE, chi2_note, correct_exponential, physics_warnings
 from ._positize import positize_matrix
 from ._quality import FitQuality, impedance_quality
 from ._result import FIT_OK, STATUS_NAMES, FitStatus
+from ._solvers import run_solver
 
 SINGLE_WEIGHTS = ("relative", "noise")
 SINGLE_METHODS = ("wls", "nls")
@@ -130,9 +133,8 @@ def _nls_core(omega, Z, W, scale: Scale, theta0, max_steps, rtol, atol, ftol):
     """The jitted LM fit on padded arrays (rows with ``W = 0`` are padding). The covariance
     and std are returned for σ̂² = 1; the caller scales them (one compile for every weight)."""
     prob = SingleProblem(s=1j * omega / scale.omega_ref, Z=Z / scale.z_ref, W=W, scale=scale)
-    theta, n_steps, code = _run_solver(
-        prob, theta0, "lm", rtol, atol, max_steps, "cholesky", ftol, 20
-    )
+    lm = optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
+    theta, n_steps, code = run_solver(prob, theta0, lm, max_steps, ftol, 20)
     cov, sigma2, cost = laplace_covariance(prob, theta, True)
     code = jnp.where(jnp.all(jnp.isfinite(theta)) & jnp.isfinite(cost), code, 2)
     model = prob.model(theta)

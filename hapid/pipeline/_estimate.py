@@ -10,10 +10,12 @@ single line, as ``ml`` is added here::
 
 Options use the scene's units (Hz): ``omega_c_hz`` (paper weight corner) and ``f_max_hz``
 (fit band) for every estimator; the NLS ones are those of :func:`hapid.fit.fit_nls`
-(``weight``, ``solver``, ``max_steps``, ``rtol``, ``atol``, ``ftol``, ``patience``,
-``blend_floor``, ``p_weight``, ``pd_eps``, ``init_floor``, ``linear_solver``,
-``use_P_residual``, ``boundary_rtol``). Numeric options may be traced scalars (one compile
-serves a sweep over them); ``max_steps`` is static (a python int).
+(``weight``, ``max_steps``, ``ftol``, ``patience``, ``blend_floor``, ``p_weight``,
+``pd_eps``, ``init_floor``, ``use_P_residual``, ``boundary_rtol``) and the solver as the
+scenes write it: ``solver`` a name of :data:`hapid.fit.SOLVERS` with ``rtol``, ``atol`` and
+``linear_solver`` (mapped to the object by :func:`hapid.fit.solver_from`; defaults
+:mod:`hapid.defaults`), or a solver object alone. Numeric options may be traced scalars (one
+compile serves a sweep over them); ``max_steps`` is static (a python int).
 Every estimator is jittable and vmappable.
 """
 
@@ -31,7 +33,7 @@ from .._constants import TWO_PI
 from .._grids import NYQUIST_F_MIN_HZ
 from .._plain import jsonable
 from ..control import controller_is_stable
-from ..fit import crhp_report, fit_ml, fit_nls, positize, wls
+from ..fit import crhp_report, fit_ml, fit_nls, positize, solver_from, wls
 from ..fit._problem import PD_EPS
 from ..fit._result import FitStatus
 
@@ -119,12 +121,30 @@ def _wls_positize(frf, **o) -> Fit:
     return Fit.closed_form(positize(raw, mode=mode), raw, estimator="wls+positize")
 
 
-@register("nls")
-def _nls(frf, **o) -> Fit:
+def _solver_option(o: dict) -> dict:
+    """``o`` with the scene's solver options (``solver`` a name, ``rtol``, ``atol``,
+    ``linear_solver``) replaced by the solver object (:func:`hapid.fit.solver_from`); a solver
+    object passes as it is. Raises ``ValueError`` for an unknown name, or for tolerances given
+    with an object (it carries its own)."""
     o = dict(o)
-    omega_c = _omega_c(o)
+    tol = {k: o.pop(k) for k in ("rtol", "atol", "linear_solver") if k in o}
+    solver = o.pop("solver", None)
+    if solver is None or isinstance(solver, str):
+        o["solver"] = solver_from(*(() if solver is None else (solver,)), **tol)
+    elif tol:
+        raise ValueError(f"options {sorted(tol)} go with a solver name; a solver object "
+                         "carries its own")  # fmt: skip
+    else:
+        o["solver"] = solver
     if "max_steps" in o:
         o["max_steps"] = int(o["max_steps"])
+    return o
+
+
+@register("nls")
+def _nls(frf, **o) -> Fit:
+    o = _solver_option(o)
+    omega_c = _omega_c(o)
     return Fit.from_nls(fit_nls(frf, omega_c=omega_c, **o))
 
 
@@ -132,10 +152,8 @@ def _nls(frf, **o) -> Fit:
 def _ml(run, **o) -> Fit:
     """Sample maximum likelihood (:func:`hapid.fit.fit_ml`): needs the periodic *run* (the
     experiment stage's output), not an FRF; ``omega_c_hz`` is ignored."""
-    o = dict(o)
+    o = _solver_option(o)
     o.pop("omega_c_hz", None)
-    if "max_steps" in o:
-        o["max_steps"] = int(o["max_steps"])
     return Fit.from_nls(fit_ml(run, **o), estimator="ml")
 
 

@@ -2,8 +2,9 @@
 
 - :func:`make_log_posterior` → :class:`LogPosterior` — complex-Gaussian likelihood with a
   model-error term (a strategy object: :class:`NoError`, :class:`White`, :class:`GP`,
-  :class:`GPCorr`; the CLI's names map to them in :func:`model_error_from`) and proper priors
-  on the matrices in the PSD cone (``log_prob`` jitted and vmapped over walkers);
+  :class:`GPCorr`; the CLI's names map to them in :func:`model_error_from`, a samples file's
+  kind in :func:`model_error_for`) and proper priors on the matrices in the PSD cone
+  (``log_prob`` jitted and vmapped over walkers);
   :func:`fix_hyperparameters` is the step that fixes a GP's hyperparameters.
 - :func:`sample_posterior` (emcee), :func:`laplace_samples` (fast path),
   :func:`laplace_posterior` → :class:`PosteriorSamples` (files: :func:`hapid.io.save_samples`,
@@ -57,6 +58,7 @@ from ._model_error import GPCorr as GPCorr
 from ._model_error import ModelError as ModelError
 from ._model_error import NoError as NoError
 from ._model_error import White as White
+from ._model_error import model_error_for as model_error_for
 from ._model_error import model_error_from as model_error_from
 from ._plant_draws import DrawsStatus as DrawsStatus
 from ._plant_draws import PlantDraws as PlantDraws

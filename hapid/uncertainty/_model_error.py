@@ -21,8 +21,14 @@ impedances (scaled units), so τ is a relative RMS element error. The covariance
 of :mod:`hapid.uncertainty._gp`; the module docstring of
 :mod:`hapid.uncertainty._likelihood` gives the likelihood they enter.
 
+Each object also draws its term on a new frequency grid given a posterior draw's fit
+residuals (:meth:`ModelError.predictive_errors`, the conditional behind
+:func:`~hapid.uncertainty.predictive_plants`; computations in
+:mod:`hapid.uncertainty._conditional`).
+
 The CLI's ``--model-error`` / ``--gp-hyper`` / ``--error-scale`` flags map to these objects
-in one place, :func:`model_error_from`.
+in one place, :func:`model_error_from`; the kind a samples file stores
+(:attr:`~hapid.samples.PosteriorSamples.error_kind`) in one place, :func:`model_error_for`.
 """
 
 from __future__ import annotations
@@ -33,6 +39,8 @@ from typing import ClassVar
 import jax.numpy as jnp
 import numpy as np
 
+from ..samples import PosteriorSamples
+from ._conditional import gp_corr_errors, gp_errors, white_errors
 from ._gp import (
     _JITTER,
     N_GP_CORR_HYPER,
@@ -90,6 +98,18 @@ class ModelError:
         :class:`~hapid.uncertainty.LogPosterior`) and hyperparameters ``h``."""
         return _independent_log_likelihood(post, 0.0, 0.0, reH, imH, reT, imT)
 
+    def predictive_errors(self, ps: PosteriorSamples, idx, models, omega, rng, weight=None):
+        """Draws ``(e_H, e_M)`` of this model-error term on ``omega (N,)`` rad/s given each
+        posterior draw's fit residuals: the errors of the hand and of the mechanism impedance,
+        each ``(S, N, n, n)`` complex (N/m; ``Z_T`` carries ``e_H + e_M``).
+
+        ``ps``: samples of this kind whose ``predictive`` holds the fit data; ``idx (S,)``:
+        the draws used; ``models``: their batched models (``(S, …)``, physical units);
+        ``rng``: a numpy ``Generator`` (the draws' randomness); ``weight (N,)``: a factor on
+        the error term per frequency (a taper; None = 1). Without model error: zeros."""
+        z = np.zeros((len(idx), np.shape(omega)[0], ps.n, ps.n), complex)
+        return z, z.copy()
+
 
 def _independent_log_likelihood(post, vH, vM, reH, imH, reT, imT):
     """Residual pairs independent across elements and frequencies, each with the real 2 × 2
@@ -140,6 +160,12 @@ class White(ModelError):
         vH = ((tau[0] * post.a_H) ** 2)[:, None, None]
         vM = ((tau[1] * post.a_M) ** 2)[:, None, None]
         return _independent_log_likelihood(post, vH, vM, reH, imH, reT, imT)
+
+    def predictive_errors(self, ps: PosteriorSamples, idx, models, omega, rng, weight=None):
+        """Independent circular errors of variance ``(τ a(ω))²`` at each frequency (``a`` log-log
+        interpolated from the fit band, constant beyond it): no correlation to condition on.
+        Contract: :meth:`ModelError.predictive_errors`."""
+        return white_errors(ps, idx, omega, rng, weight)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -197,6 +223,12 @@ class GP(White):
                           post.noise_corr, h)  # fmt: skip
         return gp_log_likelihood(reH, imH, reT, imT, C)
 
+    def predictive_errors(self, ps: PosteriorSamples, idx, models, omega, rng, weight=None):
+        """The exact GP conditional on each draw's fit residuals (pathwise, Matheron's rule;
+        far from the fit band it reverts to the prior, amplitude ``τ a(ω)`` with the slope
+        held at its band-edge value). Contract: :meth:`ModelError.predictive_errors`."""
+        return _weighted(gp_errors(ps, idx, models, omega, rng), weight)
+
 
 @dataclasses.dataclass(frozen=True)
 class GPCorr(GP):
@@ -236,6 +268,21 @@ class GPCorr(GP):
         C = gp_corr_covariance(jnp.log(w), aH, aM, post.var_H, post.var_T, post.noise_corr, h)
         return gp_complex_log_likelihood(reH + 1j * imH, reT + 1j * imT, C)
 
+    def predictive_errors(self, ps: PosteriorSamples, idx, models, omega, rng, weight=None):
+        """The exact conditional of the correlated model on each draw's fit residuals, in
+        complex circular form (amplitudes per element when ``scale == "element"``). Contract:
+        :meth:`ModelError.predictive_errors`."""
+        draws = gp_corr_errors(ps, idx, models, omega, rng, element=self.scale == "element")
+        return _weighted(draws, weight)
+
+
+def _weighted(draws, weight):
+    """``(e_H, e_M)`` each multiplied by ``weight (N,)`` along frequency (None: unchanged)."""
+    if weight is None:
+        return draws
+    w = np.asarray(weight)[None, :, None, None]
+    return draws[0] * w, draws[1] * w
+
 
 MODEL_ERRORS: dict[str, type[ModelError]] = {c.name: c for c in (NoError, White, GP, GPCorr)}
 """The model-error kinds by the name the CLI and the samples files use."""
@@ -263,6 +310,18 @@ def model_error_from(name: str, *, gp_hyper: str | None = None,
             raise ValueError(f"error_scale applies to model error 'gp_corr', not {name!r}")
         kw["scale"] = error_scale
     return cls(**kw)
+
+
+def model_error_for(samples: PosteriorSamples) -> ModelError:
+    """The model-error object of posterior samples: the class of their kind
+    (:attr:`~hapid.samples.PosteriorSamples.error_kind`, read from the number of model-error
+    columns) with, for gp_corr, the ``scale`` their fit data records (``"shared"`` when
+    absent). Prior settings and ``hyper`` take the class defaults: the samples carry the
+    hyperparameter draws themselves."""
+    cls = MODEL_ERRORS[samples.error_kind]
+    if cls is GPCorr and samples.predictive is not None:
+        return GPCorr(scale=str(samples.predictive.get("error_scale", "shared")))
+    return cls()
 
 
 def as_model_error(model_error) -> ModelError:
