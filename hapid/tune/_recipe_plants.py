@@ -54,11 +54,6 @@ def _subset(samples, idx):
                                log_prob=np.asarray(samples.log_prob)[np.asarray(idx)])  # fmt: skip
 
 
-def _has_error_term(samples) -> bool:
-    return (isinstance(samples, PosteriorSamples) and samples.error_kind != "none"
-            and samples.predictive is not None)  # fmt: skip
-
-
 def predictive_scenario_plants(samples, idx, omega, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """``(P (S, N, n, n), RHP poles)``: posterior-*predictive* plants of draws ``idx`` on ω —
     the second-order model of each draw plus its model-error term

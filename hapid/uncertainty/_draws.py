@@ -21,6 +21,7 @@ from .. import _config  # noqa: F401  (float64)
 from ..defaults import DRAWS
 from ..samples import PosteriorSamples
 from ._loopgp import LoopGP, loop_gp_plants, measured_data, measured_loop_gp
+from ._model_error import NoError, model_error_for
 from ._predictive import predictive_plants
 
 
@@ -43,7 +44,8 @@ class ParamDraws:
     def has_error_term(self) -> bool:
         """``model_error`` asked for and the samples have a model-error term and its data."""
         s = self.samples
-        return self.model_error and s.error_kind != "none" and s.predictive is not None
+        has_term = not isinstance(model_error_for(s), NoError)
+        return self.model_error and has_term and s.predictive is not None
 
     def plants(self, model, omega, n_draws: int, seed: int = 0) -> np.ndarray:
         """``P`` of at most ``n_draws`` posterior draws (random subset, ``seed``) on
