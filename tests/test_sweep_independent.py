@@ -63,9 +63,12 @@ def reference(cfg, keys, params, estimator, margins=True):
     G = G_at(omega)
     out = {"stable": stable, "p_ol": p_ol}
     if margins:  # loci margins: the LAPACK reference refined on the exact L
-        lap = analyze_loop(
-            P, G, omega, P_ol_rhp=p_ol, L_fn=lambda w: jnp.asarray(L_at(np.asarray(w)))
-        )
+        def L_jax(w):  # the same L, traceable: the reference refines inside vmap/fori_loop
+            z = jnp.exp(1j * w * dev.ts)[:, None, None]
+            Bw = jnp.broadcast_to(B, (w.shape[0],) + B.shape)
+            return jnp.asarray(dev.sampled_P(w)) @ (C @ jnp.linalg.solve(z * eye_x - A, Bw) + D)
+
+        lap = analyze_loop(P, G, omega, P_ol_rhp=p_ol, L_fn=L_jax)
         out["gm_db"], out["pm_deg"] = float(lap.gm_db), float(lap.pm_deg)
     if stable:  # refined crossings and peaks of σ̄ (numpy/scipy on the exact L)
         out |= {
