@@ -77,7 +77,8 @@ def reference(cfg, keys, params, estimator, margins=True):
 
 
 def _check(cfg, vary, estimator, chunk, margins=True):
-    keys, rows, m = sweep.run_sweep(cfg, vary, chunk=chunk, progress=False, estimator=estimator)
+    res = sweep.run_sweep(cfg, vary, chunk=chunk, progress=False, estimator=estimator)
+    keys, rows, m = res.keys, res.params, res.metrics
     for i in range(rows.shape[0]):
         ref = reference(cfg, keys, rows[i], estimator, margins)
         where = dict(zip(keys, rows[i], strict=True))
