@@ -31,6 +31,8 @@ force into other directions unless the controller inverts it).
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 import functools
 import warnings
 
@@ -40,6 +42,7 @@ import numpy as np
 from jaxtyping import Array
 
 from . import _config  # noqa: F401
+from ._plain import jsonable
 from .closed_loop import closed_loop
 from .device import ParallelDevice
 from .lti import zoh
@@ -52,6 +55,80 @@ class WallUnstableWarning(UserWarning):
 def translational(device: ParallelDevice) -> np.ndarray:
     """``(n,)`` bool: which stylus coordinates are translations (m) rather than rotations."""
     return np.abs(np.asarray(device.geometry.dof)[:3]).sum(axis=0) > 0
+
+
+class EquilibriumStatus(enum.StrEnum):
+    """Outcome of :func:`perfect_control_wall` (:class:`PerfectControlWall`); ``ok`` means
+    ``OK`` (a finite equilibrium)."""
+
+    OK = "ok"
+    NON_FINITE = "non-finite"
+
+
+@dataclasses.dataclass(frozen=True)
+class PerfectControlWall:
+    """Result of :func:`perfect_control_wall`: the static equilibrium under perfect force
+    tracking. ``penetration``: the true stylus penetration along ``e``; ``estimate``: the
+    encoder-based estimate ``eᵀ ξ̂`` of it (both m along a translation, rad along a
+    rotation)."""
+
+    penetration: float
+    estimate: float
+
+    @property
+    def status(self) -> EquilibriumStatus:
+        finite = np.isfinite(self.penetration) and np.isfinite(self.estimate)
+        return EquilibriumStatus.OK if finite else EquilibriumStatus.NON_FINITE
+
+    @property
+    def ok(self) -> bool:
+        return self.status is EquilibriumStatus.OK
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, ``penetration``, ``estimate``."""
+        return jsonable({"status": self.status, "ok": self.ok, "penetration": self.penetration,
+                         "estimate": self.estimate})  # fmt: skip
+
+
+class ContactStatus(enum.StrEnum):
+    """Stability of the contact loop (force loop with the wall closed) of
+    :class:`WallSteadyState`; ``ok`` means ``STABLE`` (spectral radius ``< 1``)."""
+
+    STABLE = "stable"
+    UNSTABLE = "unstable"
+
+
+@dataclasses.dataclass(frozen=True)
+class WallSteadyState:
+    """Result of :func:`closed_loop_wall_steady_state`: the steady state of the sampled
+    loop with the wall in contact under a constant push.
+
+    ``penetration``: true stylus penetration along ``e``; ``estimate``: its encoder-based
+    estimate ``eᵀ ξ̂`` (m along a translation, rad along a rotation); ``spectral_radius``:
+    of the sampled loop with the wall closed (``< 1``: the contact is stable; otherwise the
+    steady state is not reached); ``R_I``, ``R_D``: ``(n,)`` sensed and desired rod forces
+    (N)."""
+
+    penetration: float
+    estimate: float
+    spectral_radius: float
+    R_I: np.ndarray
+    R_D: np.ndarray
+
+    @property
+    def status(self) -> ContactStatus:
+        return ContactStatus.STABLE if self.spectral_radius < 1.0 else ContactStatus.UNSTABLE
+
+    @property
+    def ok(self) -> bool:
+        return self.status is ContactStatus.STABLE
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, ``penetration``, ``estimate``,
+        ``spectral_radius``, ``R_I``, ``R_D`` (lists)."""
+        return jsonable({"status": self.status, "ok": self.ok, "penetration": self.penetration,
+                         "estimate": self.estimate, "spectral_radius": self.spectral_radius,
+                         "R_I": self.R_I, "R_D": self.R_D})  # fmt: skip
 
 
 def _unit(direction, n: int) -> np.ndarray:
@@ -91,12 +168,15 @@ def _stylus_rows(device: ParallelDevice, nx: int) -> np.ndarray:
     return S
 
 
-def perfect_control_wall(device: ParallelDevice, direction, k_wall: float, push: float) -> dict:
+def perfect_control_wall(device: ParallelDevice, direction, k_wall: float,
+                         push: float) -> PerfectControlWall:  # fmt: skip
     """Static equilibrium of the device with perfect force tracking (``R_I = R_D(L)``) and the
     real encoder-based position estimate. Solves ``A x + B_R R_A + B_u f = 0``,
     ``C_R x = W C_L x`` for the state ``x`` and the actuator force ``R_A``.
 
-    Returns ``penetration`` (true stylus, along ``e``) and ``estimate`` (``eᵀ ξ̂``)."""
+    ``direction``: the wall normal ``e``, ``(n,)`` (normalized here); ``k_wall``: wall
+    stiffness (N/m along a translation); ``push``: the arm's force on the hand along ``e``
+    (N). Returns a :class:`PerfectControlWall`; ``ValueError`` for a bad ``direction``."""
     n = device.n
     e = _unit(direction, n)
     ss = device.state_space(user=True)
@@ -110,7 +190,7 @@ def perfect_control_wall(device: ParallelDevice, direction, k_wall: float, push:
     x = sol[:nx]
     xi = _stylus_rows(device, nx) @ x
     xi_hat = np.linalg.solve(np.asarray(device.jacobian()), CL @ x)
-    return {"penetration": float(e @ xi), "estimate": float(e @ xi_hat)}
+    return PerfectControlWall(float(e @ xi), float(e @ xi_hat))
 
 
 def _discrete_with_user(device: ParallelDevice, substeps: int, friction: bool):
@@ -118,10 +198,12 @@ def _discrete_with_user(device: ParallelDevice, substeps: int, friction: bool):
 
 
 def closed_loop_wall_steady_state(device: ParallelDevice, controller, direction, k_wall: float,
-                                  push: float) -> dict:  # fmt: skip
-    """Exact steady state of the sampled loop (device + delay + controller) with the wall in
-    contact (linear), for a constant push. Also returns the spectral radius of the loop with
-    the wall closed (``< 1``: the contact is stable)."""
+                                  push: float) -> WallSteadyState:  # fmt: skip
+    """Exact steady state of the sampled loop (device + delay + discrete ``controller``) with
+    the wall in contact (linear), for a constant ``push`` (N) along the wall normal
+    ``direction`` (``(n,)``, normalized here) against a wall of stiffness ``k_wall`` (N/m).
+    Returns a :class:`WallSteadyState` (with the spectral radius of the loop with the wall
+    closed: ``< 1``, the contact is stable); ``ValueError`` for a bad ``direction``."""
     n = device.n
     e = _unit(direction, n)
     cl = closed_loop(device, controller)
@@ -136,8 +218,7 @@ def closed_loop_wall_steady_state(device: ParallelDevice, controller, direction,
     y = C @ x
     xi_hat = np.linalg.solve(np.asarray(device.jacobian()), y[:n])
     rho = float(np.max(np.abs(np.linalg.eigvals(Aw))))
-    return {"penetration": float(e @ xi), "estimate": float(e @ xi_hat), "spectral_radius": rho,
-            "R_I": y[n:], "R_D": W @ y[:n]}  # fmt: skip
+    return WallSteadyState(float(e @ xi), float(e @ xi_hat), rho, y[n:], W @ y[:n])
 
 
 def max_wall_stiffness(device: ParallelDevice, controller, direction, *, k_max: float = 1e6,
@@ -153,10 +234,7 @@ def max_wall_stiffness(device: ParallelDevice, controller, direction, *, k_max: 
     near it the contact rings."""
 
     def stable(k):
-        return (
-            closed_loop_wall_steady_state(device, controller, direction, k, 1.0)["spectral_radius"]
-            < 1.0
-        )
+        return closed_loop_wall_steady_state(device, controller, direction, k, 1.0).ok
 
     ks = np.geomspace(k_min, k_max, n_scan)
     if not stable(ks[0]):
@@ -214,7 +292,7 @@ def render_wall(device: ParallelDevice, controller, direction, *, k_wall: float 
         if not np.isfinite(v) or v < 0:
             raise ValueError(f"{name} must be finite and ≥ 0, got {v}")
     e = _unit(direction, n)
-    rho = closed_loop_wall_steady_state(device, controller, e, k_wall, 1.0)["spectral_radius"]
+    rho = closed_loop_wall_steady_state(device, controller, e, k_wall, 1.0).spectral_radius
     if rho >= 1.0:
         warnings.warn(f"the contact loop with k_wall = {k_wall:g} is unstable (spectral radius "
                       f"{rho:.6f} ≥ 1): the rendered wall will not hold; lower k_wall (see "

@@ -66,16 +66,14 @@ def main(argv=None):
     for ax, name in enumerate("xyz"):
         e = np.eye(dev.n)[ax]
         ide = ideal_wall(dev, e, a.k_wall, a.push)
-        pc = perfect_control_wall(dev, e, a.k_wall, a.push)["penetration"]
+        pc = perfect_control_wall(dev, e, a.k_wall, a.push).penetration
         pen, ferr, off, kmax = [], [], [], []
         for label, ct in ctrls.items():
             ss = closed_loop_wall_steady_state(dev, ct, e, a.k_wall, a.push)
             sim = render_wall(dev, ct, e, k_wall=a.k_wall, push=a.push, duration=6.0, wobble=0.3)
             sims[(name, label)] = sim
             m = wall_metrics(sim)
-            pen.append(
-                f"{ss['penetration'] * 1e3:.3f} ({100 * (ss['penetration'] / pc - 1):+.1f} %)"
-            )
+            pen.append(f"{ss.penetration * 1e3:.3f} ({100 * (ss.penetration / pc - 1):+.1f} %)")
             ferr.append(f"{100 * m['force_error']:.1f} %")
             off.append(f"{m['off_axis_force']:.1e}")
             kmax.append(f"{max_wall_stiffness(dev, ct, e):.0f}")
