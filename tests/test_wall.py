@@ -72,7 +72,7 @@ def test_steady_state_solve_equals_a_long_simulation(loops):
     ss = closed_loop_wall_steady_state(dev, mimo, e, K_WALL, PUSH)
     sim = render_wall(dev, mimo, e, k_wall=K_WALL, push=PUSH, duration=30.0)
     assert ss.spectral_radius < 1
-    np.testing.assert_allclose(wall_metrics(sim)["penetration"], ss.penetration, rtol=1e-3)
+    np.testing.assert_allclose(wall_metrics(sim).penetration, ss.penetration, rtol=1e-3)
 
 
 def test_mimo_wall_has_less_force_error_and_directional_distortion_than_siso(loops):
@@ -88,10 +88,10 @@ def test_mimo_wall_has_less_force_error_and_directional_distortion_than_siso(loo
         s = wall_metrics(
             render_wall(dev, siso, e, k_wall=K_WALL, push=PUSH, duration=6.0, wobble=0.3)
         )
-        print(f"axis {ax}: force error MIMO {m['force_error']:.4f} SISO {s['force_error']:.4f}; "
-              f"off-axis force MIMO {m['off_axis_force']:.2e} SISO {s['off_axis_force']:.2e}")  # fmt: skip
-        assert m["force_error"] < s["force_error"]
-        assert m["off_axis_force"] <= s["off_axis_force"] + 1e-4
+        print(f"axis {ax}: force error MIMO {m.force_error:.4f} SISO {s.force_error:.4f}; "
+              f"off-axis force MIMO {m.off_axis_force:.2e} SISO {s.off_axis_force:.2e}")  # fmt: skip
+        assert m.force_error < s.force_error
+        assert m.off_axis_force <= s.off_axis_force + 1e-4
         # within a few percent of what perfect force control renders on this chain
         pc = perfect_control_wall(dev, e, K_WALL, PUSH).penetration
         ss = closed_loop_wall_steady_state(dev, mimo, e, K_WALL, PUSH).penetration
