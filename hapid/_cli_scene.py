@@ -70,16 +70,16 @@ def cmd_sweep(a):
         except ValueError:
             raise CLIError(f"--vary {key}: values must be numbers, got {vals!r}") from None
     t0 = time.perf_counter()
-    keys, rows, metrics = sweep.run_sweep(cfg, vary, chunk=a.chunk, estimator=a.estimator)
+    res = sweep.run_sweep(cfg, vary, chunk=a.chunk, estimator=a.estimator)
     if not _is_main():
         return  # jax.distributed: process 0 writes the results (all processes hold them)
     out = Path(a.out)
-    csv_path = sweep.write_csv(out / "sweep.csv", keys, rows, metrics)
-    fig_path = sweep.plot_sweep(keys, rows, metrics, out / "sweep.png")
-    ok = np.asarray(metrics["stable"], bool)
-    print(f"{rows.shape[0]} configurations in {time.perf_counter() - t0:.1f} s; stable: {ok.sum()}; "
-          f"iso-bandwidth {np.nanmin(metrics['iso_bandwidth_hz']):.2f}–{np.nanmax(metrics['iso_bandwidth_hz']):.2f} Hz"
-          if ok.any() else f"{rows.shape[0]} configurations; none stable")  # fmt: skip
+    csv_path = sweep.write_csv(out / "sweep.csv", res)
+    fig_path = sweep.plot_sweep(res, out / "sweep.png")
+    bw = res.metrics["iso_bandwidth_hz"]
+    print(f"{len(res)} configurations in {time.perf_counter() - t0:.1f} s; stable: {res.n_stable}; "
+          f"iso-bandwidth {np.nanmin(bw):.2f}–{np.nanmax(bw):.2f} Hz"
+          if res.n_stable else f"{len(res)} configurations; none stable")  # fmt: skip
     print(sweep.STAND_IN_NOTE)
     (out / "sweep_note.txt").write_text(sweep.STAND_IN_NOTE + "\n")
     print(f"table → {csv_path}; figure → {fig_path}; note → {out / 'sweep_note.txt'}")

@@ -6,13 +6,16 @@ Figures are drawn by ``hapid.plot``; this module picks the data and writes the f
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 from pathlib import Path
 
 import numpy as np
 
 from . import io
 from ._constants import TWO_PI
-from .fit import anisotropy_reduction, pphat_band_db
+from ._plain import jsonable
+from .fit import FitStatus, anisotropy_reduction, pphat_band_db
 from .impedance import span_db
 
 PAPER = {
@@ -86,7 +89,9 @@ def _f(x):
     return None if not np.isfinite(x) else x
 
 
-def loop_numbers(rep) -> dict:
+def _loop_numbers(rep) -> dict:
+    """The table's numbers of a loop report (non-finite as ``None``); ``{"stable": False}``
+    for a loop not closed (``rep`` ``None``)."""
     if rep is None:
         return {"stable": False}
     s = rep.numbers()
@@ -96,17 +101,82 @@ def loop_numbers(rep) -> dict:
     return {k: (s[k] if isinstance(s[k], bool) else _f(s[k])) for k in keys}
 
 
-def summary(out_dir, device, frf, wls, nls, mimo, siso, tuned=None, tuned_mimo=None) -> dict:
-    """The summary table (``summary.json``, ``summary.md``) from the scene's stage results;
-    ``tuned``/``tuned_mimo`` (the scene's tuned-g stages) fill the third column."""
+class PaperStatus(enum.StrEnum):
+    """Outcome of the paper summary (:class:`PaperSummary`); ``ok`` means ``OK``: the NLS fit
+    converged and every MIMO loop of the table (both fits, and the tuned g when present) is
+    stable. ``FIT_NOT_CONVERGED`` is reported before ``UNSTABLE_LOOP``."""
+
+    OK = "ok"
+    FIT_NOT_CONVERGED = "fit not converged"
+    UNSTABLE_LOOP = "unstable loop"
+
+
+@dataclasses.dataclass(frozen=True)
+class PaperSummary:
+    """Result of :func:`summary`: the numbers of the summary table.
+
+    - ``device``: ``n``, ``fs_hz`` (Hz), ``delay_samples``.
+    - ``plant_span_db_1_30hz``: ``[min, max]`` (dB) of the true plant's singular-value span
+      over the measured frequencies up to 30 Hz.
+    - ``fits``: ``"wls"`` (paper WLS + positize) and ``"nls"`` (hapid NLS + PD) → ``label``,
+      P·P̂⁻¹ bands to 30 Hz (dB) against the true and the measured plant, the anisotropy
+      reduction ``[min, max]``, ``mimo`` (the loop's numbers: stability, bandwidths in Hz,
+      margins in dB and deg, disk margin, peak of σ̄(T) in dB and its frequency in Hz;
+      ``None`` where undefined); WLS: the CRHP root counts before and after positizing;
+      NLS: its ``status``, ``steps`` and ``refit_pd_eps``.
+    - ``siso``: ``"c=1"`` and ``"design rule"`` → the gain ``c`` and the loop's numbers.
+    - ``tuned``: the tuned-g column (``label``, ``mimo``, ``g`` parameters, ``design_file``,
+      the tuner's ``status`` and ``decision``), or ``None`` without the tuned stages.
+    """
+
+    device: dict
+    plant_span_db_1_30hz: list
+    fits: dict
+    siso: dict
+    tuned: dict | None = None
+
+    @property
+    def status(self) -> PaperStatus:
+        if self.fits["nls"]["status"] != FitStatus.CONVERGED:
+            return PaperStatus.FIT_NOT_CONVERGED
+        loops = [self.fits[k]["mimo"] for k in ("wls", "nls")]
+        loops += [] if self.tuned is None else [self.tuned["mimo"]]
+        return PaperStatus.OK if all(m["stable"] for m in loops) else PaperStatus.UNSTABLE_LOOP
+
+    @property
+    def ok(self) -> bool:
+        return self.status is PaperStatus.OK
+
+    def numbers(self) -> dict:
+        """The content of ``summary.json``: ``device``, ``plant_span_db_1_30hz``, ``fits``,
+        ``siso`` and, with the tuned stages, ``tuned``."""
+        out = {"device": self.device, "plant_span_db_1_30hz": self.plant_span_db_1_30hz,
+               "fits": self.fits, "siso": self.siso}  # fmt: skip
+        return out if self.tuned is None else out | {"tuned": self.tuned}
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, then :meth:`numbers`."""
+        return jsonable({"status": self.status, "ok": self.ok} | self.numbers())
+
+    def markdown(self) -> str:
+        """``summary.md``: the table of the paper's numbers next to each fit's."""
+        return _markdown(self.numbers())
+
+
+def summary(
+    out_dir, device, frf, wls, nls, mimo, siso, tuned=None, tuned_mimo=None
+) -> PaperSummary:
+    """The summary table from the scene's stage results (:class:`PaperSummary`), written to
+    ``out_dir`` as ``summary.json`` (:meth:`PaperSummary.numbers`) and ``summary.md``
+    (:meth:`PaperSummary.markdown`); ``tuned``/``tuned_mimo`` (the scene's tuned-g stages)
+    fill the third column and write ``design_tuned.npz``."""
     w = frf.omega
     P_true = np.asarray(device.sampled_P(w))
     f = np.asarray(frf.freq_hz)
     band = f <= 30.0
     span = np.asarray(span_db(P_true))
-    res = {"device": {"n": device.n, "fs_hz": device.fs_hz, "delay_samples": device.delay_samples},
-           "plant_span_db_1_30hz": [float(span[band].min()), float(span[band].max())],
-           "fits": {}}  # fmt: skip
+    dev = {"n": device.n, "fs_hz": device.fs_hz, "delay_samples": device.delay_samples}
+    fits = {}
     for key, label, out in (("wls", "paper WLS + positize", wls), ("nls", "hapid NLS + PD", nls)):
         lo, hi = pphat_band_db(P_true, out["model"], w, 30.0)
         rlo, rhi = anisotropy_reduction(P_true, out["model"], w, 30.0)
@@ -116,7 +186,7 @@ def summary(out_dir, device, frf, wls, nls, mimo, siso, tuned=None, tuned_mimo=N
             "pphat_band_db_to_30hz": [float(lo), float(hi)],
             "pphat_band_db_to_30hz_measured_P": [float(lom), float(him)],
             "anisotropy_reduction": [float(rlo), float(rhi)],
-            "mimo": loop_numbers(mimo[key]["report"]),
+            "mimo": _loop_numbers(mimo[key]["report"]),
         }
         if key == "wls":
             entry["crhp_roots_before_positize"] = {
@@ -130,23 +200,26 @@ def summary(out_dir, device, frf, wls, nls, mimo, siso, tuned=None, tuned_mimo=N
         else:
             entry["status"], entry["steps"] = nls["status"], nls["steps"]
             entry["refit_pd_eps"] = nls.get("refit_pd_eps")
-        res["fits"][key] = entry
-    res["siso"] = {k: {"c": _f(v["c"]), **loop_numbers(v["report"])} for k, v in siso.items()}
+        fits[key] = entry
+    siso_rows = {k: {"c": _f(v["c"]), **_loop_numbers(v["report"])} for k, v in siso.items()}
     # third column: the same NLS + PD model with g(s) tuned by gradients (the scene's tuned stages)
+    tuned_col = None
     if tuned is not None and tuned_mimo is not None:
         dfile = Path(out_dir) / "design_tuned.npz"
         io_save = getattr(io, "save_design", None)
         if io_save is None:
             from .tune import save_design as io_save  # local: CLI start-up (hapid.tune, ~0.8 s)
         io_save(dfile, tuned["g"], constraints=tuned["constraints"], history=tuned["history"])
-        res["tuned"] = {"label": "hapid NLS + PD + tuned g", "mimo": loop_numbers(tuned_mimo["report"]),
-                        "g": tuned["parameters"], "design_file": str(dfile),
-                        "status": tuned.get("status"), "decision": tuned.get("decision")}  # fmt: skip
+        tuned_col = {"label": "hapid NLS + PD + tuned g", "mimo": _loop_numbers(tuned_mimo["report"]),
+                     "g": tuned["parameters"], "design_file": str(dfile),
+                     "status": tuned.get("status"), "decision": tuned.get("decision")}  # fmt: skip
+    res = PaperSummary(dev, [float(span[band].min()), float(span[band].max())], fits, siso_rows,
+                       tuned_col)  # fmt: skip
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
 
-    io.save_json(out / "summary.json", res)
-    io.save_text(out / "summary.md", summary_markdown(res))
+    io.save_json(out / "summary.json", res.numbers())
+    io.save_text(out / "summary.md", res.markdown())
     return res
 
 
@@ -154,7 +227,7 @@ def _fmt(x, nd=1):
     return "—" if x is None else (str(x) if isinstance(x, bool) else f"{x:.{nd}f}")
 
 
-def summary_markdown(res: dict) -> str:
+def _markdown(res: dict) -> str:
     W, N = res["fits"]["wls"], res["fits"]["nls"]
     sp = res["plant_span_db_1_30hz"]
     siso = res["siso"].get("design rule", {})

@@ -36,6 +36,8 @@ and the chunks split over processes when run with ``jax.distributed`` (:mod:`hap
 from __future__ import annotations
 
 import copy
+import dataclasses
+import enum
 import itertools
 import re
 from pathlib import Path
@@ -47,6 +49,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from tqdm.auto import tqdm
 
 from . import _config, _distributed, pipeline  # noqa: F401
+from ._plain import jsonable
+from .control import LoopStatus
 from .fit import pphat_band_db
 from .io import save_csv
 
@@ -80,7 +84,118 @@ _NO_EFFECT = {
 METRICS = ("stable", "n_encirclements", "p_ol", "nyquist_resolved", "iso_bandwidth_hz", "gm_db",
            "pm_deg", "t_peak_db", "t_peak_hz", "disk_margin", "pphat_min_db", "pphat_max_db",
            "crhp_hand", "crhp_total", "fit_ok", "fit_refit")  # fmt: skip
+_BOOL_METRICS = ("stable", "nyquist_resolved", "fit_ok", "fit_refit")
 ESTIMATOR_DEFAULT = "wls+positize"
+
+
+def _point_status(stable, resolved):
+    """:class:`~hapid.control.LoopStatus` of one configuration: ``STABLE``, else ``UNSTABLE``
+    when the grid resolved the Nyquist count, else ``UNRESOLVED`` (as
+    :attr:`hapid.control.LoopReport.status`)."""
+    if stable:
+        return LoopStatus.STABLE
+    return LoopStatus.UNSTABLE if resolved else LoopStatus.UNRESOLVED
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepPoint:
+    """One configuration of a sweep (:func:`run_single`, :meth:`SweepResult.point`).
+
+    ``keys``: the varied option names; ``params``: ``(len(keys),)`` their values;
+    ``metrics``: :data:`METRICS` name → value (``bool`` for ``stable``, ``nyquist_resolved``,
+    ``fit_ok``, ``fit_refit``; ``float`` otherwise, NaN where undefined, e.g. the isotropic
+    bandwidth of an unstable loop). ``status`` is the loop's
+    :class:`~hapid.control.LoopStatus`: ``STABLE``, ``UNSTABLE`` or ``UNRESOLVED``."""
+
+    keys: tuple[str, ...]
+    params: np.ndarray
+    metrics: dict
+
+    @property
+    def status(self) -> LoopStatus:
+        return _point_status(self.metrics["stable"], self.metrics["nyquist_resolved"])
+
+    @property
+    def ok(self) -> bool:
+        return self.status is LoopStatus.STABLE
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, ``params`` (option name → value), then the
+        :data:`METRICS` (non-finite as ``None``)."""
+        params = dict(zip(self.keys, self.params.tolist(), strict=True))
+        return jsonable({"status": self.status, "ok": self.ok, "params": params} | self.metrics)
+
+
+class SweepStatus(enum.StrEnum):
+    """Outcome of :func:`run_sweep` (:class:`SweepResult`); ``ok`` means ``ALL_STABLE``."""
+
+    ALL_STABLE = "all stable"
+    SOME_STABLE = "some stable"
+    NONE_STABLE = "none stable"
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepResult:
+    """Result of :func:`run_sweep`: ``B`` configurations, the Cartesian product of the varied
+    values in :func:`grid`'s order.
+
+    ``keys``: the varied option names; ``params``: ``(B, len(keys))`` float, their values;
+    ``metrics``: :data:`METRICS` name → ``(B,)`` array (bool for ``stable``,
+    ``nyquist_resolved``, ``fit_ok``, ``fit_refit``; float otherwise, NaN where undefined);
+    ``estimator``: the frf → model estimator. ``status``: ``ALL_STABLE``, ``SOME_STABLE`` or
+    ``NONE_STABLE`` by the per-configuration verdict ``metrics["stable"]``."""
+
+    keys: tuple[str, ...]
+    params: np.ndarray
+    metrics: dict
+    estimator: str = ESTIMATOR_DEFAULT
+
+    def __len__(self) -> int:
+        return int(self.params.shape[0])
+
+    @property
+    def n_stable(self) -> int:
+        """Number of configurations whose closed loop is stable."""
+        return int(np.count_nonzero(self.metrics["stable"]))
+
+    @property
+    def status(self) -> SweepStatus:
+        n = self.n_stable
+        if n == len(self):
+            return SweepStatus.ALL_STABLE
+        return SweepStatus.SOME_STABLE if n else SweepStatus.NONE_STABLE
+
+    @property
+    def ok(self) -> bool:
+        return self.status is SweepStatus.ALL_STABLE
+
+    def point(self, i: int) -> SweepPoint:
+        """Configuration ``i`` (``0 ≤ i < B``) as a :class:`SweepPoint`."""
+        return SweepPoint(
+            self.keys, self.params[i], _scalars({m: v[i] for m, v in self.metrics.items()})
+        )
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, ``estimator``, ``n_configurations``,
+        ``n_stable``, ``keys``, ``params`` (``B`` lists), ``metrics`` (name → ``B`` values,
+        non-finite as ``None``) and ``note`` (:data:`STAND_IN_NOTE`)."""
+        return jsonable({"status": self.status, "ok": self.ok, "estimator": self.estimator,
+                         "n_configurations": len(self), "n_stable": self.n_stable,
+                         "keys": list(self.keys), "params": self.params, "metrics": self.metrics,
+                         "note": STAND_IN_NOTE})  # fmt: skip
+
+
+def _columns(raw: dict) -> dict[str, np.ndarray]:
+    """The :data:`METRICS` of ``raw`` as float arrays, the flags as bool arrays."""
+    out = {m: np.asarray(raw[m], dtype=float) for m in METRICS}
+    for m in _BOOL_METRICS:
+        out[m] = out[m].astype(bool)
+    return out
+
+
+def _scalars(cols: dict) -> dict:
+    """0-d columns as python ``bool`` (the flags) and ``float``."""
+    return {m: bool(v) if m in _BOOL_METRICS else float(v) for m, v in cols.items()}
 
 
 def _parse(key: str) -> tuple[str, str, int | None]:
@@ -234,8 +349,11 @@ def _check_values(keys, rows):
 
 
 def run_sweep(cfg: dict, vary: dict[str, list], *, chunk: int = 64, progress: bool = True,
-              estimator: str = ESTIMATOR_DEFAULT):  # fmt: skip
-    """Evaluate every configuration; returns ``(keys, params (B, k), metrics dict of (B,))``.
+              estimator: str = ESTIMATOR_DEFAULT) -> SweepResult:  # fmt: skip
+    """Evaluate every configuration of ``vary`` (option name → values, see :func:`grid`) on
+    the scene config ``cfg``; returns a :class:`SweepResult`. Raises ``ValueError`` for an
+    unknown estimator, a bad ``chunk``, an option that cannot be swept (:func:`classify`) or
+    a value out of range.
 
     One compiled ``vmap`` per chunk and per distinct combination of static values. Under
     ``jax.distributed`` (:func:`hapid._distributed.initialize`) each process runs a contiguous
@@ -301,33 +419,34 @@ def run_sweep(cfg: dict, vary: dict[str, list], *, chunk: int = 64, progress: bo
     out = {m: np.empty(B, dtype=float) for m in METRICS}
     for m in METRICS:
         out[m][order] = res[m]
-    out["stable"] = out["stable"].astype(bool)
-    out["nyquist_resolved"] = out["nyquist_resolved"].astype(bool)
-    out["fit_ok"] = out["fit_ok"].astype(bool)
-    out["fit_refit"] = out["fit_refit"].astype(bool)
-    return keys, rows, out
+    return SweepResult(keys, rows, _columns(out), estimator)
 
 
-def run_single(cfg: dict, keys, params, estimator: str = ESTIMATOR_DEFAULT) -> dict:
-    """One configuration, unbatched, through the same stages (``cfg`` with ``keys`` set)."""
+def run_single(cfg: dict, keys, params, estimator: str = ESTIMATOR_DEFAULT) -> SweepPoint:
+    """One configuration, unbatched, through the same stages as :func:`run_sweep` (``cfg``
+    with the options ``keys`` set to ``params``); returns a :class:`SweepPoint`."""
     c = copy.deepcopy(cfg)
     for k, v in zip(keys, params, strict=True):
         _set(c, k, int(v) if k in _STATIC_INT else float(v))
     fn = jax.jit(point_fn(c, (), estimator))
-    return {k: np.asarray(v) for k, v in fn(jnp.zeros(0)).items()}
+    cols = _columns({k: np.asarray(v) for k, v in fn(jnp.zeros(0)).items()})
+    return SweepPoint(tuple(keys), np.asarray(params, dtype=float), _scalars(cols))
 
 
-def write_csv(path, keys, rows, metrics) -> Path:
-    """The sweep table (one row per point: varied options, then :data:`METRICS`) as CSV."""
+def write_csv(path, result: SweepResult) -> Path:
+    """The sweep table of ``result`` (one row per configuration: varied options, then
+    :data:`METRICS`) as CSV; returns the path."""
+    rows, metrics = result.params, result.metrics
     table = ([f"{v:g}" for v in rows[i]] + [f"{float(metrics[m][i]):.6g}" for m in METRICS]
              for i in range(rows.shape[0]))  # fmt: skip
-    return save_csv(path, list(keys) + list(METRICS), table)
+    return save_csv(path, list(result.keys) + list(METRICS), table)
 
 
-def plot_sweep(keys, rows, metrics, path) -> Path:
-    """Iso-bandwidth and P·P̂⁻¹ band against the first varied option (others as colours)."""
+def plot_sweep(result: SweepResult, path) -> Path:
+    """Iso-bandwidth and P·P̂⁻¹ band of ``result`` against the first varied option (others
+    as colours), saved to ``path``; returns the path."""
     from . import plot  # local: CLI start-up (matplotlib)
 
-    fig, _ = plot.sweep(keys, rows, metrics)
+    fig, _ = plot.sweep(result.keys, result.params, result.metrics)
     plot.save(fig, path)
     return Path(path)

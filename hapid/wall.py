@@ -31,6 +31,8 @@ force into other directions unless the controller inverts it).
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 import functools
 import warnings
 
@@ -40,6 +42,7 @@ import numpy as np
 from jaxtyping import Array
 
 from . import _config  # noqa: F401
+from ._plain import jsonable
 from .closed_loop import closed_loop
 from .device import ParallelDevice
 from .lti import zoh
@@ -52,6 +55,148 @@ class WallUnstableWarning(UserWarning):
 def translational(device: ParallelDevice) -> np.ndarray:
     """``(n,)`` bool: which stylus coordinates are translations (m) rather than rotations."""
     return np.abs(np.asarray(device.geometry.dof)[:3]).sum(axis=0) > 0
+
+
+class EquilibriumStatus(enum.StrEnum):
+    """Outcome of :func:`perfect_control_wall` (:class:`PerfectControlWall`); ``ok`` means
+    ``OK`` (a finite equilibrium)."""
+
+    OK = "ok"
+    NON_FINITE = "non-finite"
+
+
+@dataclasses.dataclass(frozen=True)
+class PerfectControlWall:
+    """Result of :func:`perfect_control_wall`: the static equilibrium under perfect force
+    tracking. ``penetration``: the true stylus penetration along ``e``; ``estimate``: the
+    encoder-based estimate ``eᵀ ξ̂`` of it (both m along a translation, rad along a
+    rotation)."""
+
+    penetration: float
+    estimate: float
+
+    @property
+    def status(self) -> EquilibriumStatus:
+        finite = np.isfinite(self.penetration) and np.isfinite(self.estimate)
+        return EquilibriumStatus.OK if finite else EquilibriumStatus.NON_FINITE
+
+    @property
+    def ok(self) -> bool:
+        return self.status is EquilibriumStatus.OK
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, ``penetration``, ``estimate``."""
+        return jsonable({"status": self.status, "ok": self.ok, "penetration": self.penetration,
+                         "estimate": self.estimate})  # fmt: skip
+
+
+class ContactStatus(enum.StrEnum):
+    """Stability of the contact loop (force loop with the wall closed) of
+    :class:`WallSteadyState`; ``ok`` means ``STABLE`` (spectral radius ``< 1``)."""
+
+    STABLE = "stable"
+    UNSTABLE = "unstable"
+
+
+@dataclasses.dataclass(frozen=True)
+class WallSteadyState:
+    """Result of :func:`closed_loop_wall_steady_state`: the steady state of the sampled
+    loop with the wall in contact under a constant push.
+
+    ``penetration``: true stylus penetration along ``e``; ``estimate``: its encoder-based
+    estimate ``eᵀ ξ̂`` (m along a translation, rad along a rotation); ``spectral_radius``:
+    of the sampled loop with the wall closed (``< 1``: the contact is stable; otherwise the
+    steady state is not reached); ``R_I``, ``R_D``: ``(n,)`` sensed and desired rod forces
+    (N)."""
+
+    penetration: float
+    estimate: float
+    spectral_radius: float
+    R_I: np.ndarray
+    R_D: np.ndarray
+
+    @property
+    def status(self) -> ContactStatus:
+        return _contact(self.spectral_radius)
+
+    @property
+    def ok(self) -> bool:
+        return self.status is ContactStatus.STABLE
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, ``penetration``, ``estimate``,
+        ``spectral_radius``, ``R_I``, ``R_D`` (lists)."""
+        return jsonable({"status": self.status, "ok": self.ok, "penetration": self.penetration,
+                         "estimate": self.estimate, "spectral_radius": self.spectral_radius,
+                         "R_I": self.R_I, "R_D": self.R_D})  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class WallRun:
+    """Result of :func:`render_wall`: ``T`` samples of the sampled loop rendering the wall.
+
+    ``t`` ``(T,)`` s; ``xi``, ``xi_hat`` ``(T, n)``: true stylus coordinates and their
+    encoder estimate (m, rad); ``R_I``, ``R_D`` ``(T, n)``: sensed and desired rod forces
+    (N); ``F`` ``(T, n)``: Cartesian force of the device on the stylus, ``−Jᵀ R_I``; ``F_d``
+    ``(T, n)``: the wall's commanded Cartesian force; ``f_user`` ``(T,)``: the arm's force
+    (N); ``e`` ``(n,)``: the unit wall normal; ``translational`` ``(n,)`` bool (see
+    :func:`translational`); ``contact_spectral_radius``: of the linear loop with the wall
+    closed (``status``: ``STABLE`` when ``< 1``)."""
+
+    t: np.ndarray
+    xi: np.ndarray
+    xi_hat: np.ndarray
+    R_I: np.ndarray
+    R_D: np.ndarray
+    F: np.ndarray
+    F_d: np.ndarray
+    f_user: np.ndarray
+    e: np.ndarray
+    translational: np.ndarray
+    contact_spectral_radius: float
+
+    @property
+    def status(self) -> ContactStatus:
+        return _contact(self.contact_spectral_radius)
+
+    @property
+    def ok(self) -> bool:
+        return self.status is ContactStatus.STABLE
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, ``n_samples``, ``contact_spectral_radius``
+        (not the arrays)."""
+        return jsonable({"status": self.status, "ok": self.ok, "n_samples": len(self.t),
+                         "contact_spectral_radius": self.contact_spectral_radius})  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class WallMetrics:
+    """Result of :func:`wall_metrics`: what a :class:`WallRun` rendered (see there for the
+    definitions); ``status`` is the run's contact :class:`ContactStatus`."""
+
+    penetration: float
+    estimate: float
+    off_axis_force: float
+    off_axis_motion: float
+    force_error: float
+    contact_spectral_radius: float
+
+    @property
+    def status(self) -> ContactStatus:
+        return _contact(self.contact_spectral_radius)
+
+    @property
+    def ok(self) -> bool:
+        return self.status is ContactStatus.STABLE
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, then every field."""
+        return jsonable({"status": self.status, "ok": self.ok} | dataclasses.asdict(self))
+
+
+def _contact(spectral_radius) -> ContactStatus:
+    return ContactStatus.STABLE if spectral_radius < 1.0 else ContactStatus.UNSTABLE
 
 
 def _unit(direction, n: int) -> np.ndarray:
@@ -91,12 +236,15 @@ def _stylus_rows(device: ParallelDevice, nx: int) -> np.ndarray:
     return S
 
 
-def perfect_control_wall(device: ParallelDevice, direction, k_wall: float, push: float) -> dict:
+def perfect_control_wall(device: ParallelDevice, direction, k_wall: float,
+                         push: float) -> PerfectControlWall:  # fmt: skip
     """Static equilibrium of the device with perfect force tracking (``R_I = R_D(L)``) and the
     real encoder-based position estimate. Solves ``A x + B_R R_A + B_u f = 0``,
     ``C_R x = W C_L x`` for the state ``x`` and the actuator force ``R_A``.
 
-    Returns ``penetration`` (true stylus, along ``e``) and ``estimate`` (``eᵀ ξ̂``)."""
+    ``direction``: the wall normal ``e``, ``(n,)`` (normalized here); ``k_wall``: wall
+    stiffness (N/m along a translation); ``push``: the arm's force on the hand along ``e``
+    (N). Returns a :class:`PerfectControlWall`; ``ValueError`` for a bad ``direction``."""
     n = device.n
     e = _unit(direction, n)
     ss = device.state_space(user=True)
@@ -110,7 +258,7 @@ def perfect_control_wall(device: ParallelDevice, direction, k_wall: float, push:
     x = sol[:nx]
     xi = _stylus_rows(device, nx) @ x
     xi_hat = np.linalg.solve(np.asarray(device.jacobian()), CL @ x)
-    return {"penetration": float(e @ xi), "estimate": float(e @ xi_hat)}
+    return PerfectControlWall(float(e @ xi), float(e @ xi_hat))
 
 
 def _discrete_with_user(device: ParallelDevice, substeps: int, friction: bool):
@@ -118,10 +266,12 @@ def _discrete_with_user(device: ParallelDevice, substeps: int, friction: bool):
 
 
 def closed_loop_wall_steady_state(device: ParallelDevice, controller, direction, k_wall: float,
-                                  push: float) -> dict:  # fmt: skip
-    """Exact steady state of the sampled loop (device + delay + controller) with the wall in
-    contact (linear), for a constant push. Also returns the spectral radius of the loop with
-    the wall closed (``< 1``: the contact is stable)."""
+                                  push: float) -> WallSteadyState:  # fmt: skip
+    """Exact steady state of the sampled loop (device + delay + discrete ``controller``) with
+    the wall in contact (linear), for a constant ``push`` (N) along the wall normal
+    ``direction`` (``(n,)``, normalized here) against a wall of stiffness ``k_wall`` (N/m).
+    Returns a :class:`WallSteadyState` (with the spectral radius of the loop with the wall
+    closed: ``< 1``, the contact is stable); ``ValueError`` for a bad ``direction``."""
     n = device.n
     e = _unit(direction, n)
     cl = closed_loop(device, controller)
@@ -136,8 +286,7 @@ def closed_loop_wall_steady_state(device: ParallelDevice, controller, direction,
     y = C @ x
     xi_hat = np.linalg.solve(np.asarray(device.jacobian()), y[:n])
     rho = float(np.max(np.abs(np.linalg.eigvals(Aw))))
-    return {"penetration": float(e @ xi), "estimate": float(e @ xi_hat), "spectral_radius": rho,
-            "R_I": y[n:], "R_D": W @ y[:n]}  # fmt: skip
+    return WallSteadyState(float(e @ xi), float(e @ xi_hat), rho, y[n:], W @ y[:n])
 
 
 def max_wall_stiffness(device: ParallelDevice, controller, direction, *, k_max: float = 1e6,
@@ -153,10 +302,7 @@ def max_wall_stiffness(device: ParallelDevice, controller, direction, *, k_max: 
     near it the contact rings."""
 
     def stable(k):
-        return (
-            closed_loop_wall_steady_state(device, controller, direction, k, 1.0)["spectral_radius"]
-            < 1.0
-        )
+        return closed_loop_wall_steady_state(device, controller, direction, k, 1.0).ok
 
     ks = np.geomspace(k_min, k_max, n_scan)
     if not stable(ks[0]):
@@ -187,7 +333,7 @@ def user_push(T: int, ts: float, push: float, *, ramp_s: float = 1.0, wobble: fl
 def render_wall(device: ParallelDevice, controller, direction, *, k_wall: float = 1000.0,
                 push: float = 2.0, x_wall: float = 0.0, duration: float = 6.0,
                 ramp_s: float = 1.0, wobble: float = 0.0, wobble_hz: float = 1.5,
-                friction: bool = False, substeps: int | None = None) -> dict:  # fmt: skip
+                friction: bool = False, substeps: int | None = None) -> WallRun:  # fmt: skip
     """Run the sampled force loop rendering a unilateral wall (see the module docstring).
 
     Args:
@@ -200,10 +346,10 @@ def render_wall(device: ParallelDevice, controller, direction, *, k_wall: float 
             sinusoid at ``wobble_hz`` (a probing hand) that exercises the dynamic tracking.
         x_wall: wall position along ``e`` (m); 0 means in contact from the start.
 
-    Returns a dict of ``(T, …)`` arrays: ``t`` (s), ``xi`` (true stylus coordinates),
-    ``xi_hat`` (encoder estimate), ``R_I``, ``R_D``, ``F`` (Cartesian force of the device on
-    the stylus, ``−Jᵀ R_I``), ``F_d`` (the wall's commanded Cartesian force), ``f_user``, and
-    ``e``.
+    Returns a :class:`WallRun` of ``T = round(duration · fs)`` samples. Raises ``TypeError``
+    for a device without a hand, ``ValueError`` for a device without actuator delay, a bad
+    ``direction`` or a negative or non-finite ``k_wall``, ``push`` or ``duration``; warns
+    :class:`WallUnstableWarning` when the contact loop is unstable.
     """
     if not isinstance(device, ParallelDevice):
         raise TypeError("render_wall needs a ParallelDevice (a device with a hand to push)")
@@ -214,7 +360,7 @@ def render_wall(device: ParallelDevice, controller, direction, *, k_wall: float 
         if not np.isfinite(v) or v < 0:
             raise ValueError(f"{name} must be finite and ≥ 0, got {v}")
     e = _unit(direction, n)
-    rho = closed_loop_wall_steady_state(device, controller, e, k_wall, 1.0)["spectral_radius"]
+    rho = closed_loop_wall_steady_state(device, controller, e, k_wall, 1.0).spectral_radius
     if rho >= 1.0:
         warnings.warn(f"the contact loop with k_wall = {k_wall:g} is unstable (spectral radius "
                       f"{rho:.6f} ≥ 1): the rendered wall will not hold; lower k_wall (see "
@@ -227,13 +373,8 @@ def render_wall(device: ParallelDevice, controller, direction, *, k_wall: float 
     out = _simulate_wall(device, dev, controller, J, jnp.asarray(e), float(k_wall), float(x_wall),
                          jnp.asarray(f), m, friction, d)  # fmt: skip
     out = {k: np.asarray(v) for k, v in out.items()}
-    out["t"] = np.arange(T) * device.ts
-    out["f_user"] = f
-    out["e"] = e
-    out["F"] = -out["R_I"] @ np.asarray(J)
-    out["translational"] = translational(device)
-    out["contact_spectral_radius"] = rho
-    return out
+    return WallRun(t=np.arange(T) * device.ts, F=-out["R_I"] @ np.asarray(J), f_user=f, e=e,
+                   translational=translational(device), contact_spectral_radius=rho, **out)  # fmt: skip
 
 
 @functools.partial(jax.jit, static_argnums=(8, 9, 10))
@@ -273,8 +414,9 @@ def _simulate_wall(device, dev, ctrl, J, e, k_wall, x_wall, f_user, m, friction,
     return out
 
 
-def wall_metrics(sim: dict, *, settle_s: float = 1.5) -> dict:
-    """Summary of a :func:`render_wall` run.
+def wall_metrics(sim: WallRun, *, settle_s: float = 1.5) -> WallMetrics:
+    """What a :func:`render_wall` run rendered (:class:`WallMetrics`); ``settle_s`` (s):
+    start of the window the ratios are taken over.
 
     - ``penetration`` — final true stylus penetration along ``e`` (mean of the last 0.5 s).
     - ``off_axis_force`` — RMS over the window ``t ≥ settle_s`` of the Cartesian force
@@ -285,10 +427,10 @@ def wall_metrics(sim: dict, *, settle_s: float = 1.5) -> dict:
       the free directions moves the stylus sideways along the wall.
     - ``force_error`` — RMS of ``F − F_d`` over the window relative to RMS ``F_d``.
     """
-    e, t = sim["e"], sim["t"]
+    e, t = sim.e, sim.t
     w = t >= settle_s
     last = t >= t[-1] - 0.5
-    tr = sim["translational"]
+    tr = sim.translational
     kind = tr if np.all(e[~tr] == 0) else ~tr  # compare like with like (m with m, rad with rad)
 
     def ratio(X):
@@ -299,15 +441,16 @@ def wall_metrics(sim: dict, *, settle_s: float = 1.5) -> dict:
             / max(np.sqrt(np.mean(along[w] ** 2)), 1e-300)
         )
 
-    F, F_d = sim["F"], sim["F_d"]
+    F, F_d = sim.F, sim.F_d
     ferr = float(
         np.sqrt(np.mean(np.sum((F - F_d)[w] ** 2, axis=1)))
         / max(np.sqrt(np.mean(np.sum(F_d[w] ** 2, axis=1))), 1e-300)
     )
-    return {
-        "penetration": float(np.mean(sim["xi"][last] @ e)),
-        "estimate": float(np.mean(sim["xi_hat"][last] @ e)),
-        "off_axis_force": ratio(F),
-        "off_axis_motion": ratio(sim["xi"]),
-        "force_error": ferr,
-    }
+    return WallMetrics(
+        penetration=float(np.mean(sim.xi[last] @ e)),
+        estimate=float(np.mean(sim.xi_hat[last] @ e)),
+        off_axis_force=ratio(F),
+        off_axis_motion=ratio(sim.xi),
+        force_error=ferr,
+        contact_spectral_radius=sim.contact_spectral_radius,
+    )

@@ -51,8 +51,7 @@ def errors(periods, seeds, force_noise, position_noise):
                         position_noise=position_noise, encoder_resolution=0.0, seed=seed,
                         pattern="hadamard")  # fmt: skip
         fits = fit_estimators(periodic_run(dev, prot, hold="bandlimited"), f_max_hz=None)
-        for k, fit in fits.items():
-            m = fit if k == "WLS" else fit.model
+        for k, m in fits.models().items():
             res[k][0].append(float(np.max(model_relative_errors(m, dev.model))))
             res[k][1].append(_flat(m))
     out = {}

@@ -66,18 +66,16 @@ def main(argv=None):
     for ax, name in enumerate("xyz"):
         e = np.eye(dev.n)[ax]
         ide = ideal_wall(dev, e, a.k_wall, a.push)
-        pc = perfect_control_wall(dev, e, a.k_wall, a.push)["penetration"]
+        pc = perfect_control_wall(dev, e, a.k_wall, a.push).penetration
         pen, ferr, off, kmax = [], [], [], []
         for label, ct in ctrls.items():
             ss = closed_loop_wall_steady_state(dev, ct, e, a.k_wall, a.push)
             sim = render_wall(dev, ct, e, k_wall=a.k_wall, push=a.push, duration=6.0, wobble=0.3)
             sims[(name, label)] = sim
             m = wall_metrics(sim)
-            pen.append(
-                f"{ss['penetration'] * 1e3:.3f} ({100 * (ss['penetration'] / pc - 1):+.1f} %)"
-            )
-            ferr.append(f"{100 * m['force_error']:.1f} %")
-            off.append(f"{m['off_axis_force']:.1e}")
+            pen.append(f"{ss.penetration * 1e3:.3f} ({100 * (ss.penetration / pc - 1):+.1f} %)")
+            ferr.append(f"{100 * m.force_error:.1f} %")
+            off.append(f"{m.off_axis_force:.1e}")
             kmax.append(f"{max_wall_stiffness(dev, ct, e):.0f}")
         rows.append(
             f"| {name} | steady penetration, mm (vs perfect control) | {ide * 1e3:.3f} | {pc * 1e3:.3f} | "
@@ -104,12 +102,12 @@ def main(argv=None):
     for j, name in enumerate("xyz"):
         for label in ctrls:
             sim = sims[(name, label)]
-            e, F = sim["e"], sim["F"]
+            e, F = sim.e, sim.F
             along = F @ e
-            perp = np.linalg.norm((F - along[:, None] * e)[:, sim["translational"]], axis=1)
-            axs[0, j].plot(sim["t"], -along, label=label)
-            axs[1, j].plot(sim["t"], perp, label=label)
-        axs[0, j].plot(sim["t"], -(sim["F_d"] @ e), "k--", lw=0.8, label="commanded")
+            perp = np.linalg.norm((F - along[:, None] * e)[:, sim.translational], axis=1)
+            axs[0, j].plot(sim.t, -along, label=label)
+            axs[1, j].plot(sim.t, perp, label=label)
+        axs[0, j].plot(sim.t, -(sim.F_d @ e), "k--", lw=0.8, label="commanded")
         axs[0, j].set_title(f"wall normal {name}")
         axs[1, j].set_xlabel("t (s)")
     axs[0, 0].set_ylabel("wall force along normal (N)")

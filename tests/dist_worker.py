@@ -41,10 +41,10 @@ def compute(with_sweep=False) -> dict:
         from hapid import scene, sweep
 
         cfg = scene.merge({"analysis": {"n_freq": 60}})
-        keys, rows, m = sweep.run_sweep(cfg, {"controller.k": [0.5, 0.85, 1.2], "protocol.seed": [0, 1]},
-                                        chunk=2, progress=False)  # fmt: skip
-        res |= {f"sweep_{k}": np.asarray(v) for k, v in m.items()}
-        res["sweep_rows"] = rows
+        sw = sweep.run_sweep(cfg, {"controller.k": [0.5, 0.85, 1.2], "protocol.seed": [0, 1]},
+                             chunk=2, progress=False)  # fmt: skip
+        res |= {f"sweep_{k}": np.asarray(v) for k, v in sw.metrics.items()}
+        res["sweep_rows"] = sw.params
     # a gather where process 0 has nothing: the others' rows, in rank order
     rank = _distributed.process_index()
     g = _distributed.gather([] if rank == 0 else [{"x": np.arange(3.0) + rank}])

@@ -147,9 +147,10 @@ def _ml_and_nls_errors(dev, periods, seeds, force_noise, position_noise):
                         position_noise=position_noise, encoder_resolution=0.0, seed=seed,
                         pattern="hadamard")  # fmt: skip
         fits = fit_estimators(periodic_run(dev, prot, hold="bandlimited"), f_max_hz=None)
-        assert fits["ML"].ok
+        assert fits.ml.ok
+        models = fits.models()
         for k, name in names.items():
-            out[k].append(float(np.max(model_relative_errors(fits[name].model, dev.model))))
+            out[k].append(float(np.max(model_relative_errors(models[name], dev.model))))
     return {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in out.items()}
 
 

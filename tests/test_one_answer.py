@@ -77,7 +77,7 @@ def test_siso_diagonal_loop_matches_python_control_and_scipy(grids):
 @pytest.mark.slow
 @pytest.mark.timeout(3600)
 def test_analyze_sweep_scene_tune_and_robust_give_one_answer_on_cu5(tmp_path):
-    from hapid import io, paper, scene, sweep
+    from hapid import io, scene, sweep
     from hapid._grids import nyquist_grid
     from hapid.cli import main
     from hapid.control import Compensator, analyze_loop
@@ -88,7 +88,7 @@ def test_analyze_sweep_scene_tune_and_robust_give_one_answer_on_cu5(tmp_path):
     res = scene.run_scene(cfg, ["device", "wls", "mimo"], out_dir=tmp_path, cache_dir=None).results
     model, dev = res["wls"]["model"], res["device"]
     rep = res["mimo"]["wls"]["report"]
-    numbers = {"scene": paper.loop_numbers(rep)}
+    numbers = {"scene": rep.numbers()}
     assert np.shape(rep.sv_T_minus_I)[1] == dev.n  # figures get every singular value
 
     io.save_model(tmp_path / "wls.npz", model, method="wls+positize")
@@ -96,11 +96,11 @@ def test_analyze_sweep_scene_tune_and_robust_give_one_answer_on_cu5(tmp_path):
                  "--out", str(tmp_path / "a.json")]) == 0  # fmt: skip
     numbers["analyze"] = json.loads((tmp_path / "a.json").read_text())
 
-    keys, rows, m = sweep.run_sweep(
+    sw = sweep.run_sweep(
         cfg, {"analysis.n_freq": [1500, 3000]}, progress=False, estimator="wls+positize"
     )
-    for i, nf in enumerate(rows[:, 0]):
-        numbers[f"sweep n_freq {int(nf)}"] = {k: float(v[i]) for k, v in m.items()}
+    for i, nf in enumerate(sw.params[:, 0]):
+        numbers[f"sweep n_freq {int(nf)}"] = {k: float(v[i]) for k, v in sw.metrics.items()}
 
     g = Compensator.paper()
     numbers["tune"] = true_plant_loop(g, model, dev).numbers()  # its own grid (device_grid)

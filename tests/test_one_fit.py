@@ -146,7 +146,7 @@ def test_hexapod6_sweep_and_posterior_use_the_control_fit(tmp_path):
 
     cfg = scene.merge({"device": {"preset": "hexapod6"}})
     vary = {"protocol.seed": [0.0, 1.0]}
-    keys, rows, m = sweep.run_sweep(cfg, vary, chunk=2, progress=False, estimator="nls")
+    m = sweep.run_sweep(cfg, vary, chunk=2, progress=False, estimator="nls").metrics
     assert np.all(m["fit_refit"]) and np.all(m["fit_ok"])
     o = {k: cfg["fit"][k] for k in scene.NLS_KEYS}
     d, p = cfg["device"], cfg["protocol"]

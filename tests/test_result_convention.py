@@ -16,7 +16,7 @@ from helpers import second_order_device
 from helpers_fit import random_truth, synthetic_frf
 from oracles import example_model
 
-from hapid import io, pipeline, scene
+from hapid import io, pipeline, scene, sweep
 from hapid.control import (
     Compensator,
     ControllerCheck,
@@ -27,13 +27,24 @@ from hapid.control import (
     MetricsSpec,
     analyze_loop,
     check_controller,
+    discretize_siso_controller,
     loop_metrics,
 )
 from hapid.design import DesignReport, DesignStatus
-from hapid.experiment import EstimateStatus, ImpedanceEstimate, TimeSeries, estimate_impedance
+from hapid.device import SecondOrderDevice, tripod3
+from hapid.experiment import (
+    EstimateStatus,
+    ImpedanceEstimate,
+    Protocol,
+    TimeSeries,
+    estimate_frf,
+    estimate_impedance,
+    periodic_run,
+)
 from hapid.fit import (
     CRHPReport,
     CRHPStatus,
+    EstimatorFits,
     FitQuality,
     FitStatus,
     ImpedanceFit,
@@ -41,12 +52,15 @@ from hapid.fit import (
     NLSResult,
     QualityStatus,
     crhp_report,
+    fit_estimators,
     fit_impedance,
     fit_nls,
 )
 from hapid.impedance import ImpedanceModel, SecondOrder
+from hapid.paper import PaperStatus, PaperSummary
 from hapid.robust import RobustResult, robust_from_files
 from hapid.scene import SceneRun, SceneStatus
+from hapid.sweep import SweepPoint, SweepResult, SweepStatus
 from hapid.tune import (
     Choice,
     Decision,
@@ -69,6 +83,19 @@ from hapid.uncertainty import (
     plant_draws,
 )
 from hapid.verdict import Check, Verdict
+from hapid.wall import (
+    ContactStatus,
+    EquilibriumStatus,
+    PerfectControlWall,
+    WallMetrics,
+    WallRun,
+    WallSteadyState,
+    WallUnstableWarning,
+    closed_loop_wall_steady_state,
+    perfect_control_wall,
+    render_wall,
+    wall_metrics,
+)
 
 PLAIN = (bool, int, float, str, type(None))
 
@@ -147,6 +174,120 @@ def test_scene_run(tmp_path):
     again = scene.run_scene(scene.merge({}), ["device"], **kw)  # every stage from the cache
     assert assert_convention(again, SceneStatus, both) is SceneStatus.CACHED
     assert again.summary()["cached"] == ["device"] and "device" in again.results
+
+
+def test_estimator_fits():
+    """``fit_estimators`` on a 2-rod second-order device's periodic run: every iterative fit
+    converges; a one-step NLS fit in its place makes the whole ``max_steps``."""
+    t = random_truth(2, 5)
+    dev = SecondOrderDevice(hand=t.hand, mechanism=t.mechanism)
+    prot = Protocol(freq_hz=(1.0, 3.0, 7.0, 15.0, 30.0), n_periods=2, force_noise=0.01,
+                    position_noise=2e-5, encoder_resolution=0.0, pattern="hadamard")  # fmt: skip
+    run = periodic_run(dev, prot, hold="bandlimited")
+    fits = fit_estimators(run, f_max_hz=None)
+    assert type(fits) is EstimatorFits and type(fits.ml) is MLResult
+    ok = (FitStatus.CONVERGED,)
+    assert assert_convention(fits, FitStatus, ok) is FitStatus.CONVERGED
+    assert list(fits.models()) == ["ML", "NLS relative", "NLS noise", "WLS"]
+    assert fits.models()["WLS"] is fits.wls
+    assert fits.summary()["fits"]["ML"] == fits.ml.summary()
+    short = fit_nls(estimate_frf(run), f_max_hz=None, max_steps=1, ftol=0.0)
+    bad = EstimatorFits(fits.ml, fits.nls_relative, short, fits.wls)
+    assert assert_convention(bad, FitStatus, ok) is FitStatus.MAX_STEPS
+
+
+# ---- sweeps and the paper summary -----------------------------------------------------------
+
+
+def _sweep(stable, resolved):
+    """A two-configuration sweep over ``controller.k`` with the given loop flags."""
+    B = len(stable)
+    m = {k: np.linspace(1.0, 2.0, B) for k in sweep.METRICS}
+    m |= {"fit_ok": np.ones(B, bool), "fit_refit": np.zeros(B, bool)}
+    m |= {"stable": np.asarray(stable), "nyquist_resolved": np.asarray(resolved)}
+    m["iso_bandwidth_hz"] = np.where(m["stable"], 2.5, np.nan)  # undefined when unstable
+    return SweepResult(("controller.k",), np.array([[0.5], [50.0]]), m, "wls+positize")
+
+
+def test_sweep_result_and_point():
+    ok = (SweepStatus.ALL_STABLE,)
+    for flags, want in (([True, True], SweepStatus.ALL_STABLE),
+                        ([True, False], SweepStatus.SOME_STABLE),
+                        ([False, False], SweepStatus.NONE_STABLE)):  # fmt: skip
+        res = _sweep(flags, [True, True])
+        assert assert_convention(res, SweepStatus, ok) is want
+        assert res.summary()["n_stable"] == sum(flags) and len(res) == 2
+    res = _sweep([True, False], [True, False])
+    assert res.summary()["metrics"]["iso_bandwidth_hz"] == [2.5, None]
+    p0, p1 = res.point(0), res.point(1)
+    assert type(p0) is SweepPoint and type(p0.metrics["stable"]) is bool
+    stable = (LoopStatus.STABLE,)
+    assert assert_convention(p0, LoopStatus, stable) is LoopStatus.STABLE
+    assert assert_convention(p1, LoopStatus, stable) is LoopStatus.UNRESOLVED
+    assert p1.summary()["params"] == {"controller.k": 50.0}
+    assert p1.summary()["iso_bandwidth_hz"] is None
+    p1 = _sweep([True, False], [True, True]).point(1)
+    assert assert_convention(p1, LoopStatus, stable) is LoopStatus.UNSTABLE
+
+
+def _paper_summary(nls_status=FitStatus.CONVERGED, tuned_stable=None):
+    loop = {"stable": True, "iso_bandwidth_hz": 2.7, "gm_db": None}
+    fits = {"wls": {"label": "paper WLS + positize", "mimo": loop},
+            "nls": {"label": "hapid NLS + PD", "mimo": loop, "status": nls_status, "steps": 12}}  # fmt: skip
+    tuned = None if tuned_stable is None else {"mimo": {"stable": tuned_stable}}
+    return PaperSummary({"n": 5, "fs_hz": 1000.0, "delay_samples": 1}, [25.0, 50.0], fits,
+                        {"c=1": {"c": 1.0, "stable": False}}, tuned)  # fmt: skip
+
+
+def test_paper_summary():
+    """The summary's status from the NLS fit and the MIMO loops (the SISO c = 1 loop is not
+    one of them); ``summary()`` is ``status``, ``ok``, then the content of ``summary.json``."""
+    ok = (PaperStatus.OK,)
+    good = _paper_summary()
+    assert assert_convention(good, PaperStatus, ok) is PaperStatus.OK
+    s = good.summary()
+    assert list(s)[:2] == ["status", "ok"] and "tuned" not in s
+    assert {k: v for k, v in s.items() if k not in ("status", "ok")} == io.jsonable(good.numbers())
+    assert assert_convention(_paper_summary(tuned_stable=True), PaperStatus, ok) is PaperStatus.OK
+    assert assert_convention(_paper_summary(tuned_stable=False), PaperStatus, ok) \
+        is PaperStatus.UNSTABLE_LOOP  # fmt: skip
+    assert assert_convention(_paper_summary(FitStatus.MAX_STEPS, False), PaperStatus, ok) \
+        is PaperStatus.FIT_NOT_CONVERGED  # fmt: skip
+
+
+# ---- virtual wall ---------------------------------------------------------------------------
+
+
+def test_wall_results():
+    """tripod3 under a weak SISO force loop (c = 0.2): the contact with a 200 N/m wall is
+    stable, with a 10⁶ N/m wall unstable (steady state, run and its metrics alike); perfect
+    control has a finite equilibrium."""
+    dev = tripod3()
+    e = np.eye(dev.n)[0]
+    pc = perfect_control_wall(dev, e, 200.0, 2.0)
+    assert type(pc) is PerfectControlWall and pc.estimate < pc.penetration
+    ok = (EquilibriumStatus.OK,)
+    assert assert_convention(pc, EquilibriumStatus, ok) is EquilibriumStatus.OK
+    nan = PerfectControlWall(float("nan"), 0.0)
+    assert assert_convention(nan, EquilibriumStatus, ok) is EquilibriumStatus.NON_FINITE
+    C = discretize_siso_controller(Compensator.paper(), 0.2, dev.ts, dev.n)
+    soft = closed_loop_wall_steady_state(dev, C, e, 200.0, 2.0)
+    assert type(soft) is WallSteadyState and len(soft.summary()["R_I"]) == dev.n
+    stable = (ContactStatus.STABLE,)
+    assert assert_convention(soft, ContactStatus, stable) is ContactStatus.STABLE
+    stiff = closed_loop_wall_steady_state(dev, C, e, 1e6, 2.0)
+    assert assert_convention(stiff, ContactStatus, stable) is ContactStatus.UNSTABLE
+    run = render_wall(dev, C, e, k_wall=200.0, duration=0.2)
+    assert type(run) is WallRun and run.xi.shape == (len(run.t), dev.n)
+    assert assert_convention(run, ContactStatus, stable) is ContactStatus.STABLE
+    m = wall_metrics(run, settle_s=0.1)
+    assert type(m) is WallMetrics
+    assert assert_convention(m, ContactStatus, stable) is ContactStatus.STABLE
+    with pytest.warns(WallUnstableWarning):
+        bad = render_wall(dev, C, e, k_wall=1e6, duration=0.2)
+    assert assert_convention(bad, ContactStatus, stable) is ContactStatus.UNSTABLE
+    assert assert_convention(wall_metrics(bad, settle_s=0.1), ContactStatus, stable) \
+        is ContactStatus.UNSTABLE  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -397,7 +538,10 @@ RESULT_TYPES = {
     RobustReport: Verdict, TuneResult: TuneStatus, PosteriorSamples: SamplesStatus,
     PlantDraws: DrawsStatus, DesignReport: DesignStatus, Check: Verdict,
     pipeline.ControlFit: FitStatus, SceneRun: SceneStatus, RobustResult: Verdict,
-    Validation: Verdict, StepResponse: StepStatus, RobustDesign: Verdict,
+    Validation: Verdict, StepResponse: StepStatus, RobustDesign: Verdict, EstimatorFits: FitStatus,
+    SweepResult: SweepStatus, SweepPoint: LoopStatus, PaperSummary: PaperStatus,
+    PerfectControlWall: EquilibriumStatus, WallSteadyState: ContactStatus,
+    WallRun: ContactStatus, WallMetrics: ContactStatus,
 }  # fmt: skip
 
 

@@ -84,7 +84,8 @@ def test_whole_results_table_matches_the_readme(tmp_path):
     res = scene.run_scene(scene.merge({}), ["summary"], out_dir=tmp_path, cache_dir=None).results
     _check_bands(t, res, [(1, "wls"), (2, "nls")])
     s = res["summary"]
-    cols = {1: s["fits"]["wls"]["mimo"], 2: s["fits"]["nls"]["mimo"], 3: s["tuned"]["mimo"]}
+    assert s.ok, s.status
+    cols = {1: s.fits["wls"]["mimo"], 2: s.fits["nls"]["mimo"], 3: s.tuned["mimo"]}
     for col, m in cols.items():
         tuned = col == 3
         assert m["stable"]
@@ -97,4 +98,4 @@ def test_whole_results_table_matches_the_readme(tmp_path):
         assert m["t_peak_db"] == pytest.approx(pk, abs=0.1 if tuned else 0.06), col
         assert m["t_peak_hz"] == pytest.approx(pk_hz, abs=0.1 if tuned else 0.06), col
     siso = _num(re.findall(NUM, t["SISO iso-bandwidth (6 dB / 30° gain)"][1])[0])
-    assert s["siso"]["design rule"]["iso_bandwidth_hz"] == pytest.approx(siso, abs=0.006)
+    assert s.siso["design rule"]["iso_bandwidth_hz"] == pytest.approx(siso, abs=0.006)

@@ -55,12 +55,13 @@ def test_sweep_of_256_configurations_matches_single_runs():
     cfg = scene.merge({"analysis": {"n_freq": 200}})
     vary = {"controller.k": [0.4, 0.6, 0.85, 1.0], "protocol.noise": [1e-3, 5e-3, 2e-2, 5e-2],
             "fit.omega_c_hz": [3.0, 7.0, 12.0, 20.0], "protocol.seed": [0, 1, 2, 3]}  # fmt: skip
-    keys, rows, batched = sweep.run_sweep(cfg, vary, chunk=256, progress=False)
+    res = sweep.run_sweep(cfg, vary, chunk=256, progress=False)
+    keys, rows, batched = res.keys, res.params, res.metrics
     assert rows.shape == (256, 4)
     singles = [sweep.run_single(cfg, keys, r) for r in rows]
     for m in sweep.METRICS:
         b = np.asarray(batched[m], float)
-        s = np.asarray([x[m] for x in singles], float)
+        s = np.asarray([x.metrics[m] for x in singles], float)
         np.testing.assert_allclose(b, s, rtol=1e-7, atol=1e-9, equal_nan=True, err_msg=m)
     # physically sensible: more gain, wider isotropic bandwidth while stable
     assert np.any(batched["stable"]) and not np.all(np.isnan(batched["iso_bandwidth_hz"]))
@@ -86,9 +87,9 @@ def test_sweep_shards_over_two_host_devices(tmp_path):
         from hapid import scene, sweep
         assert jax.device_count() == 2
         cfg = scene.merge({"analysis": {"n_freq": 100}})
-        keys, rows, m = sweep.run_sweep(cfg, {"controller.k": [0.5, 0.7, 0.85, 1.0]}, chunk=4, progress=False)
-        s = sweep.run_single(cfg, keys, rows[2])
-        np.testing.assert_allclose(m["disk_margin"][2], s["disk_margin"], rtol=1e-8)
+        r = sweep.run_sweep(cfg, {"controller.k": [0.5, 0.7, 0.85, 1.0]}, chunk=4, progress=False)
+        s = sweep.run_single(cfg, r.keys, r.params[2])
+        np.testing.assert_allclose(r.metrics["disk_margin"][2], s.metrics["disk_margin"], rtol=1e-8)
         print("OK")
     """)
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")

@@ -63,6 +63,7 @@ def reference(cfg, keys, params, estimator, margins=True):
     G = G_at(omega)
     out = {"stable": stable, "p_ol": p_ol}
     if margins:  # loci margins: the LAPACK reference refined on the exact L
+
         def L_jax(w):  # the same L, traceable: the reference refines inside vmap/fori_loop
             z = jnp.exp(1j * w * dev.ts)[:, None, None]
             Bw = jnp.broadcast_to(B, (w.shape[0],) + B.shape)
@@ -80,7 +81,8 @@ def reference(cfg, keys, params, estimator, margins=True):
 
 
 def _check(cfg, vary, estimator, chunk, margins=True):
-    keys, rows, m = sweep.run_sweep(cfg, vary, chunk=chunk, progress=False, estimator=estimator)
+    res = sweep.run_sweep(cfg, vary, chunk=chunk, progress=False, estimator=estimator)
+    keys, rows, m = res.keys, res.params, res.metrics
     for i in range(rows.shape[0]):
         ref = reference(cfg, keys, rows[i], estimator, margins)
         where = dict(zip(keys, rows[i], strict=True))

@@ -59,11 +59,11 @@ def test_perfect_control_on_a_rigid_chain_renders_the_designers_wall(make):
         ref = ideal_wall(rigid, e, K_WALL, PUSH)
         got = perfect_control_wall(rigid, e, K_WALL, PUSH)
         assert ref > 0
-        np.testing.assert_allclose(got["penetration"], ref, rtol=1e-5)
-        np.testing.assert_allclose(got["estimate"], ref, rtol=1e-5)
+        np.testing.assert_allclose(got.penetration, ref, rtol=1e-5)
+        np.testing.assert_allclose(got.estimate, ref, rtol=1e-5)
     # the real (compliant) chain: encoders under-read the stylus, the wall renders softer
     real = perfect_control_wall(dev, np.eye(dev.n)[0], K_WALL, PUSH)
-    assert real["estimate"] < real["penetration"]
+    assert real.estimate < real.penetration
 
 
 def test_steady_state_solve_equals_a_long_simulation(loops):
@@ -71,8 +71,8 @@ def test_steady_state_solve_equals_a_long_simulation(loops):
     e = np.eye(dev.n)[2]
     ss = closed_loop_wall_steady_state(dev, mimo, e, K_WALL, PUSH)
     sim = render_wall(dev, mimo, e, k_wall=K_WALL, push=PUSH, duration=30.0)
-    assert ss["spectral_radius"] < 1
-    np.testing.assert_allclose(wall_metrics(sim)["penetration"], ss["penetration"], rtol=1e-3)
+    assert ss.spectral_radius < 1
+    np.testing.assert_allclose(wall_metrics(sim).penetration, ss.penetration, rtol=1e-3)
 
 
 def test_mimo_wall_has_less_force_error_and_directional_distortion_than_siso(loops):
@@ -88,13 +88,13 @@ def test_mimo_wall_has_less_force_error_and_directional_distortion_than_siso(loo
         s = wall_metrics(
             render_wall(dev, siso, e, k_wall=K_WALL, push=PUSH, duration=6.0, wobble=0.3)
         )
-        print(f"axis {ax}: force error MIMO {m['force_error']:.4f} SISO {s['force_error']:.4f}; "
-              f"off-axis force MIMO {m['off_axis_force']:.2e} SISO {s['off_axis_force']:.2e}")  # fmt: skip
-        assert m["force_error"] < s["force_error"]
-        assert m["off_axis_force"] <= s["off_axis_force"] + 1e-4
+        print(f"axis {ax}: force error MIMO {m.force_error:.4f} SISO {s.force_error:.4f}; "
+              f"off-axis force MIMO {m.off_axis_force:.2e} SISO {s.off_axis_force:.2e}")  # fmt: skip
+        assert m.force_error < s.force_error
+        assert m.off_axis_force <= s.off_axis_force + 1e-4
         # within a few percent of what perfect force control renders on this chain
-        pc = perfect_control_wall(dev, e, K_WALL, PUSH)["penetration"]
-        ss = closed_loop_wall_steady_state(dev, mimo, e, K_WALL, PUSH)["penetration"]
+        pc = perfect_control_wall(dev, e, K_WALL, PUSH).penetration
+        ss = closed_loop_wall_steady_state(dev, mimo, e, K_WALL, PUSH).penetration
         assert abs(ss / pc - 1) < 0.05
 
 
@@ -104,7 +104,7 @@ def test_too_stiff_wall_is_flagged_and_the_limit_is_a_stability_boundary(loops):
     e = np.eye(dev.n)[1]
     k_lim = max_wall_stiffness(dev, mimo, e, rtol=1e-4)
     assert 0 < k_lim < 1e6
-    rho = lambda k: closed_loop_wall_steady_state(dev, mimo, e, k, 1.0)["spectral_radius"]  # noqa: E731
+    rho = lambda k: closed_loop_wall_steady_state(dev, mimo, e, k, 1.0).spectral_radius  # noqa: E731
     assert rho(0.99 * k_lim) < 1 <= rho(1.01 * k_lim)
     with pytest.warns(WallUnstableWarning, match="unstable"):
         render_wall(dev, mimo, e, k_wall=3 * k_lim, duration=0.5)

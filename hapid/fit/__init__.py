@@ -15,6 +15,7 @@
 
 from .. import _config  # noqa: F401  (float64)
 from ._compare import ESTIMATORS as ESTIMATORS
+from ._compare import EstimatorFits as EstimatorFits
 from ._compare import fit_estimators as fit_estimators
 from ._crb import cramer_rao as cramer_rao
 from ._crb import crb_band_db as crb_band_db
