@@ -90,7 +90,7 @@ def recheck(g, model, prob, n_holdout: int, n_freq: int = 600) -> dict:
     om = continuous_grid(n_freq)
     hold = loop_gp_plants(prob["loop_gp"], model, om, n_holdout, prob["seed"] + 1)
     v = validate(g, model, samples=hold, omega_c=om, p_required=0.975)
-    row = table_row(v) | certificate(prob["evidence"], model, g, floor=FRF_FLOOR)
+    row = table_row(v) | certificate(prob["evidence"], model, g, floor=FRF_FLOOR).figures()
     keep = ("posterior_frac_meeting_margins", "certified", "frf_min_sigma_I_plus_L",
             "beyond_loop_gain")  # fmt: skip
     return {k: row.get(k) for k in keep}
@@ -101,8 +101,9 @@ def diagnose(g, prob, constraints: dict | None = None, mu: float = 1e4) -> dict:
     act, multiplier estimates from the tuner's final smooth ``constraints`` at penalty ``mu``)."""
     from hapid.tune import binding_constraints
 
-    return binding_constraints(g, prob["families"], prob["requirements"],
-                               f_max_hz=prob["f_max_hz"], constraints=constraints, mu=mu)  # fmt: skip
+    b = binding_constraints(g, prob["families"], prob["requirements"],
+                            f_max_hz=prob["f_max_hz"], constraints=constraints, mu=mu)  # fmt: skip
+    return b.summary()["constraints"]
 
 
 def true_limits(g, model, dev, n: int = 2000) -> dict:
@@ -190,9 +191,9 @@ def oracle(g0, model, frf, dev, *, max_steps=300) -> dict:
         b = binding_constraints(r.g, [fam, fam_frf], req, f_max_hz=f_max)
         out[lab] = {"claimed_hz": r.bandwidth_hz, "feasible": r.feasible,
                     "true": _true(r.g, model, dev),
-                    "beyond_loop_gain": float(req.sg_g_max * np.exp(b["evidence/small_gain"]["value"])
+                    "beyond_loop_gain": float(req.sg_g_max * np.exp(b["evidence/small_gain"].value)
                                               * prob["evidence"].mismatch),
-                    "frf_disc": b["frf/ms"]["value"], "true_limits": true_limits(r.g, model, dev),
+                    "frf_disc": b["frf/ms"].value, "true_limits": true_limits(r.g, model, dev),
                     "wall_s": time.perf_counter() - t0}  # fmt: skip
         print(lab, json.dumps(out[lab], default=float), flush=True)
     return out

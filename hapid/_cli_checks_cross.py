@@ -37,6 +37,15 @@ def _band_cross(a):
         raise ValueError(f"--f-min-hz ({lo:g}) must be < --f-max-hz ({hi:g})")
 
 
+def _fit_cross(a):
+    _band_cross(a)
+    if getattr(a, "method", None) == "ml" and getattr(a, "solver", None) == "jaxopt_lm":
+        raise ValueError(
+            "--solver jaxopt_lm is for --method nls only (ML takes an optimistix solver: "
+            "lm, dogleg, gauss_newton, bfgs, nonlinear_cg)"
+        )
+
+
 def _device_cross(a):
     """``--delay``, ``--rod-compliance``, ``--move`` vary the ``--device`` preset: not without it."""
     given = variant_flags(a)
@@ -171,7 +180,7 @@ def _check_swept_value(cfg: dict, key: str, text: str, x: float) -> None:
 
 _CROSS = {"simulate": _protocol_cross, "analyze": _analyze_cross, "tune": _tune_cross,
           "robust": _robust_cross, "run": _run_cross, "paper": _paper_cross,
-          "sweep": _sweep_cross, "fit": _band_cross, "frf": _band_cross,
+          "sweep": _sweep_cross, "fit": _fit_cross, "frf": _band_cross,
           "predict": _band_cross, "plant": _band_cross}  # fmt: skip
 
 

@@ -102,7 +102,7 @@ def _pair_ml(frf, a, band=None) -> Fitted:
     run = getattr(a, "ml_run", None)
     if run is None:  # pragma: no cover - run_fit always sets it for --method ml
         raise FitCommandError("--method ml needs the run file")
-    solver = a.solver if a.solver in ("lm", "dogleg", "gauss_newton", "bfgs", "nonlinear_cg") else "lm"  # fmt: skip
+    solver = a.solver  # jaxopt_lm is refused before any work (hapid._cli_checks_cross)
     f = np.asarray(frf.freq_hz)
     res = fit_ml(run, f_min_hz=float(f.min()), f_max_hz=float(f.max()),
                  model_floor=a.model_floor, solver=solver_from(solver), max_steps=a.max_steps)  # fmt: skip

@@ -92,7 +92,7 @@ def loop_gp_check(
     :attr:`~hapid.uncertainty.RobustReport.draws` holds ``draws`` (``"loop_gp"``), the GP's
     ``ell``, ``eta``, ``sigma2``, ``measurement_noise`` (whether the draws condition on the FRF's
     element std, :func:`hapid.uncertainty.measured_noise_var`), the measured band
-    ``measured_hz`` ``[f₁, f_e]``, the evidence figures of :func:`hapid.tune.certificate` (``frf_min_sigma_I_plus_L``,
+    ``measured_hz`` ``[f₁, f_e]``, the evidence figures of :class:`hapid.tune.Certificate` (``frf_min_sigma_I_plus_L``,
     ``beyond_loop_gain``, ``certified``), ``beyond_covered``, ``loop``, and the isotropic
     bandwidth as ``iso_bandwidth_nominal_hz`` (of the conditional-mean loop, the nominal
     estimate from the measured FRF; ``None`` if that loop is not stable) with the draws'
@@ -126,7 +126,7 @@ def loop_gp_check(
     clear = float("nan") if over[-1] else float(wb[np.nonzero(over)[0][-1] + 1] if over.any()
                                                  else wb[0]) / TWO_PI  # fmt: skip
     lo, hi = float(data["omega"][0] / TWO_PI), float(data["omega"][-1] / TWO_PI)
-    cover = EvidenceCover((lo, hi), float(cert["beyond_loop_gain"]), float(ev.kappa), clear,
+    cover = EvidenceCover((lo, hi), cert.beyond_loop_gain, float(ev.kappa), clear,
                           float(ev.g_max), loop)  # fmt: skip
     nominal_bw = float(rep.iso_bandwidth_hz[-1]) if bool(rep.stable[-1]) else None
     keep = ("stable", "n_closed_loop_rhp", "nyquist_resolved", "gm_freq_hz", "pm_freq_hz") + FIELDS
@@ -135,7 +135,7 @@ def loop_gp_check(
     bw = np.asarray(rep.iso_bandwidth_hz)[np.asarray(rep.stable, bool)]
     draws = {"draws": "loop_gp", "ell": gp.ell, "eta": gp.eta, "sigma2": gp.sigma2,
             "measurement_noise": "FRF element std" if gp.v is not None else "none (nugget only)",
-            "measured_hz": [lo, hi], **cert, "beyond_covered": cover.beyond_covered,
+            "measured_hz": [lo, hi], **cert.figures(), "beyond_covered": cover.beyond_covered,
             "loop": loop, "iso_bandwidth_nominal_hz": nominal_bw,
             "iso_bandwidth_interval_hz": [float(x) for x in np.quantile(bw, [0.05, 0.95])]
             if bw.size else None}  # fmt: skip

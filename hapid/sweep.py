@@ -41,6 +41,7 @@ import enum
 import itertools
 import re
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -303,8 +304,17 @@ def point_fn(cfg: dict, keys: tuple[str, ...], estimator: str = ESTIMATOR_DEFAUL
     return point
 
 
-def grid(vary: dict[str, list]) -> tuple[tuple[str, ...], np.ndarray]:
-    """Cartesian product of the varied values: ``(keys, (B, len(keys)) float array)``."""
+class SweepGrid(NamedTuple):
+    """The points of a sweep (:func:`grid`): ``keys`` the varied options (``section.name``)
+    and ``values`` ``(B, len(keys))`` float, one row per point."""
+
+    keys: tuple[str, ...]
+    values: np.ndarray
+
+
+def grid(vary: dict[str, list]) -> SweepGrid:
+    """Cartesian product of the varied values (:class:`SweepGrid`). Raises ``ValueError``
+    for an option with no values or a non-finite value."""
     for k, vals in vary.items():
         if len(vals) == 0:
             raise ValueError(f"no values given for {k}")
@@ -312,7 +322,7 @@ def grid(vary: dict[str, list]) -> tuple[tuple[str, ...], np.ndarray]:
     rows = np.array(list(itertools.product(*[np.asarray(v, dtype=float) for v in vary.values()])))
     if not np.all(np.isfinite(rows)):
         raise ValueError("sweep values must be finite numbers")
-    return keys, rows
+    return SweepGrid(keys, rows)
 
 
 _INTEGER = {

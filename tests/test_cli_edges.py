@@ -72,6 +72,9 @@ def test_simulate_fs_zero_without_numpy_warnings(files):
          "--k must be > 0, got 0"),
         (["fit", "frf.npz", "--omega-c-hz", "0", "--out", "m.npz"], "--omega-c-hz must be > 0 Hz, got 0"),
         (["simulate", "--move", "100", "0", "0", "--out", "r.npz"], "--move must be three finite"),
+        # ML takes optimistix solvers only; it used to fall back to lm without a word
+        (["fit", "run.npz", "--method", "ml", "--solver", "jaxopt_lm", "--out", "m.npz"],
+         "--solver jaxopt_lm is for --method nls only"),
     ],
 )  # fmt: skip
 def test_out_of_range_options_are_rejected_before_work(files, argv, message):

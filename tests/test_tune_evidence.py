@@ -57,9 +57,9 @@ def test_mismatch_bound_and_certificate_match_numpy():
     rd = np.min(np.linalg.svd(np.eye(2) + 1.7 * np.asarray(model.P(1j * ev.omega)) @ G,
                               compute_uv=False)[:, -1])  # fmt: skip
     cert = certificate(ev, model, g)
-    assert cert["frf_min_sigma_I_plus_L"] == pytest.approx(rd, rel=1e-9)
-    assert cert["nominal_stable"]  # a PD model: Ẑ_H has no RHP roots, L = g I is stable
-    assert cert["certified"] == bool(rd >= 0.5 and cert["beyond_loop_gain"] <= KAPPA)
+    assert cert.frf_min_sigma_I_plus_L == pytest.approx(rd, rel=1e-9)
+    assert cert.nominal_stable  # a PD model: Ẑ_H has no RHP roots, L = g I is stable
+    assert cert.certified == bool(rd >= 0.5 and cert.beyond_loop_gain <= KAPPA)
     with pytest.raises(ValueError, match="kappa"):
         evidence_from_frf(_frf(model, 1.0), model, kappa=1.5)
 
@@ -104,12 +104,10 @@ def test_certificate_judges_the_measured_loci_like_the_analysis():
     cert = certificate(ev, model, g)
     # A is defective (a Jordan block): its eigenvalues, and so the loci, are accurate to
     # ~√eps only, and LAPACK builds differ at 1e-9 (measured 2.6e-9 between two machines)
-    assert cert["frf_min_loci_distance"] == pytest.approx(loci, rel=1e-7)
-    assert cert["frf_min_sigma_I_plus_L"] == pytest.approx(sig, rel=1e-9)
+    assert cert.frf_min_loci_distance == pytest.approx(loci, rel=1e-7)
+    assert cert.frf_min_sigma_I_plus_L == pytest.approx(sig, rel=1e-9)
     assert sig < 0.5 <= loci  # the case where the two rules disagree
-    assert cert["certified"] == bool(
-        cert["nominal_stable"] and cert["beyond_loop_gain"] <= ev.kappa
-    )
+    assert cert.certified == bool(cert.nominal_stable and cert.beyond_loop_gain <= ev.kappa)
 
 
 def test_small_gain_fixes_the_nyquist_phase_beyond_the_evidence():
@@ -338,11 +336,11 @@ def test_certified_gain_is_the_largest_gain_the_evidence_certifies():
     g0 = Compensator.paper()
     g = eqx.tree_at(lambda c: c.k, g0, g0.k * 30.0)
     scaled = lambda a: eqx.tree_at(lambda c: c.k, g, g.k * a)  # noqa: E731
-    assert not certificate(ev, truth, g)["certified"]
+    assert not certificate(ev, truth, g).certified
     a = certified_gain(g, ev, truth)
     assert a is not None and 0.0 < a < 1.0
-    assert certificate(ev, truth, scaled(a))["certified"]
-    assert not certificate(ev, truth, scaled(min(1.0, 1.1 * a)))["certified"]
+    assert certificate(ev, truth, scaled(a)).certified
+    assert not certificate(ev, truth, scaled(min(1.0, 1.1 * a))).certified
 
 
 def test_fallback_prefers_certified_candidates_at_the_chance_level():

@@ -83,13 +83,13 @@ def test_binding_constraints_find_imposed_limits(plant):
     # a low-pass pole 1 % above the box's top (f_max 150 Hz)
     g2 = Compensator.paper(lowpass=[100.0 * TWO_PI, 1.01 * 150.0 * TWO_PI])
     b = binding_constraints(g2, [fam], req, f_max_hz=150.0, constraints={"g/dc": 0.002}, mu=1e4)
-    assert b["g/dc"]["active"] and b["g/dc"]["value"] == pytest.approx(np.log(2.0))
-    assert b["g/dc"]["multiplier"] == pytest.approx(40.0)
-    assert b["evidence/small_gain"]["active"]
-    assert b["evidence/small_gain"]["value"] == pytest.approx(np.log(2.0) + np.log(
+    assert b["g/dc"].active and b["g/dc"].value == pytest.approx(np.log(2.0))
+    assert b["g/dc"].multiplier == pytest.approx(40.0)
+    assert b["evidence/small_gain"].active
+    assert b["evidence/small_gain"].value == pytest.approx(np.log(2.0) + np.log(
         np.abs(np.asarray(g2.at_omega(sg))).max() / g_sg.max()), abs=1e-12)  # fmt: skip
-    assert b["box"]["active"] and b["box"]["parameter"] == "low-pass 2"
-    assert b["box"]["edge"] == "upper" and b["box"]["value"] == pytest.approx(np.log(1.01))
+    assert b["box"].active and b["box"].parameter == "low-pass 2"
+    assert b["box"].edge == "upper" and b["box"].value == pytest.approx(np.log(1.01))
     # the loci disc: worst where the imposed resonance sits, value = direct numpy evaluation
     ms = req.ms
     lam = np.linalg.eigvals(P @ np.linalg.inv(np.asarray(model.P(1j * om))))
@@ -97,12 +97,12 @@ def test_binding_constraints_find_imposed_limits(plant):
     dist = np.abs(1 + np.linalg.eigvals(P @ G)).min(axis=1)
     assert np.allclose(lam, _bump(om)[:, None])
     e = b["plant/ms"]
-    assert e["active"] and e["value"] == pytest.approx(-np.log(dist.min() * ms), rel=1e-9)
-    assert e["where_hz"][0] == pytest.approx(om[dist.argmin()] / TWO_PI)
-    assert 0.5 * F_BUMP < e["where_hz"][0] < 2.0 * F_BUMP  # at the imposed resonance
+    assert e.active and e.value == pytest.approx(-np.log(dist.min() * ms), rel=1e-9)
+    assert e.where_hz[0] == pytest.approx(om[dist.argmin()] / TWO_PI)
+    assert 0.5 * F_BUMP < e.where_hz[0] < 2.0 * F_BUMP  # at the imposed resonance
     # slack constraints are reported slack
     loose = Requirements(min_dc_gain=0.5 * dc)
-    assert not binding_constraints(g, [fam], loose, f_max_hz=150.0)["g/dc"]["active"]
+    assert not binding_constraints(g, [fam], loose, f_max_hz=150.0)["g/dc"].active
 
 
 @pytest.mark.slow

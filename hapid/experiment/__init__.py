@@ -20,6 +20,7 @@ from ._impedance import estimate_impedance_h1 as estimate_impedance_h1
 from ._protocol import Protocol as Protocol
 from ._protocol import Run as Run
 from ._protocol import validate_run as validate_run
+from ._synthesis import Response as Response
 from ._synthesis import periodic_run as periodic_run
 from ._synthesis import time_domain_response as time_domain_response
 from ._synthesis import time_domain_run as time_domain_run

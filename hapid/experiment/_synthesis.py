@@ -12,6 +12,7 @@ afterwards.
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -102,9 +103,17 @@ def time_domain_run(device: Device, protocol: Protocol | None = None, *, frictio
     return _measure(np.asarray(y)[:, keep], cmd[:, keep], n, protocol, noise_seed)
 
 
+class Response(NamedTuple):
+    """A device's noise-free response (:func:`time_domain_response`), each ``(E, T, n)``:
+    ``L`` the rod displacements (m) and ``R_I`` the interaction forces at the hand (N)."""
+
+    L: np.ndarray
+    R_I: np.ndarray
+
+
 def time_domain_response(device: Device, R_A, *, friction: bool = False,
-                         substeps: int | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """Noise-free response ``(L, R_I)`` (each ``(E, T, n)``) of a device at rest to arbitrary
+                         substeps: int | None = None) -> Response:  # fmt: skip
+    """Noise-free :class:`Response` ``(L, R_I)`` (each ``(E, T, n)``) of a device at rest to arbitrary
     commanded forces ``R_A`` ``(E, T, n)`` (N): for chirps, noise excitation or closed-loop
     studies. Delay, zero-order hold and optional friction as in ``time_domain_run``."""
     R_A = np.asarray(R_A, dtype=float)
@@ -119,7 +128,7 @@ def time_domain_response(device: Device, R_A, *, friction: bool = False,
     y = _simulate(device, device.discrete(substeps=m, friction=friction), device.discrete(),
                   jnp.asarray(applied), m, friction, False, 1)  # fmt: skip
     y = np.asarray(y)
-    return y[..., : device.n], y[..., device.n :]
+    return Response(y[..., : device.n], y[..., device.n :])
 
 
 def _simulate(device, ss_sub, ss_lin, applied, m, friction, periodic_init, Tp):

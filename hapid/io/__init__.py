@@ -15,6 +15,7 @@ file and the problem in its error.
 * ``_cache`` — stage-cache entries; ``_kind`` — :func:`file_kind`.
 """
 
+from ._cache import CacheEntry as CacheEntry
 from ._cache import load_cache_entry as load_cache_entry
 from ._cache import save_cache_entry as save_cache_entry
 from ._common import FileFormatError as FileFormatError
@@ -28,6 +29,7 @@ from ._frf import save_impedance_frf as save_impedance_frf
 from ._kind import file_kind as file_kind
 from ._model import IMPEDANCE_MODEL_KEYS as IMPEDANCE_MODEL_KEYS
 from ._model import MODEL_KEYS as MODEL_KEYS
+from ._model import DesignFile as DesignFile
 from ._model import load_design as load_design
 from ._model import load_impedance_model as load_impedance_model
 from ._model import load_model as load_model

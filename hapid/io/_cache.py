@@ -5,6 +5,7 @@ pickle.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -16,8 +17,16 @@ def save_cache_entry(path, arrays: dict, meta: str) -> Path:
     return _atomic_write(path, lambda fh: np.savez(fh, __meta__=np.asarray(meta), **arrays))
 
 
-def load_cache_entry(path) -> tuple[dict, str]:
-    """``(arrays, meta)`` of a stage-cache entry (``allow_pickle=False``)."""
+class CacheEntry(NamedTuple):
+    """A stage-cache entry (:func:`load_cache_entry`): ``arrays`` (name → array) and ``meta``
+    (the JSON string the stage stored with them)."""
+
+    arrays: dict
+    meta: str
+
+
+def load_cache_entry(path) -> CacheEntry:
+    """:class:`CacheEntry` ``(arrays, meta)`` of a stage-cache entry (``allow_pickle=False``)."""
     with np.load(path, allow_pickle=False) as z:
         arrays = {k: z[k] for k in z.files if k != "__meta__"}
-        return arrays, str(z["__meta__"])
+        return CacheEntry(arrays, str(z["__meta__"]))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -64,6 +65,9 @@ def load_model(path) -> ImpedanceModel:
 
 
 def load_model_metadata(path) -> dict:
+    """The entries of a model file other than the matrices (name → array): what the writer
+    stored beside the model (fit band, method, units). Raises ``ValueError`` naming the file
+    when it cannot be read."""
     d = _read_arrays(path, "a model file (M_H, B_H, K_H, M_T, B_T, K_T)")
     return {k: v for k, v in d.items() if k not in MODEL_KEYS}
 
@@ -104,9 +108,20 @@ def save_design(path, g, **info) -> Path:
     return _atomic_write(path, lambda fh: np.savez(fh, **arrays))
 
 
-def load_design(path) -> tuple[Compensator, dict]:
-    """``(g, info)`` from a design file (:func:`save_design`): the compensator and the
-    decoded ``json`` entry (``{}`` when absent). Raises ``FileNotFoundError`` or
+class DesignFile(NamedTuple):
+    """A design file's content (:func:`load_design`).
+
+    - ``g``: the compensator.
+    - ``info``: the decoded ``json`` entry (``{}`` when absent): the tuner's summary, decision
+      and re-check table as written by :func:`save_design` (plain JSON data).
+    """
+
+    g: Compensator
+    info: dict
+
+
+def load_design(path) -> DesignFile:
+    """:class:`DesignFile` ``(g, info)`` from a design file (:func:`save_design`). Raises ``FileNotFoundError`` or
     ``ValueError`` naming the file and the field that is missing or out of range."""
     path = Path(path)
     if not path.exists():
@@ -130,4 +145,4 @@ def load_design(path) -> tuple[Compensator, dict]:
         info = json.loads(str(z["json"])) if "json" in z else {}
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: its 'json' entry is not valid JSON ({e})") from None
-    return g, info
+    return DesignFile(g, info)

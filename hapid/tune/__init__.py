@@ -13,9 +13,16 @@
 """
 
 from .. import _config  # noqa: F401  (float64)
+from ._binding import Binding as Binding
+from ._binding import BindingStatus as BindingStatus
+from ._binding import Constraint as Constraint
 from ._binding import binding_constraints as binding_constraints
 from ._decision import Choice as Choice
 from ._decision import Decision as Decision
+from ._evidence import Certificate as Certificate
+from ._evidence import Evidence as Evidence
+from ._evidence import certificate as certificate
+from ._evidence import evidence_from_frf as evidence_from_frf
 from ._files import load_design as load_design
 from ._files import save_design as save_design
 from ._files import tune_from_files as tune_from_files
@@ -32,6 +39,7 @@ from ._recipe import Recipe as Recipe
 from ._recipe import RobustDesign as RobustDesign
 from ._recipe import posterior_grid as posterior_grid
 from ._recipe import robust_design as robust_design
+from ._recipe_plants import PosteriorPlants as PosteriorPlants
 from ._recipe_plants import posterior_plants as posterior_plants
 from ._response import g_response as g_response
 from ._response import smooth_sigma_max as smooth_sigma_max
@@ -41,7 +49,6 @@ from ._scenarios import make_scenarios as make_scenarios
 from ._scenarios import matrix_part as matrix_part
 from ._tune import TuneResult as TuneResult
 from ._tune import TuneStatus as TuneStatus
-from ._tune import phase_counts as phase_counts
 from ._tune import smooth_bandwidth as smooth_bandwidth
 from ._tune import tune as tune
 from ._validate import StepResponse as StepResponse

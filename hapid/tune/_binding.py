@@ -22,16 +22,94 @@ units:
 
 from __future__ import annotations
 
+import dataclasses
+import enum
+
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
+from .._plain import jsonable
 from ._objective import Box, Requirements
 from ._params import ParamMap
 from ._response import g_response
 
 ACTIVE_TOL = 0.01
 """A constraint within this (log units, ≈ 1 %) of its bound counts as active."""
+
+
+class BindingStatus(enum.StrEnum):
+    """Whether every constraint is met at the design (value ≤ 0)."""
+
+    MET = "met"
+    VIOLATED = "violated"
+
+
+@dataclasses.dataclass(frozen=True)
+class Constraint:
+    """One constraint of the design problem at ``g`` (log units, ``value ≤ 0`` met).
+
+    - ``value``: the exact value; ``active``: ``value > −ACTIVE_TOL``.
+    - ``smooth_value``, ``multiplier``: the tuner's final smooth value and the penalty's
+      multiplier estimate (``None`` unless the tuner's values were given).
+    - loci disc (``<family>/ms``): ``K`` the scenarios averaged, ``where_hz`` (Hz) and
+      ``values_there`` at the worst points, ``n_violating`` scenarios with ``value > 0``.
+    - small gain: ``where_hz`` the frequency of the largest ``|g|``.
+    - ``g/dc``: ``dc_gain`` ``|g(0)|`` and its ``floor``.
+    - ``box``: the ``parameter`` nearest an ``edge`` (``"upper"``/``"lower"``).
+    """
+
+    value: float
+    active: bool
+    smooth_value: float | None = None
+    multiplier: float | None = None
+    K: int | None = None
+    where_hz: list[float] | None = None
+    values_there: list[float] | None = None
+    n_violating: int | None = None
+    dc_gain: float | None = None
+    floor: float | None = None
+    parameter: str | None = None
+    edge: str | None = None
+
+    def summary(self) -> dict:
+        """The fields that apply (``None`` ones left out), strict JSON."""
+        return jsonable({k: v for k, v in dataclasses.asdict(self).items() if v is not None})
+
+
+@dataclasses.dataclass(frozen=True)
+class Binding:
+    """Every constraint of the design problem at one ``g`` (:func:`binding_constraints`):
+    ``constraints`` maps each name (``<family>/ms``, ``evidence/small_gain``, ``g/dc``,
+    ``box``) to its :class:`Constraint`; ``b[name]`` reads one."""
+
+    constraints: dict[str, Constraint]
+
+    def __getitem__(self, name: str) -> Constraint:
+        return self.constraints[name]
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.constraints
+
+    @property
+    def active(self) -> list[str]:
+        """Names of the active constraints (those that hold the bandwidth back)."""
+        return [k for k, c in self.constraints.items() if c.active]
+
+    @property
+    def ok(self) -> bool:
+        """Every constraint met (``value ≤ 0``)."""
+        return all(c.value <= 0.0 for c in self.constraints.values())
+
+    @property
+    def status(self) -> BindingStatus:
+        """:class:`BindingStatus`: ``MET`` (:attr:`ok`) or ``VIOLATED``."""
+        return BindingStatus.MET if self.ok else BindingStatus.VIOLATED
+
+    def summary(self) -> dict:
+        """Strict-JSON summary: status, ok, the active names and every constraint's fields."""
+        return {"status": self.status.value, "ok": self.ok, "active": self.active,
+                "constraints": {k: c.summary() for k, c in self.constraints.items()}}  # fmt: skip
 
 
 def locus_distance(g, sc) -> np.ndarray:
@@ -70,13 +148,12 @@ def _family_margin(g, fam, ms: float, n_where: int) -> dict:
 
 def binding_constraints(g, families, req: Requirements, *, f_max_hz: float,
                         constraints: dict | None = None, mu: float | None = None,
-                        n_where: int = 4, active_tol: float = ACTIVE_TOL) -> dict:  # fmt: skip
-    """``{name: entry}`` of every constraint of the design problem at ``g`` (see the module
+                        n_where: int = 4, active_tol: float = ACTIVE_TOL) -> Binding:  # fmt: skip
+    """:class:`Binding`: every constraint of the design problem at ``g`` (see the module
     docstring). ``families``: the tuner's :class:`.Family` list; ``f_max_hz``: the top of g's
     frequency box the tuner used; ``constraints`` and ``mu`` (optional): the tuner's final
     smooth values (:attr:`TuneResult.constraints`) and penalty weight, for the multiplier
-    estimates. Each entry has ``value`` (exact, ≤ 0 met), ``active`` (``value > −active_tol``)
-    and, with ``constraints``, ``smooth_value`` and ``multiplier``."""
+    estimates (:class:`Constraint`)."""
     out = {}
     ms = req.ms
     for fam in families:
@@ -99,6 +176,7 @@ def binding_constraints(g, families, req: Requirements, *, f_max_hz: float,
     j = int(np.minimum(lo, hi).argmin())
     out["box"] = {"value": float(-min(lo[j], hi[j])), "parameter": pm.names[j],
                   "edge": "upper" if hi[j] < lo[j] else "lower"}  # fmt: skip
+    entries = {}
     for name, e in out.items():
         e["active"] = bool(e["value"] > -active_tol)
         if constraints is not None and name in constraints:
@@ -106,4 +184,5 @@ def binding_constraints(g, families, req: Requirements, *, f_max_hz: float,
             e["smooth_value"] = c
             if mu is not None:
                 e["multiplier"] = float(2.0 * mu * max(0.0, c))
-    return out
+        entries[name] = Constraint(**e)
+    return Binding(entries)

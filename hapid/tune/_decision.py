@@ -192,7 +192,7 @@ def certified_gain(
     ``α`` is certified by the evidence (:func:`._evidence.certificate`: nominal loop stable,
     measured loci ``min |1 + λ| ≥ floor``, loop gain beyond the FRF ≤ κ); ``None`` if not even
     ``alpha_min`` is. The bisection keeps the last certified α (monotonicity is not assumed)."""
-    certified = lambda gg: certificate(ev, model, gg, floor=floor)["certified"]  # noqa: E731
+    certified = lambda gg: certificate(ev, model, gg, floor=floor).certified  # noqa: E731
     if certified(g):
         return 1.0
     return largest_gain(g, certified, alpha_min, iters)
@@ -233,7 +233,7 @@ def certified_fallback(candidates, ev, model, check, *, chosen: dict, quantile: 
         if a is None:
             continue
         gs = scale_gain(g, a)
-        row = check(gs) | certificate(ev, model, gs, floor=FRF_FLOOR)
+        row = check(gs) | certificate(ev, model, gs, floor=FRF_FLOOR).figures()
         if chosen.get("true_stable") and not row.get("true_stable", True):
             continue
         cands.append((name, a, gs, row))

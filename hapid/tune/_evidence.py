@@ -50,10 +50,12 @@ from .. import (
 )
 from .._constants import KAPPA  # noqa: F401  (re-exported: σ̄(L) ≤ κ beyond the evidence)
 from .._grids import continuous_grid
+from .._plain import jsonable
 from ..control import Compensator
 from ..impedance import plant
 from ..pipeline import controller as make_controller
 from ..uncertainty._loopgp import measured_data, measured_plant
+from ..verdict import Verdict
 from ._response import g_response
 
 TOP_BAND = 2.0**-0.5  # the mismatch bound is read over [ω_e / √2, ω_e] (top half-octave)
@@ -192,19 +194,55 @@ def nominal_stable(model, g: Compensator) -> bool:
     return bool(rep.stable)
 
 
-def certificate(ev: Evidence, model, g: Compensator, floor: float = 0.5) -> dict:
-    """The evidence figures of ``g``: ``frf_min_loci_distance`` (:func:`frf_loci_distance`),
-    ``frf_min_sigma_I_plus_L`` (:func:`frf_return_difference`, the stricter disk view,
-    reported), ``beyond_loop_gain`` (:func:`beyond_gain`), ``evidence_hz`` (ω_e/2π),
-    ``mismatch_bound``, ``nominal_stable`` (:func:`nominal_stable`) and ``certified`` (nominal
-    loop stable, loci distance ≥ ``floor`` at every measured frequency and beyond-band gain
-    ≤ κ). The measured FRF is too sparse to count encirclements: the count comes from the
-    model (and the held-out draws), the FRF keeps the measured loci away from −1 (the rule
-    the tuner's disc constraint and the GM/PM of the analysis use), and the small gain fixes
-    the count beyond the data."""
+@dataclasses.dataclass(frozen=True)
+class Certificate:
+    """What a measured FRF certifies about one loop (:func:`certificate`).
+
+    - ``frf_min_loci_distance``: ``min |1 + λ_i(L_meas)|`` over the measured frequencies
+      (:func:`frf_loci_distance`), the figure the certificate judges.
+    - ``frf_min_sigma_I_plus_L``: ``min σ̲(I + L_meas)`` (:func:`frf_return_difference`, the
+      stricter disk view), reported only.
+    - ``beyond_loop_gain``: ``max |g| · m`` above the evidence (:func:`beyond_gain`).
+    - ``evidence_hz``: the top of the evidence ``ω_e / 2π`` (Hz); ``mismatch_bound``: ``m``.
+    - ``nominal_stable``: the loop on the model's own plant is stable (:func:`nominal_stable`).
+    - ``certified``: nominal loop stable, loci distance ≥ ``floor`` at every measured frequency
+      and beyond-band gain ≤ κ.
+    """
+
+    frf_min_loci_distance: float
+    frf_min_sigma_I_plus_L: float
+    beyond_loop_gain: float
+    evidence_hz: float
+    mismatch_bound: float
+    nominal_stable: bool
+    certified: bool
+
+    @property
+    def status(self) -> Verdict:
+        """``PASSED`` when :attr:`certified`, else ``FAILED``."""
+        return Verdict.PASSED if self.certified else Verdict.FAILED
+
+    @property
+    def ok(self) -> bool:
+        """Same as :attr:`certified`."""
+        return self.certified
+
+    def figures(self) -> dict:
+        """The fields as Python floats and bools (the design file's certificate columns)."""
+        return dataclasses.asdict(self)
+
+    def summary(self) -> dict:
+        """Strict-JSON summary: ``status``, ``ok`` and :meth:`figures` (NaN → ``None``)."""
+        return jsonable({"status": self.status, "ok": self.ok, **self.figures()})
+
+
+def certificate(ev: Evidence, model, g: Compensator, floor: float = 0.5) -> Certificate:
+    """The :class:`Certificate` of ``g`` on the evidence ``ev``. The measured FRF is too
+    sparse to count encirclements: the count comes from the model (and the held-out draws),
+    the FRF keeps the measured loci away from −1 (the rule the tuner's disc constraint and the
+    GM/PM of the analysis use), and the small gain fixes the count beyond the data."""
     L = measured_loop(ev, model, g)  # once for both in-band figures
     ld, rd, bg = _loci_distance(L), _return_difference(L), beyond_gain(g, ev)
-    ns = nominal_stable(model, g)
-    return {"frf_min_loci_distance": ld, "frf_min_sigma_I_plus_L": rd, "beyond_loop_gain": bg,
-            "evidence_hz": ev.omega_e / (2 * np.pi), "mismatch_bound": ev.mismatch,
-            "nominal_stable": ns, "certified": bool(ns and ld >= floor and bg <= ev.kappa + 1e-9)}  # fmt: skip
+    ns = bool(nominal_stable(model, g))
+    return Certificate(float(ld), float(rd), float(bg), float(ev.omega_e / (2 * np.pi)),
+                       float(ev.mismatch), ns, bool(ns and ld >= floor and bg <= ev.kappa + 1e-9))  # fmt: skip

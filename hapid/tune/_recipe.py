@@ -294,7 +294,7 @@ def robust_design(
         validation[name] = v
         table[name] = table_row(v) | {"validate_s": time.perf_counter() - t0}
         if ev is not None:
-            table[name] |= certificate(ev, model, g, floor=FRF_FLOOR)
+            table[name] |= certificate(ev, model, g, floor=FRF_FLOOR).figures()
     # the training verdict decides first; then the table on the held-out evidence
     decision = compare(table["start"], table["tuned"]) if trained.keeps_tuned else trained
     out = res if decision.keeps_tuned else start

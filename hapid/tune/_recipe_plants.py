@@ -10,6 +10,7 @@ Plants are frequency-first, ``(S, N, n, n)`` complex, on ω in rad/s.
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import jax
 import numpy as np
@@ -80,8 +81,20 @@ def predictive_scenario_plants(samples, idx, omega, seed: int = 0) -> tuple[np.n
     return P, pol
 
 
-def posterior_plants(models, omega) -> tuple[np.ndarray, np.ndarray]:
-    """``(P (S, N, n, n), RHP poles of each P̂_s)`` of a batched model on ω (rad/s)."""
+class PosteriorPlants(NamedTuple):
+    """Plants of a batch of models (:func:`posterior_plants`).
+
+    - ``P``: ``(S, N, n, n)`` complex, each model's ``Ẑ_H Ẑ_T⁻¹`` on ω.
+    - ``n_rhp``: ``(S,)`` int, the RHP poles of each ``P̂_s`` (RHP roots of its ``Ẑ_T``).
+    """
+
+    P: np.ndarray
+    n_rhp: np.ndarray
+
+
+def posterior_plants(models, omega) -> PosteriorPlants:
+    """:class:`PosteriorPlants` ``(P (S, N, n, n), n_rhp (S,))`` of a batched model on
+    ``omega (N,)`` rad/s."""
 
     @jax.jit
     def one(m):
@@ -89,7 +102,7 @@ def posterior_plants(models, omega) -> tuple[np.ndarray, np.ndarray]:
         return m.P(1j * omega), np.int64(0) + jax.numpy.sum(jax.numpy.real(r) > 0)
 
     P, n = jax.vmap(one)(models)
-    return np.asarray(P), np.asarray(n)
+    return PosteriorPlants(np.asarray(P), np.asarray(n))
 
 
 def count_grid(fs_hz: float, dense_factor: int, n_freq: int) -> np.ndarray:

@@ -72,6 +72,7 @@ from ._predictive import band_calibration as band_calibration
 from ._predictive import credible_bands as credible_bands
 from ._predictive import predictive_plants as predictive_plants
 from ._predictive import predictive_samples as predictive_samples
+from ._robust import DevicePlants as DevicePlants
 from ._robust import RobustReport as RobustReport
 from ._robust import device_plants as device_plants
 from ._robust import posterior_omega as posterior_omega

@@ -40,10 +40,13 @@ The result, its summary statistics and the margin sign convention:
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array
 
 from .. import _config, _distributed  # noqa: F401  (float64)
 from .._grids import continuous_grid as posterior_omega
@@ -63,6 +66,7 @@ __all__ = [
     "METRICS",
     "RobustReport",
     "controller_response",
+    "DevicePlants",
     "device_plants",
     "posterior_omega",
     "robust_check",
@@ -235,10 +239,22 @@ def _sampled_P(device, omega):
     return device.sampled_P(omega)
 
 
+class DevicePlants(NamedTuple):
+    """True sampled plants of a simulated device's variants (:func:`device_plants`).
+
+    - ``labels``: one name per variant (``"nominal"``, ``"pose k: d = …"``, ``"subject k"``).
+    - ``P``: ``(S, N, n, n)`` complex, the sampled plant of each variant on ``omega``.
+    """
+
+    labels: list[str]
+    P: Array
+
+
 def device_plants(
     device, omega=None, *, poses=(), n_subjects: int = 0, key=0, include_nominal: bool = True
-):
-    """True sampled plants of a simulated device's variants: ``(labels, P (S, N, n, n))``.
+) -> DevicePlants:
+    """True sampled plants of a simulated device's variants: :class:`DevicePlants`
+    ``(labels, P (S, N, n, n))``.
 
     - ``device``: a :class:`hapid.device.ParallelDevice` (e.g. ``cu5()``).
     - ``poses``: :class:`hapid.device.Pose` objects (other stylus poses, nominal subject).
@@ -266,4 +282,4 @@ def device_plants(
             Ps.append(_sampled_P(d, omega))
     if not Ps:
         raise ValueError("device_plants: nothing selected (no nominal, poses or subjects)")
-    return labels, jnp.stack(Ps)
+    return DevicePlants(labels, jnp.stack(Ps))
