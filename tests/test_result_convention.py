@@ -62,6 +62,9 @@ from hapid.robust import RobustResult, robust_from_files
 from hapid.scene import SceneRun, SceneStatus
 from hapid.sweep import SweepPoint, SweepResult, SweepStatus
 from hapid.tune import (
+    Binding,
+    BindingStatus,
+    Certificate,
     Choice,
     Decision,
     RobustDesign,
@@ -492,6 +495,44 @@ def test_robust_design_and_decision():
         assert not d.kept_start and d.returned_row == {"a": 2.0}
 
 
+def test_certificate_and_binding():
+    """The evidence certificate fails exactly when the loop gain beyond the FRF exceeds κ
+    (the model measured as it is, so every in-band figure is clean: closed form
+    ``max |g| · m``, m = 1); the binding report is violated exactly when a constraint is."""
+    from hapid._constants import TWO_PI
+    from hapid.tune import (
+        Family,
+        Requirements,
+        binding_constraints,
+        certificate,
+        evidence_from_frf,
+        make_scenarios,
+    )
+
+    m = example_model(2, 0)
+    om = TWO_PI * np.geomspace(1.0, 40.0, 30)
+    ev = evidence_from_frf({"omega": om, "Z_H": np.asarray(m.Z_H(1j * om)),
+                            "Z_T": np.asarray(m.Z_T(1j * om))}, m)  # fmt: skip
+    g = Compensator.paper()
+    ok = (Verdict.PASSED,)
+    for a in (1e-2, 1.0, 1e2):
+        c = certificate(ev, m, scale_gain(g, a))
+        assert type(c) is Certificate and c.mismatch_bound == 1.0
+        want = Verdict.PASSED if c.beyond_loop_gain <= 0.5 else Verdict.FAILED
+        assert assert_convention(c, Verdict, ok) is want
+        assert {k: v for k, v in c.summary().items() if k not in ("status", "ok")} == c.figures()
+    assert certificate(ev, m, scale_gain(g, 1e-2)).ok and not certificate(ev, m, g).ok
+    omg = TWO_PI * np.geomspace(0.1, 200.0, 200)
+    fam = Family(make_scenarios(np.asarray(m.P(1j * omg)), m, omg), quantile=1.0, name="plant")
+    dc = abs(complex(g(np.array([0.0]))[0]))
+    met = (BindingStatus.MET,)
+    for floor, want in ((0.5 * dc, BindingStatus.MET), (2.0 * dc, BindingStatus.VIOLATED)):
+        b = binding_constraints(g, [fam], Requirements(min_dc_gain=floor), f_max_hz=1000.0)
+        assert type(b) is Binding and assert_convention(b, BindingStatus, met) is want
+        assert b["g/dc"].value == pytest.approx(np.log(floor / dc))
+        assert b.summary()["constraints"]["g/dc"]["dc_gain"] == pytest.approx(dc)
+
+
 def test_design_report_and_check(tmp_path):
     passed, failed = (
         Check(Verdict.PASSED, name="GM"),
@@ -543,6 +584,7 @@ RESULT_TYPES = {
     PerfectControlWall: EquilibriumStatus, WallSteadyState: ContactStatus,
     WallRun: ContactStatus, WallMetrics: ContactStatus,
 }  # fmt: skip
+RESULT_TYPES |= {Certificate: Verdict, Binding: BindingStatus}  # the tuner's evidence reports
 
 
 def test_every_result_type_has_status_ok_summary():
