@@ -28,8 +28,10 @@ DRAWS = ("auto", "loop_gp", "params")
 draws), ``auto`` (``loop_gp`` when the measured FRF is known). ``hapid predict`` offers
 ``params`` (its default: the band measured calibrated) and ``loop_gp``."""
 
-NLS_MAX_STEPS = 500
-"""Step limit of the NLS fit of ``hapid fit`` and of the fit ``hapid posterior`` centres on."""
+NLS_MAX_STEPS = 2000
+"""Step limit of the NLS and ML fits (``hapid fit``, the fit ``hapid posterior`` centres on, the
+scenes, ``hapid.fit.fit_nls``/``fit_ml``/``fit_impedance``). A fit that converges stops early, so
+the limit costs time only on a fit that would fail anyway; a 6-rod pair needs ~1300 steps."""
 
 NLS_SOLVER = "lm"
 """Solver of the NLS and ML fits, by the name the CLI (``--solver``) and the scenes

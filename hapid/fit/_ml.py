@@ -61,7 +61,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
 
-from ..defaults import FIT_BAND_HZ
+from ..defaults import FIT_BAND_HZ, NLS_MAX_STEPS
 from ..experiment import Run, estimate_frf
 from ..experiment._estimate import _dft_bins
 from ..experiment._protocol import validate_run
@@ -371,7 +371,7 @@ def fit_ml(
     f_min_hz: float = 0.0,
     model_floor: float = 0.0,
     solver: Solver = DEFAULT_SOLVER,
-    max_steps: int = 500,
+    max_steps: int = NLS_MAX_STEPS,
     ftol: float = 1e-8,
     patience: int = 20,
     pd_eps: float = PD_EPS,

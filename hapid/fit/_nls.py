@@ -41,7 +41,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._linalg import pinv_psd
-from ..defaults import FIT_BAND_HZ
+from ..defaults import FIT_BAND_HZ, NLS_MAX_STEPS
 from ..frf import FRF
 from ..impedance import ImpedanceModel
 from ._compress import compress
@@ -195,7 +195,7 @@ def fit_nls(
     omega_c: float = OMEGA_C_PAPER,
     solver: Solver = DEFAULT_SOLVER,
     use_P_residual: bool = False,
-    max_steps: int = 500,
+    max_steps: int = NLS_MAX_STEPS,
     throw: bool = False,
     blend_floor: float = 0.02,
     p_weight: float = 1.0,

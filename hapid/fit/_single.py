@@ -28,6 +28,7 @@ import optimistix as optx
 from jaxtyping import Array, Complex, Float
 
 from .._plain import jsonable
+from ..defaults import NLS_MAX_STEPS
 from ..impedance import SecondOrder
 from ..impedance_frf import ImpedanceFRF
 from ._nls import laplace_covariance
@@ -258,7 +259,7 @@ def fit_impedance(
     weight: str = "relative",
     f_min_hz: float = 0.0,
     f_max_hz: float = np.inf,
-    max_steps: int = 500,
+    max_steps: int = NLS_MAX_STEPS,
     rtol: float = 1e-10,
     atol: float = 1e-12,
     ftol: float = 1e-8,
