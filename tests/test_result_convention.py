@@ -77,11 +77,14 @@ from hapid.tune import (
 )
 from hapid.tune._tune import scale_gain
 from hapid.uncertainty import (
+    BandCalibration,
+    CalibrationStatus,
     DrawsStatus,
     PlantDraws,
     PosteriorSamples,
     RobustReport,
     SamplesStatus,
+    band_calibration,
     param_names,
     plant_draws,
 )
@@ -570,6 +573,23 @@ def test_posterior_samples_and_plant_draws(frf):
     assert assert_convention(bad, DrawsStatus, (DrawsStatus.OK,)) is DrawsStatus.NON_FINITE
 
 
+def test_band_calibration():
+    """Draws of a circular complex Gaussian at 300 frequencies: a truth from the same
+    distribution is inside the 90 % ball at about 90 % of them (calibrated); a truth 10
+    standard deviations away at none (overconfident)."""
+    rng = np.random.default_rng(0)
+    cz = lambda *s: (rng.standard_normal(s) + 1j * rng.standard_normal(s)) / np.sqrt(2)  # noqa: E731
+    draws = cz(400, 300, 1, 1)
+    good = band_calibration(draws, cz(300, 1, 1))
+    assert type(good) is BandCalibration and good.goal == pytest.approx(0.85)
+    ok = (CalibrationStatus.CALIBRATED,)
+    assert assert_convention(good, CalibrationStatus, ok) is CalibrationStatus.CALIBRATED
+    off = band_calibration(draws, 10.0 + cz(300, 1, 1))
+    assert assert_convention(off, CalibrationStatus, ok) is CalibrationStatus.OVERCONFIDENT
+    assert off.summary()["coverage"] == 0.0 and off.figures()["coverage"] == off.coverage
+    assert list(good.figures()) == list(good.summary())[4:]  # status, ok, level, goal first
+
+
 # ---- every public result type is covered ---------------------------------------------------
 
 RESULT_TYPES = {
@@ -585,6 +605,7 @@ RESULT_TYPES = {
     WallRun: ContactStatus, WallMetrics: ContactStatus,
 }  # fmt: skip
 RESULT_TYPES |= {Certificate: Verdict, Binding: BindingStatus}  # the tuner's evidence reports
+RESULT_TYPES |= {BandCalibration: CalibrationStatus}
 
 
 def test_every_result_type_has_status_ok_summary():

@@ -524,11 +524,14 @@ def test_credible_bands(case):
     omega = 2 * np.pi * np.geomspace(1, 100, 30)
     P_true = truth.P(1j * omega)
     bands = credible_bands(ps, omega, ("sv_Z_H", "abs_Z_T", "sv_P", "sv_P_Phatinv"), P_ref=P_true)
-    assert bands["sv_Z_H"].shape == (3, 30, N_RODS)
-    assert bands["abs_Z_T"].shape == (3, 30, N_RODS, N_RODS)
-    for v in bands.values():
+    assert bands.sv_Z_H.shape == (3, 30, N_RODS)
+    assert bands.abs_Z_T.shape == (3, 30, N_RODS, N_RODS)
+    assert bands.sv_Z_T is None and list(bands.computed()) == ["abs_Z_T", "sv_Z_H", "sv_P",
+                                                               "sv_P_Phatinv"]  # fmt: skip
+    np.testing.assert_array_equal(bands.q, [0.05, 0.5, 0.95])
+    for v in bands.computed().values():
         assert np.all(v[0] <= v[1] + 1e-12) and np.all(v[1] <= v[2] + 1e-12)
-    db = 20 * np.log10(bands["sv_P_Phatinv"])
+    db = 20 * np.log10(bands.sv_P_Phatinv)
     assert np.max(np.abs(db)) < 0.5  # well-identified model: P P̂⁻¹ ≈ I
     with pytest.raises(ValueError, match="P_ref"):
         credible_bands(ps, omega, ("sv_P_Phatinv",))

@@ -76,6 +76,11 @@ from ._robust import DevicePlants as DevicePlants
 from ._robust import RobustReport as RobustReport
 from ._robust import device_plants as device_plants
 from ._robust import posterior_omega as posterior_omega
+from ._predictive import BandCalibration as BandCalibration
+from ._predictive import CalibrationStatus as CalibrationStatus
+from ._predictive import CredibleBands as CredibleBands
+from ._predictive import PredictivePlants as PredictivePlants
+from ._predictive import PredictiveQuantities as PredictiveQuantities
 from ._robust import robust_check as robust_check
 from ._robust import robust_omega as robust_omega
 from ._sampler import MOVES as MOVES
