@@ -134,13 +134,14 @@ def test_matrix_coordinates_round_trip_and_boundary_matrices_held_fixed():
     fixed = boundary_fixed(nls)
     post = make_log_posterior(frf, nls.scale, f_max_hz=None, fixed=fixed)
     t = N_RODS * (N_RODS + 1) // 2
-    assert post.dim == post.n_theta - t * len(fixed) + 2 and "K_M" in post.fixed_names
+    assert post.dim == post.n_theta - t * len(fixed.held()) + 2 and "K_M" in post.fixed_names
+    assert fixed.K_M is not None and fixed.K_M.shape == (N_RODS, N_RODS)
     ps = posterior_laplace_samples(post, 200, nls, key=0)
     phys = ps.physical()
     for name, v in phys.items():
         assert np.all(np.linalg.eigvalsh(v)[:, 0] >= -1e-9 * np.abs(v).max()), name
     np.testing.assert_allclose(
-        phys["K_M"], np.broadcast_to(fixed["K_M"], phys["K_M"].shape), atol=1e-6
+        phys["K_M"], np.broadcast_to(fixed.K_M, phys["K_M"].shape), atol=1e-6
     )
     # the hand's sampled matrices scatter around the truth
     z = (phys["K_H"].mean(0) - np.asarray(truth.hand.K)) / phys["K_H"].std(0)

@@ -43,6 +43,7 @@ from ._likelihood import LogPosterior as LogPosterior
 from ._likelihood import batched_log_prob as batched_log_prob
 from ._likelihood import boundary_fixed as boundary_fixed
 from ._likelihood import param_names as param_names
+from ._likelihood import FixedMatrices as FixedMatrices
 from ._loopgp import LoopGP as LoopGP
 from ._loopgp import fit_loop_gp as fit_loop_gp
 from ._loopgp import loop_gp_mean as loop_gp_mean
