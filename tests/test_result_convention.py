@@ -80,11 +80,17 @@ from hapid.uncertainty import (
     BandCalibration,
     CalibrationStatus,
     DrawsStatus,
+    LaplacePosterior,
+    ModeStatus,
+    NoError,
     PlantDraws,
     PosteriorSamples,
     RobustReport,
     SamplesStatus,
     band_calibration,
+    initial_point,
+    laplace_posterior,
+    make_log_posterior,
     param_names,
     plant_draws,
 )
@@ -590,6 +596,21 @@ def test_band_calibration():
     assert list(good.figures()) == list(good.summary())[4:]  # status, ok, level, goal first
 
 
+def test_laplace_posterior(frf):
+    """The Laplace approximation of the 2-rod posterior: BFGS converges from the NLS optimum,
+    and does not in one step."""
+    res = fit_nls(frf, f_max_hz=None)
+    post = make_log_posterior(frf, res.scale, f_max_hz=None, model_error=NoError())
+    x0 = initial_point(post, res)
+    lp = laplace_posterior(post, x0)
+    assert type(lp) is LaplacePosterior and lp.cov.shape == (post.dim, post.dim)
+    ok = (ModeStatus.CONVERGED,)
+    assert assert_convention(lp, ModeStatus, ok) is ModeStatus.CONVERGED
+    assert lp.summary()["dim"] == post.dim and lp.info()["converged"] is True
+    short = laplace_posterior(post, x0 + 0.1, max_steps=1)
+    assert assert_convention(short, ModeStatus, ok) is ModeStatus.NOT_CONVERGED
+
+
 # ---- every public result type is covered ---------------------------------------------------
 
 RESULT_TYPES = {
@@ -605,7 +626,7 @@ RESULT_TYPES = {
     WallRun: ContactStatus, WallMetrics: ContactStatus,
 }  # fmt: skip
 RESULT_TYPES |= {Certificate: Verdict, Binding: BindingStatus}  # the tuner's evidence reports
-RESULT_TYPES |= {BandCalibration: CalibrationStatus}
+RESULT_TYPES |= {BandCalibration: CalibrationStatus, LaplacePosterior: ModeStatus}
 
 
 def test_every_result_type_has_status_ok_summary():

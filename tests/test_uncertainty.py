@@ -257,9 +257,9 @@ def laplace_gaussian(case):
     """The near-Gaussian case's posterior (no model-error terms) and its Laplace Gaussian."""
     _, frf, nls = case
     post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error=NoError())
-    mean, cov, info = laplace_posterior(post, initial_point(post, nls))
-    assert info["converged"]
-    return post, mean, cov
+    lp = laplace_posterior(post, initial_point(post, nls))
+    assert lp.converged and lp.ok
+    return post, lp.mean, lp.cov
 
 
 def test_laplace_and_emcee_agree(case, laplace_gaussian):

@@ -7,8 +7,9 @@
   (``log_prob`` jitted and vmapped over walkers);
   :func:`fix_hyperparameters` is the step that fixes a GP's hyperparameters.
 - :func:`sample_posterior` (emcee), :func:`laplace_samples` (fast path),
-  :func:`laplace_posterior` → :class:`PosteriorSamples` (files: :func:`hapid.io.save_samples`,
-  :func:`hapid.io.load_samples`); :func:`posterior_from_files` for the CLI.
+  :func:`laplace_posterior` (→ :class:`LaplacePosterior`) → :class:`PosteriorSamples`
+  (files: :func:`hapid.io.save_samples`, :func:`hapid.io.load_samples`);
+  :func:`posterior_from_files` for the CLI.
 - :func:`credible_bands` — posterior-predictive bands of |Z|, σ(Z), σ(P), σ(P P̂⁻¹).
 - :func:`predictive_plants` — draws of the true Z_H, Z_T, P on any grid *including* the
   model-error term (GP conditional on the fit residuals); :func:`band_calibration`.
@@ -36,14 +37,16 @@ from ._draws import ParamDraws as ParamDraws
 from ._draws import draws_from as draws_from
 from ._files import posterior_from_files as posterior_from_files
 from ._hyper import fix_hyperparameters as fix_hyperparameters
+from ._laplace import LaplacePosterior as LaplacePosterior
+from ._laplace import ModeStatus as ModeStatus
 from ._laplace import laplace_posterior as laplace_posterior
 from ._laplace import laplace_samples as laplace_samples
 from ._laplace import posterior_laplace_samples as posterior_laplace_samples
+from ._likelihood import FixedMatrices as FixedMatrices
 from ._likelihood import LogPosterior as LogPosterior
 from ._likelihood import batched_log_prob as batched_log_prob
 from ._likelihood import boundary_fixed as boundary_fixed
 from ._likelihood import param_names as param_names
-from ._likelihood import FixedMatrices as FixedMatrices
 from ._loopgp import LoopGP as LoopGP
 from ._loopgp import fit_loop_gp as fit_loop_gp
 from ._loopgp import loop_gp_mean as loop_gp_mean
@@ -69,6 +72,11 @@ from ._poses import pose_grid as pose_grid
 from ._poses import pose_study as pose_study
 from ._posterior import make_log_posterior as make_log_posterior
 from ._predictive import QUANTITIES as QUANTITIES
+from ._predictive import BandCalibration as BandCalibration
+from ._predictive import CalibrationStatus as CalibrationStatus
+from ._predictive import CredibleBands as CredibleBands
+from ._predictive import PredictivePlants as PredictivePlants
+from ._predictive import PredictiveQuantities as PredictiveQuantities
 from ._predictive import band_calibration as band_calibration
 from ._predictive import credible_bands as credible_bands
 from ._predictive import predictive_plants as predictive_plants
@@ -77,11 +85,6 @@ from ._robust import DevicePlants as DevicePlants
 from ._robust import RobustReport as RobustReport
 from ._robust import device_plants as device_plants
 from ._robust import posterior_omega as posterior_omega
-from ._predictive import BandCalibration as BandCalibration
-from ._predictive import CalibrationStatus as CalibrationStatus
-from ._predictive import CredibleBands as CredibleBands
-from ._predictive import PredictivePlants as PredictivePlants
-from ._predictive import PredictiveQuantities as PredictiveQuantities
 from ._robust import robust_check as robust_check
 from ._robust import robust_omega as robust_omega
 from ._sampler import MOVES as MOVES
