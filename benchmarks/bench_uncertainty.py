@@ -174,7 +174,8 @@ def _body():
     keys = ("nominal_stable", "nominal_iso_bandwidth_hz", "nominal_gm_db", "nominal_pm_deg",
             "reidentified_stable", "reidentified_iso_bandwidth_hz", "reidentified_gm_db", "reidentified_pm_deg")  # fmt: skip
     print(table([{"d (m)": f"({r['dx']:+.2f},{r['dy']:+.2f},{r['dz']:+.2f})"}
-                 | {k.replace("reidentified", "reid"): fmt(r[k]) for k in keys} for r in rows]))  # fmt: skip
+                 | {k.replace("reidentified", "reid"): fmt(r[k]) for k in keys}
+                 for r in (row.flat() for row in rows)]))  # fmt: skip
 
 
 class _Tee(io.StringIO):

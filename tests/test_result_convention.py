@@ -84,6 +84,9 @@ from hapid.uncertainty import (
     ModeStatus,
     NoError,
     PlantDraws,
+    PoseLoop,
+    PoseRow,
+    PoseStudy,
     PosteriorSamples,
     RobustReport,
     SamplesStatus,
@@ -611,6 +614,26 @@ def test_laplace_posterior(frf):
     assert assert_convention(short, ModeStatus, ok) is ModeStatus.NOT_CONVERGED
 
 
+def test_pose_study():
+    """A pose study passes exactly when the home-pose controller passes at every pose (built
+    from rows: :func:`hapid.uncertainty.pose_study` itself runs for minutes)."""
+    good = PoseLoop(True, 8.0, 45.0, 0.6, 5.0, 30.0, 2.5, 1.0, True)
+    nan = float("nan")
+    bad = good._replace(stable=False, iso_bandwidth_hz=nan, t_peak_db=nan, passed=False)
+    home = PoseRow(0.0, 0.0, 0.0, good, good, FitStatus.CONVERGED)
+    ok = (Verdict.PASSED,)
+    assert assert_convention(PoseStudy((home,)), Verdict, ok) is Verdict.PASSED
+    far = PoseRow(0.04, 0.0, 0.0, bad, good, FitStatus.CONVERGED)
+    study = PoseStudy((home, far))
+    assert assert_convention(study, Verdict, ok) is Verdict.FAILED
+    s = study.summary()
+    assert s["n_poses"] == len(study) == 2 and s["nominal_passed"] == 1 and study[1] is far
+    assert s["rows"][1]["nominal_iso_bandwidth_hz"] is None
+    assert s["rows"][1]["fit_status"] == "converged" and s["rows"][1]["reidentified_passed"]
+    only = PoseStudy((PoseRow(0.0, 0.0, 0.0, good),))  # no re-identification
+    assert "fit_status" not in only.summary()["rows"][0]
+
+
 # ---- every public result type is covered ---------------------------------------------------
 
 RESULT_TYPES = {
@@ -626,7 +649,8 @@ RESULT_TYPES = {
     WallRun: ContactStatus, WallMetrics: ContactStatus,
 }  # fmt: skip
 RESULT_TYPES |= {Certificate: Verdict, Binding: BindingStatus}  # the tuner's evidence reports
-RESULT_TYPES |= {BandCalibration: CalibrationStatus, LaplacePosterior: ModeStatus}
+RESULT_TYPES |= {BandCalibration: CalibrationStatus, LaplacePosterior: ModeStatus,
+                 PoseStudy: Verdict}  # fmt: skip
 
 
 def test_every_result_type_has_status_ok_summary():

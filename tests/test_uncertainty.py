@@ -583,7 +583,7 @@ def test_pose_study_smoke():
     from hapid.device import cu5
 
     dev = cu5()
-    rows = pose_study(dev, [(0.0, 0.0, 0.0), (0.03, 0.0, 0.0)], nominal_model=dev.rigid_model(),
-                      reidentify=False, omega=robust_omega(300))  # fmt: skip
-    assert len(rows) == 2 and rows[1]["dx"] == 0.03
-    assert {"nominal_stable", "nominal_iso_bandwidth_hz", "nominal_gm_db"} <= set(rows[0])
+    study = pose_study(dev, [(0.0, 0.0, 0.0), (0.03, 0.0, 0.0)], nominal_model=dev.rigid_model(),
+                       reidentify=False, omega=robust_omega(300))  # fmt: skip
+    assert len(study) == 2 and study[1].dx == 0.03 and study[1].reidentified is None
+    assert {"nominal_stable", "nominal_iso_bandwidth_hz", "nominal_gm_db"} <= set(study[0].flat())

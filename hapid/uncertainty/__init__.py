@@ -22,7 +22,8 @@
   draws of the true plant, one interface (``plants(model, omega, n_draws, seed)``).
 - :func:`plant_draws` → :class:`PlantDraws` — draws of the true P on any grid by either
   construction (``params`` or ``loop_gp``), the draws of ``hapid predict``.
-- :func:`pose_study` — nominal vs re-identified controller over a grid of stylus poses.
+- :func:`pose_study` → :class:`PoseStudy` — nominal vs re-identified controller over a grid
+  of stylus poses.
 """
 
 from .. import _config  # noqa: F401  (float64)
@@ -67,6 +68,9 @@ from ._model_error import model_error_from as model_error_from
 from ._plant_draws import DrawsStatus as DrawsStatus
 from ._plant_draws import PlantDraws as PlantDraws
 from ._plant_draws import plant_draws as plant_draws
+from ._poses import PoseLoop as PoseLoop
+from ._poses import PoseRow as PoseRow
+from ._poses import PoseStudy as PoseStudy
 from ._poses import identify as identify
 from ._poses import pose_grid as pose_grid
 from ._poses import pose_study as pose_study
