@@ -319,7 +319,8 @@ def band_calibration(draws, truth, level: float = 0.9, n_reference: int = 20,
                      goal: float | None = None) -> BandCalibration:  # fmt: skip
     """How well predictive draws ``(S, N, n, n)`` (complex) describe a true response
     ``(N, n, n)`` over ``N`` frequencies: a :class:`BandCalibration`, ``calibrated`` when
-    ``coverage ≥ goal`` (default ``level −`` :data:`COVERAGE_SLACK`).
+    ``coverage ≥ goal`` (default ``level −`` :data:`COVERAGE_SLACK`, at least 0). Raises
+    ``ValueError`` for mismatched shapes or a ``level`` or ``goal`` outside [0, 1].
 
     The band at frequency ω is the ``level`` credible *ball* around the draws' (elementwise
     re/im) median ``X̃``: radius ``r(ω) = q_level(‖X_s − X̃‖_F)``; the actual error is
@@ -343,11 +344,9 @@ def band_calibration(draws, truth, level: float = 0.9, n_reference: int = 20,
       ``r / ‖X_true‖_F`` (the band's half-width relative to the response itself: a band can
       meet ``width_ratio`` by being centred badly, this says how wide it is in absolute terms).
     """
-    goal = level - COVERAGE_SLACK if goal is None else float(goal)
-    if not (0.0 < level < 1.0 and 0.0 <= goal <= 1.0):
-        raise ValueError(
-            f"band_calibration: level in (0, 1) and goal in [0, 1], got {level}, {goal}"
-        )
+    goal = max(level - COVERAGE_SLACK, 0.0) if goal is None else float(goal)
+    if not (0.0 <= level <= 1.0 and 0.0 <= goal <= 1.0):
+        raise ValueError(f"band_calibration: level and goal must be in [0, 1], got {level}, {goal}")
     X = np.asarray(draws)
     T = np.asarray(truth)
     if X.ndim != 4 or T.shape != X.shape[1:]:
