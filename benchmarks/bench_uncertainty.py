@@ -67,8 +67,9 @@ def _body():
     post = make_log_posterior(frf, nls.scale)
     x0 = initial_point(post, nls)
     t = time.perf_counter()
-    mean, cov, info = laplace_posterior(post, x0)
-    print(f"Laplace of the posterior: {time.perf_counter() - t:.1f} s, {info}; "
+    lp = laplace_posterior(post, x0)
+    mean, cov = lp.mean, lp.cov
+    print(f"Laplace of the posterior: {time.perf_counter() - t:.1f} s, {lp.info()}; "
           f"tau_H, tau_M at MAP = {np.exp(mean[-2:]).round(3)}")  # fmt: skip
 
     # 1. log-prob throughput ----------------------------------------------------------------
@@ -97,7 +98,8 @@ def _body():
     sfrf = synthetic_frf(truth, rel_noise=1e-3, seed=4)
     snls = fit_nls(sfrf, weight="noise", f_max_hz=None).raise_if_failed()
     spost = make_log_posterior(sfrf, snls.scale, f_max_hz=None)
-    sm, sc, _ = laplace_posterior(spost, initial_point(spost, snls))
+    slp = laplace_posterior(spost, initial_point(spost, snls))
+    sm, sc = slp.mean, slp.cov
     rows = []
     for moves in ("de", "de_mix", "stretch"):
         with warnings.catch_warnings():
@@ -172,7 +174,8 @@ def _body():
     keys = ("nominal_stable", "nominal_iso_bandwidth_hz", "nominal_gm_db", "nominal_pm_deg",
             "reidentified_stable", "reidentified_iso_bandwidth_hz", "reidentified_gm_db", "reidentified_pm_deg")  # fmt: skip
     print(table([{"d (m)": f"({r['dx']:+.2f},{r['dy']:+.2f},{r['dz']:+.2f})"}
-                 | {k.replace("reidentified", "reid"): fmt(r[k]) for k in keys} for r in rows]))  # fmt: skip
+                 | {k.replace("reidentified", "reid"): fmt(r[k]) for k in keys}
+                 for r in (row.flat() for row in rows)]))  # fmt: skip
 
 
 class _Tee(io.StringIO):

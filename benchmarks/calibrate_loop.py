@@ -143,7 +143,7 @@ def draw_plants(kind: str, frf, nls, omega, n_draws: int, seed: int = 0, cache=N
     if how == "":
         return posterior_plants(ps.models(), omega)[0]
     if how == "pred":
-        return predictive_plants(ps, omega, max_samples=None, seed=seed)["P"]
+        return predictive_plants(ps, omega, max_samples=None, seed=seed).P
     if how == "tune":
         return predictive_scenario_plants(ps, np.arange(ps.n_samples), omega, seed=seed)[0]
     raise ValueError(f"unknown draw kind {kind!r}")
@@ -199,8 +199,8 @@ def calibrate(Q, Q_true, f_hz) -> dict[str, dict[str, dict[str, float]]]:
         d = np.linalg.norm(X - med[None], axis=(-2, -1))
         e = np.linalg.norm(Q_true[sel] - med, axis=(-2, -1))
         pit = np.mean(d < e[None], 0)  # the truth's rank among the draws' distances: ~U(0, 1)
-        out["ball"][b] = {"cov": c["coverage"], "w/e": c["width_ratio"],
-                          "cal": c["width_ratio_calibrated"], "PIT": float(np.mean(np.abs(pit - 0.5)))}  # fmt: skip
+        out["ball"][b] = {"cov": c.coverage, "w/e": c.width_ratio,
+                          "cal": c.width_ratio_calibrated, "PIT": float(np.mean(np.abs(pit - 0.5)))}  # fmt: skip
         for m in METRICS[1:]:
             x, t = cd[m][:, sel], ct[m][0, sel]
             out[m][b] = scalar_calibration(x.reshape(x.shape[0], -1), t.reshape(-1))

@@ -91,7 +91,7 @@ def calibrate(name: str, d: Path, draws: int, samples: int, truth: str = "sample
         keep = keep if held_out else np.ones_like(keep)
         om = TWO_PI * f[keep]
         true_P = dev.sampled_P(om) if truth == "sampled" else dev.P(1j * om)
-        c = band_calibration(P[:, keep], np.asarray(true_P))
+        c = band_calibration(P[:, keep], np.asarray(true_P)).figures()
         rows.append({"device": name, "draws": family, "n_held_out": int(keep.sum()), **c,
                      "posterior_s": t_post, "predict_s": t_pred})  # fmt: skip
     return rows

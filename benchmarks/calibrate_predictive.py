@@ -151,7 +151,7 @@ def _loop_gp_rows(name, frf, nls, om, tr, draws, seed, quantities):
     t_pred = time.perf_counter() - t0
     nan = float("nan")
     return [{"device": name, "error model": "loop_gp", "quantity": q,
-             **band_calibration(pd.P, tr[q]), "eval_ms": nan, "build_s": nan,
+             **band_calibration(pd.P, tr[q]).figures(), "eval_ms": nan, "build_s": nan,
              "posterior_s": nan, "predict_s": t_pred, "n_held_out": len(om), "tau": nan,
              "steps_over_tau": nan} for q in quantities if q == "P"]  # fmt: skip
 
@@ -205,7 +205,7 @@ def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", dra
         pred = predictive_plants(ps, om, max_samples=draws, seed=seed)
         t_pred = time.perf_counter() - t0
         for q in quantities:
-            c = band_calibration(pred[q], tr[q])
+            c = band_calibration(getattr(pred, q), tr[q]).figures()
             d = ps.diagnostics
             rows.append({"device": name, "error model": kind, "quantity": q, **c, "eval_ms": ms,
                          "build_s": t_build, "posterior_s": t_post, "predict_s": t_pred,

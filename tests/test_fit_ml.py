@@ -214,7 +214,7 @@ def test_crb_matches_monte_carlo_spread():
         res = fit_ml(run, f_max_hz=None)
         if crb is None:  # the bound at the truth, with this run's noise covariances
             scale = res.scale
-            crb = np.asarray(cramer_rao(run, dev.model, f_max_hz=None, scale=scale)[0])
+            crb = np.asarray(cramer_rao(run, dev.model, f_max_hz=None, scale=scale).crb)
         vs.append(np.asarray(_sym_to_vec(model_to_scaled(res.model, scale))))
     emp = np.cov(np.array(vs).T)
     ratio = np.trace(np.linalg.solve(crb, emp)) / crb.shape[0]  # 1 when emp == crb

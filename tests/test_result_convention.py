@@ -77,11 +77,23 @@ from hapid.tune import (
 )
 from hapid.tune._tune import scale_gain
 from hapid.uncertainty import (
+    BandCalibration,
+    CalibrationStatus,
     DrawsStatus,
+    LaplacePosterior,
+    ModeStatus,
+    NoError,
     PlantDraws,
+    PoseLoop,
+    PoseRow,
+    PoseStudy,
     PosteriorSamples,
     RobustReport,
     SamplesStatus,
+    band_calibration,
+    initial_point,
+    laplace_posterior,
+    make_log_posterior,
     param_names,
     plant_draws,
 )
@@ -570,6 +582,58 @@ def test_posterior_samples_and_plant_draws(frf):
     assert assert_convention(bad, DrawsStatus, (DrawsStatus.OK,)) is DrawsStatus.NON_FINITE
 
 
+def test_band_calibration():
+    """Draws of a circular complex Gaussian at 300 frequencies: a truth from the same
+    distribution is inside the 90 % ball at about 90 % of them (calibrated); a truth 10
+    standard deviations away at none (overconfident)."""
+    rng = np.random.default_rng(0)
+    cz = lambda *s: (rng.standard_normal(s) + 1j * rng.standard_normal(s)) / np.sqrt(2)  # noqa: E731
+    draws = cz(400, 300, 1, 1)
+    good = band_calibration(draws, cz(300, 1, 1))
+    assert type(good) is BandCalibration and good.goal == pytest.approx(0.85)
+    ok = (CalibrationStatus.CALIBRATED,)
+    assert assert_convention(good, CalibrationStatus, ok) is CalibrationStatus.CALIBRATED
+    off = band_calibration(draws, 10.0 + cz(300, 1, 1))
+    assert assert_convention(off, CalibrationStatus, ok) is CalibrationStatus.OVERCONFIDENT
+    assert off.summary()["coverage"] == 0.0 and off.figures()["coverage"] == off.coverage
+    assert list(good.figures()) == list(good.summary())[4:]  # status, ok, level, goal first
+
+
+def test_laplace_posterior(frf):
+    """The Laplace approximation of the 2-rod posterior: BFGS converges from the NLS optimum,
+    and does not in one step."""
+    res = fit_nls(frf, f_max_hz=None)
+    post = make_log_posterior(frf, res.scale, f_max_hz=None, model_error=NoError())
+    x0 = initial_point(post, res)
+    lp = laplace_posterior(post, x0)
+    assert type(lp) is LaplacePosterior and lp.cov.shape == (post.dim, post.dim)
+    ok = (ModeStatus.CONVERGED,)
+    assert assert_convention(lp, ModeStatus, ok) is ModeStatus.CONVERGED
+    assert lp.summary()["dim"] == post.dim and lp.info()["converged"] is True
+    short = laplace_posterior(post, x0 + 0.1, max_steps=1)
+    assert assert_convention(short, ModeStatus, ok) is ModeStatus.NOT_CONVERGED
+
+
+def test_pose_study():
+    """A pose study passes exactly when the home-pose controller passes at every pose (built
+    from rows: :func:`hapid.uncertainty.pose_study` itself runs for minutes)."""
+    good = PoseLoop(True, 8.0, 45.0, 0.6, 5.0, 30.0, 2.5, 1.0, True)
+    nan = float("nan")
+    bad = good._replace(stable=False, iso_bandwidth_hz=nan, t_peak_db=nan, passed=False)
+    home = PoseRow(0.0, 0.0, 0.0, good, good, FitStatus.CONVERGED)
+    ok = (Verdict.PASSED,)
+    assert assert_convention(PoseStudy((home,)), Verdict, ok) is Verdict.PASSED
+    far = PoseRow(0.04, 0.0, 0.0, bad, good, FitStatus.CONVERGED)
+    study = PoseStudy((home, far))
+    assert assert_convention(study, Verdict, ok) is Verdict.FAILED
+    s = study.summary()
+    assert s["n_poses"] == len(study) == 2 and s["nominal_passed"] == 1 and study[1] is far
+    assert s["rows"][1]["nominal_iso_bandwidth_hz"] is None
+    assert s["rows"][1]["fit_status"] == "converged" and s["rows"][1]["reidentified_passed"]
+    only = PoseStudy((PoseRow(0.0, 0.0, 0.0, good),))  # no re-identification
+    assert "fit_status" not in only.summary()["rows"][0]
+
+
 # ---- every public result type is covered ---------------------------------------------------
 
 RESULT_TYPES = {
@@ -585,6 +649,8 @@ RESULT_TYPES = {
     WallRun: ContactStatus, WallMetrics: ContactStatus,
 }  # fmt: skip
 RESULT_TYPES |= {Certificate: Verdict, Binding: BindingStatus}  # the tuner's evidence reports
+RESULT_TYPES |= {BandCalibration: CalibrationStatus, LaplacePosterior: ModeStatus,
+                 PoseStudy: Verdict}  # fmt: skip
 
 
 def test_every_result_type_has_status_ok_summary():

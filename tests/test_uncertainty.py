@@ -134,13 +134,14 @@ def test_matrix_coordinates_round_trip_and_boundary_matrices_held_fixed():
     fixed = boundary_fixed(nls)
     post = make_log_posterior(frf, nls.scale, f_max_hz=None, fixed=fixed)
     t = N_RODS * (N_RODS + 1) // 2
-    assert post.dim == post.n_theta - t * len(fixed) + 2 and "K_M" in post.fixed_names
+    assert post.dim == post.n_theta - t * len(fixed.held()) + 2 and "K_M" in post.fixed_names
+    assert fixed.K_M is not None and fixed.K_M.shape == (N_RODS, N_RODS)
     ps = posterior_laplace_samples(post, 200, nls, key=0)
     phys = ps.physical()
     for name, v in phys.items():
         assert np.all(np.linalg.eigvalsh(v)[:, 0] >= -1e-9 * np.abs(v).max()), name
     np.testing.assert_allclose(
-        phys["K_M"], np.broadcast_to(fixed["K_M"], phys["K_M"].shape), atol=1e-6
+        phys["K_M"], np.broadcast_to(fixed.K_M, phys["K_M"].shape), atol=1e-6
     )
     # the hand's sampled matrices scatter around the truth
     z = (phys["K_H"].mean(0) - np.asarray(truth.hand.K)) / phys["K_H"].std(0)
@@ -256,9 +257,9 @@ def laplace_gaussian(case):
     """The near-Gaussian case's posterior (no model-error terms) and its Laplace Gaussian."""
     _, frf, nls = case
     post = make_log_posterior(frf, nls.scale, f_max_hz=None, model_error=NoError())
-    mean, cov, info = laplace_posterior(post, initial_point(post, nls))
-    assert info["converged"]
-    return post, mean, cov
+    lp = laplace_posterior(post, initial_point(post, nls))
+    assert lp.converged and lp.ok
+    return post, lp.mean, lp.cov
 
 
 def test_laplace_and_emcee_agree(case, laplace_gaussian):
@@ -524,11 +525,14 @@ def test_credible_bands(case):
     omega = 2 * np.pi * np.geomspace(1, 100, 30)
     P_true = truth.P(1j * omega)
     bands = credible_bands(ps, omega, ("sv_Z_H", "abs_Z_T", "sv_P", "sv_P_Phatinv"), P_ref=P_true)
-    assert bands["sv_Z_H"].shape == (3, 30, N_RODS)
-    assert bands["abs_Z_T"].shape == (3, 30, N_RODS, N_RODS)
-    for v in bands.values():
+    assert bands.sv_Z_H.shape == (3, 30, N_RODS)
+    assert bands.abs_Z_T.shape == (3, 30, N_RODS, N_RODS)
+    assert bands.sv_Z_T is None and list(bands.computed()) == ["abs_Z_T", "sv_Z_H", "sv_P",
+                                                               "sv_P_Phatinv"]  # fmt: skip
+    np.testing.assert_array_equal(bands.q, [0.05, 0.5, 0.95])
+    for v in bands.computed().values():
         assert np.all(v[0] <= v[1] + 1e-12) and np.all(v[1] <= v[2] + 1e-12)
-    db = 20 * np.log10(bands["sv_P_Phatinv"])
+    db = 20 * np.log10(bands.sv_P_Phatinv)
     assert np.max(np.abs(db)) < 0.5  # well-identified model: P P̂⁻¹ ≈ I
     with pytest.raises(ValueError, match="P_ref"):
         credible_bands(ps, omega, ("sv_P_Phatinv",))
@@ -579,7 +583,7 @@ def test_pose_study_smoke():
     from hapid.device import cu5
 
     dev = cu5()
-    rows = pose_study(dev, [(0.0, 0.0, 0.0), (0.03, 0.0, 0.0)], nominal_model=dev.rigid_model(),
-                      reidentify=False, omega=robust_omega(300))  # fmt: skip
-    assert len(rows) == 2 and rows[1]["dx"] == 0.03
-    assert {"nominal_stable", "nominal_iso_bandwidth_hz", "nominal_gm_db"} <= set(rows[0])
+    study = pose_study(dev, [(0.0, 0.0, 0.0), (0.03, 0.0, 0.0)], nominal_model=dev.rigid_model(),
+                       reidentify=False, omega=robust_omega(300))  # fmt: skip
+    assert len(study) == 2 and study[1].dx == 0.03 and study[1].reidentified is None
+    assert {"nominal_stable", "nominal_iso_bandwidth_hz", "nominal_gm_db"} <= set(study[0].flat())

@@ -129,10 +129,10 @@ def test_band_calibration_of_a_calibrated_band():
     sd = np.geomspace(0.1, 10.0, N)[None, :, None, None]  # a band whose width varies 100×
     cz = lambda *s: (rng.standard_normal(s) + 1j * rng.standard_normal(s)) / np.sqrt(2)  # noqa: E731
     c = band_calibration(1 + sd * cz(S, N, 1, 1), 1 + sd[0] * cz(N, 1, 1), n_reference=50)
-    assert abs(c["coverage"] - 0.9) < 0.04, c
-    assert abs(c["width_ratio"] - 1.8226) < 0.12, c
-    assert abs(c["width_ratio_calibrated"] - 1.8226) < 0.05, c
-    assert abs(c["coverage_calibrated"] - 0.9) < 0.02, c
+    assert abs(c.coverage - 0.9) < 0.04, c
+    assert abs(c.width_ratio - 1.8226) < 0.12, c
+    assert abs(c.width_ratio_calibrated - 1.8226) < 0.05, c
+    assert abs(c.coverage_calibrated - 0.9) < 0.02, c
 
 
 @pytest.mark.slow
@@ -149,13 +149,13 @@ def test_gp_predictive_calibrated_on_second_order_truth(case, tmp_path):
     om = 2 * np.pi * np.geomspace(1.2, 38.0, 40)
     om = om[np.min(np.abs(om[:, None] / (2 * np.pi) - FREQ_HZ[None]), axis=1) > 0.3]
     d = predictive_plants(ps2, om, max_samples=300)
-    c = band_calibration(d["P"], np.asarray(truth.P(1j * om)))
-    assert c["coverage"] >= 0.85, c
-    assert c["rel_error_median"] < 0.01, c
+    c = band_calibration(d.P, np.asarray(truth.P(1j * om)))
+    assert c.coverage >= 0.85, c
+    assert c.rel_error_median < 0.01, c
     # the draws include the model-error term: wider than parameter-only draws
     d0 = predictive_plants(ps2, om, max_samples=300, include_error=False)
     spread = lambda X: np.median(np.std(np.abs(X), axis=0))  # noqa: E731
-    assert spread(d["P"]) >= spread(d0["P"])
+    assert spread(d.P) >= spread(d0.P)
     # emcee on the empirical-Bayes gp likelihood (hyperparameters at their mode): 50 τ, and
     # the same nominal coverage
     with warnings.catch_warnings():
@@ -163,10 +163,8 @@ def test_gp_predictive_calibrated_on_second_order_truth(case, tmp_path):
         pe = sample_posterior(post, nls, seed=2)
     assert pe.diagnostics["converged_50tau"] and pe.error_kind == "gp"
     assert np.allclose(pe.samples[:, -8:], np.asarray(post.hyper_fixed)[None])
-    c = band_calibration(
-        predictive_plants(pe, om, max_samples=300)["P"], np.asarray(truth.P(1j * om))
-    )
-    assert c["coverage"] >= 0.85, c
+    c = band_calibration(predictive_plants(pe, om, max_samples=300).P, np.asarray(truth.P(1j * om)))
+    assert c.coverage >= 0.85, c
 
 
 def test_robust_report_margin_convention_and_reasons():

@@ -184,7 +184,7 @@ def test_gp_corr_predictive_conditional_mean_and_file_round_trip(case, tmp_path)
     d = predictive_plants(one, om_new, max_samples=None, seed=1)
     m = one.models(np.array([0]))
     s_new = 1j * om_new
-    eH = d["Z_H"][:, 0] - np.asarray(m.hand(s_new))[0, 0]
+    eH = d.Z_H[:, 0] - np.asarray(m.hand(s_new))[0, 0]
 
     # numpy conditional mean of e_H(ω_new) given the fit residuals of θ
     zr = float(nls.scale.z_ref)
@@ -233,14 +233,14 @@ def test_gp_corr_predictive_calibrated_on_second_order_truth(case):
     om = om[np.min(np.abs(om[:, None] / (2 * np.pi) - FREQ_HZ[None]), axis=1) > 0.3]
     P_true = np.asarray(truth.P(1j * om))
     ps = posterior_laplace_samples(post, 300, nls, key=1)
-    c = band_calibration(predictive_plants(ps, om, max_samples=300)["P"], P_true)
-    assert c["coverage"] >= 0.85 and c["rel_error_median"] < 0.01, c
+    c = band_calibration(predictive_plants(ps, om, max_samples=300).P, P_true)
+    assert c.coverage >= 0.85 and c.rel_error_median < 0.01, c
     with warnings.catch_warnings():
         warnings.simplefilter("error", ShortChainWarning)
         pe = sample_posterior(post, nls, seed=2)
     assert pe.diagnostics["converged_50tau"] and pe.error_kind == "gp_corr"
-    c = band_calibration(predictive_plants(pe, om, max_samples=300)["P"], P_true)
-    assert c["coverage"] >= 0.85, c
+    c = band_calibration(predictive_plants(pe, om, max_samples=300).P, P_true)
+    assert c.coverage >= 0.85, c
 
 
 def _exact_predictive_np(frf, scale, h, om_new, prior_scale, weights_model=None,
@@ -365,7 +365,7 @@ def test_gp_corr_predictive_Z_H_Z_T_equal_exact_gaussian_predictive(case, error_
     ps = load_samples(save_samples(tmp_path / "s.npz", ps))  # the file carries the scale
     assert ps.predictive.get("error_scale", "shared") == error_scale
     d = predictive_plants(ps, om_new, max_samples=None, seed=1)
-    X = _pack(d["Z_H"], d["Z_T"])
+    X = _pack(d.Z_H, d.Z_T)
     mean, cov = _exact_predictive_np(
         frf,
         nls.scale,

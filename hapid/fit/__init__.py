@@ -17,9 +17,12 @@ from .. import _config  # noqa: F401  (float64)
 from ._compare import ESTIMATORS as ESTIMATORS
 from ._compare import EstimatorFits as EstimatorFits
 from ._compare import fit_estimators as fit_estimators
+from ._crb import CramerRao as CramerRao
 from ._crb import cramer_rao as cramer_rao
 from ._crb import crb_band_db as crb_band_db
+from ._diagnostics import AnisotropyReduction as AnisotropyReduction
 from ._diagnostics import ImpedanceSV as ImpedanceSV
+from ._diagnostics import PPhatBand as PPhatBand
 from ._diagnostics import anisotropy_reduction as anisotropy_reduction
 from ._diagnostics import impedance_singular_values as impedance_singular_values
 from ._diagnostics import model_relative_errors as model_relative_errors
@@ -31,6 +34,7 @@ from ._ml import MLResult as MLResult
 from ._ml import fit_ml as fit_ml
 from ._ml import ml_cost as ml_cost
 from ._ml import run_spectra as run_spectra
+from ._nls import LaplaceCovariance as LaplaceCovariance
 from ._nls import fit_nls as fit_nls
 from ._nls import fit_nls_batch as fit_nls_batch
 from ._nls import laplace_covariance as laplace_covariance
@@ -44,6 +48,7 @@ from ._pd import model_to_theta as model_to_theta
 from ._pd import n_params as n_params
 from ._pd import project_pd as project_pd
 from ._pd import theta_to_model as theta_to_model
+from ._physics import CorrectedMBK as CorrectedMBK
 from ._physics import correct_exponential as correct_exponential
 from ._physics import physics_warnings as physics_warnings
 from ._positize import CRHPReport as CRHPReport

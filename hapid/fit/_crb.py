@@ -4,14 +4,18 @@ implies (:func:`crb_band_db`, dB, from Gaussian draws of the parameters)."""
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
 from ..defaults import FIT_BAND_HZ
 from ..experiment import Run, estimate_frf
 from ..impedance import ImpedanceModel, singular_values
 from ._checks import TWO_PI
+from ._diagnostics import PPhatBand
 from ._ml import _sym_to_vec, _vec_to_sym, make_ml_problem, run_spectra
 from ._nls import pinv_psd
 from ._pd import (
@@ -23,17 +27,31 @@ from ._pd import (
 from ._problem import data_scale
 
 
+class CramerRao(NamedTuple):
+    """The Cramér–Rao bound of a model for a run's noise (:func:`cramer_rao`).
+
+    - ``crb``: ``(p, p)``, the bound on the covariance of the model's parameters in matrix
+      coordinates (see :class:`~hapid.fit.MLResult`), in ``scale`` units — what
+      :func:`crb_band_db` takes.
+    - ``scale``: the :class:`~hapid.fit.Scale` (ω_ref rad/s, z_ref N/m) of those coordinates.
+    """
+
+    crb: Float[Array, "p p"]
+    scale: Scale
+
+
 def cramer_rao(run: Run, model: ImpedanceModel, *, f_max_hz: float | None = FIT_BAND_HZ,
-               scale: Scale | None = None):  # fmt: skip
-    """``(crb, scale)``: the Cramér–Rao bound (matrix coordinates, see :class:`MLResult`) of
-    the second-order model at ``model`` for the noise of ``run`` — for any fit's model (WLS,
-    NLS, ML); ``scale`` defaults to the NLS data scale of the run's FRF."""
+               scale: Scale | None = None) -> CramerRao:  # fmt: skip
+    """:class:`CramerRao` ``(crb, scale)``: the Cramér–Rao bound (matrix coordinates, see
+    :class:`MLResult`) of the second-order model at ``model`` for the noise of ``run`` — for
+    any fit's model (WLS, NLS, ML); ``scale`` defaults to the NLS data scale of the run's
+    FRF."""
     spectra = run_spectra(run, f_max_hz)
     if scale is None:
         scale = data_scale(estimate_frf(run), f_max_hz)
     theta = model_to_theta(model, scale)
     problem = make_ml_problem(spectra, scale, model_floor=0.0)
-    return pinv_psd(problem.fisher_matrices(theta)), scale
+    return CramerRao(pinv_psd(problem.fisher_matrices(theta)), scale)
 
 
 def _band_draws(model, cov, scale, omega, n_draws, seed):
@@ -69,19 +87,20 @@ def crb_band_db(
     n_draws: int = 200,
     seed: int = 0,
     quantile: float = 0.5,
-) -> tuple[float, float]:
-    """The P·P̂⁻¹ band an efficient estimator reaches at this noise level.
+) -> PPhatBand:
+    """The P·P̂⁻¹ band an efficient estimator reaches at this noise level (:class:`PPhatBand`
+    of floats).
 
     ``crb``: the Cramér–Rao bound in matrix coordinates at ``model`` (``MLResult.crb`` or
     :func:`cramer_rao`), in ``scale`` units. Draws ``δv ~ N(0, crb)`` and, with ``P̂⁻¹``
     linearized at ``model``, the singular values of ``P(v̂)(P̂⁻¹(v̂) + ∂P̂⁻¹ δv)`` (dB) over
     ``omega`` ≤ ``f_max_hz`` (rad/s grid, Hz limit). Returns the ``quantile`` (default
     median) over draws of the lower band edge taken from below and of the upper edge from
-    above: ``(lo dB ≤ 0, hi dB ≥ 0)``.
+    above: ``(lo_db ≤ 0, hi_db ≥ 0)``.
     """
     omega = np.asarray(omega)
     keep = omega <= TWO_PI * f_max_hz * (1 + 1e-12)
     if not keep.any():
         raise ValueError(f"crb_band_db: no frequencies ≤ {f_max_hz} Hz")
     lo, hi = _band_draws(model, crb, scale, omega[keep], n_draws, seed)
-    return float(np.quantile(lo, 1 - quantile)), float(np.quantile(hi, quantile))
+    return PPhatBand(float(np.quantile(lo, 1 - quantile)), float(np.quantile(hi, quantile)))

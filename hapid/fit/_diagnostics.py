@@ -51,6 +51,27 @@ def pphat_singular_values(
     return singular_values(pphat(P, model, omega))
 
 
+class PPhatBand(NamedTuple):
+    """The band of the singular values of ``P P̂⁻¹`` over a frequency range, dB:
+    ``lo_db`` the lowest (≤ 0 for a band around the identity), ``hi_db`` the highest.
+
+    0-d arrays from :func:`pphat_band_db` (jittable), floats from
+    :func:`~hapid.fit.crb_band_db`. Unpacks as ``lo, hi = band``.
+    """
+
+    lo_db: Float[Array, ""] | float
+    hi_db: Float[Array, ""] | float
+
+
+class AnisotropyReduction(NamedTuple):
+    """The range over frequencies of span(P) / span(P P̂⁻¹) (:func:`anisotropy_reduction`),
+    span = σ̄/σ̲ as a ratio (not dB): ``lo`` the smallest factor, ``hi`` the largest (0-d
+    arrays, jittable). Unpacks as ``lo, hi = red``."""
+
+    lo: Float[Array, ""]
+    hi: Float[Array, ""]
+
+
 def _band(omega, f_max_hz):
     mask = jnp.asarray(omega) <= TWO_PI * f_max_hz * (1 + 1e-12)
     if is_concrete(omega, f_max_hz) and not np.any(np.asarray(mask)):
@@ -63,15 +84,16 @@ def pphat_band_db(
     model: ImpedanceModel,
     omega: Float[Array, " N"],
     f_max_hz: float = 30.0,
-) -> tuple[Array, Array]:
-    """``(min dB, max dB)`` over all singular values of ``P P̂⁻¹`` at frequencies ≤ f_max_hz
-    (jittable; an empty band is an error when ``omega`` and ``f_max_hz`` are concrete).
+) -> PPhatBand:
+    """:class:`PPhatBand` ``(lo_db, hi_db)``: min and max dB over all singular values of
+    ``P P̂⁻¹`` at frequencies ≤ f_max_hz (jittable; an empty band is an error when ``omega``
+    and ``f_max_hz`` are concrete).
 
     The paper reports about ±7 dB up to 30 Hz for its WLS model.
     """
     mask = _band(omega, f_max_hz)[:, None]
     db = 20.0 * jnp.log10(pphat_singular_values(P, model, omega))
-    return jnp.min(jnp.where(mask, db, jnp.inf)), jnp.max(jnp.where(mask, db, -jnp.inf))
+    return PPhatBand(jnp.min(jnp.where(mask, db, jnp.inf)), jnp.max(jnp.where(mask, db, -jnp.inf)))
 
 
 def anisotropy_reduction(
@@ -79,8 +101,9 @@ def anisotropy_reduction(
     model: ImpedanceModel,
     omega: Float[Array, " N"],
     f_max_hz: float = 30.0,
-) -> tuple[Array, Array]:
-    """``(min, max)`` over frequencies ≤ f_max_hz of span(P) / span(P P̂⁻¹).
+) -> AnisotropyReduction:
+    """:class:`AnisotropyReduction` ``(lo, hi)``: min and max over frequencies ≤ f_max_hz of
+    span(P) / span(P P̂⁻¹).
 
     span = σ̄/σ̲ as a ratio (not dB). The paper: plant span 25–50 dB, reduced "by a factor of
     8 to 140" up to 30 Hz.
@@ -89,7 +112,9 @@ def anisotropy_reduction(
     sp = singular_values(P)
     sq = pphat_singular_values(P, model, omega)
     ratio = (sp[:, 0] / sp[:, -1]) / (sq[:, 0] / sq[:, -1])
-    return jnp.min(jnp.where(mask, ratio, jnp.inf)), jnp.max(jnp.where(mask, ratio, -jnp.inf))
+    return AnisotropyReduction(
+        jnp.min(jnp.where(mask, ratio, jnp.inf)), jnp.max(jnp.where(mask, ratio, -jnp.inf))
+    )
 
 
 def model_relative_errors(model: ImpedanceModel, truth: ImpedanceModel) -> Float[Array, " 6"]:

@@ -33,6 +33,7 @@ units (docs/conventions.md: the starting Jacobian's condition number dropped 15�
 from __future__ import annotations
 
 import inspect
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -69,10 +70,25 @@ from ._solvers import (
 from ._wls import OMEGA_C_PAPER, wls
 
 
+class LaplaceCovariance(NamedTuple):
+    """The Laplace covariance of a least-squares fit at θ (:func:`laplace_covariance`), in the
+    problem's scaled θ units; a pytree (jittable).
+
+    - ``cov``: ``(p, p)``, ``σ̂²(JᵀJ)⁺``.
+    - ``sigma2``: ``()``, the residual variance σ̂² (1 for noise weights, else ``2·cost/(m−p)``).
+    - ``cost``: ``()``, ``½‖r‖²`` at θ.
+    """
+
+    cov: Float[Array, "p p"]
+    sigma2: Float[Array, ""]
+    cost: Float[Array, ""]
+
+
 def laplace_covariance(
     problem: Problem, theta: Float[Array, " p"], noise_weights: bool, n_residuals=None
-):
-    """``(σ̂²(JᵀJ)⁺, σ̂², cost)`` at ``theta``; σ̂² = 1 for noise weights else 2·cost/(m−p).
+) -> LaplaceCovariance:
+    """:class:`LaplaceCovariance` ``(σ̂²(JᵀJ)⁺, σ̂², cost)`` at ``theta``; σ̂² = 1 for noise
+    weights else 2·cost/(m−p).
 
     ``n_residuals`` (default ``problem.n_residuals``) is ``m``: give the full problem's count
     when ``problem`` is its :class:`~hapid.fit._compress.CompressedProblem` (same JᵀJ, cost).
@@ -84,7 +100,7 @@ def laplace_covariance(
     m = problem.n_residuals if n_residuals is None else n_residuals
     dof = jnp.maximum(m - p, 1)
     sigma2 = jnp.asarray(1.0) if noise_weights else 2.0 * cost / dof
-    return sigma2 * pinv_psd(J.T @ J), sigma2, cost
+    return LaplaceCovariance(sigma2 * pinv_psd(J.T @ J), sigma2, cost)
 
 
 def final_status(theta, cost, code) -> Array:

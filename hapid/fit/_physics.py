@@ -14,6 +14,8 @@ symmetric positive (semi)definite M, B, K and dissipates energy), and what a use
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 #: a PSD fit whose median ‖Ẑ‖_F is below this fraction of the data's has collapsed
@@ -98,21 +100,41 @@ def chi2_note(chi2_red: float) -> str:
     )
 
 
-def correct_exponential(M, B, K, tau_s: float, M_std=None, B_std=None, K_std=None):
+class CorrectedMBK(NamedTuple):
+    """M, B, K of the structure under an exponential window (:func:`correct_exponential`),
+    each ``(n, n)`` float64 in the fit's units (kg, N·s/m, N/m for ``Z`` in N/m); ``M_std``,
+    ``B_std``, ``K_std`` their standard deviations (same shapes and units), ``None`` when none
+    were given. Unpacks as ``M, B, K, M_std, B_std, K_std``."""
+
+    M: np.ndarray
+    B: np.ndarray
+    K: np.ndarray
+    M_std: np.ndarray | None
+    B_std: np.ndarray | None
+    K_std: np.ndarray | None
+
+
+def correct_exponential(M, B, K, tau_s: float, M_std=None, B_std=None, K_std=None) -> CorrectedMBK:
     """Undo the exponential window on a fitted ``M s² + B s + K`` of ``Z(s + a)``, ``a = 1/τ``:
-    ``B = B_w − 2aM``, ``K = K_w − aB − a²M`` (exact). Returns ``(M, B, K, M_std, B_std,
-    K_std)``; the std are propagated ignoring correlations between M, B, K (``None`` stays
-    ``None``)."""
+    ``B = B_w − 2aM``, ``K = K_w − aB − a²M`` (exact). Returns :class:`CorrectedMBK`; the std
+    are propagated ignoring correlations between M, B, K (``None`` stays ``None``)."""
     a = 1.0 / float(tau_s)
     M, Bw, Kw = (np.asarray(x, dtype=np.float64) for x in (M, B, K))
     B_t = Bw - 2 * a * M
     K_t = Kw - a * B_t - a * a * M
     if M_std is None:
-        return M, B_t, K_t, None, None, None
+        return CorrectedMBK(M, B_t, K_t, None, None, None)
     ms, bs, ks = (np.asarray(x, dtype=np.float64) for x in (M_std, B_std, K_std))
     bs_t = np.sqrt(bs**2 + (2 * a * ms) ** 2)
     ks_t = np.sqrt(ks**2 + (a * bs_t) ** 2 + (a * a * ms) ** 2)
-    return M, B_t, K_t, ms, bs_t, ks_t
+    return CorrectedMBK(M, B_t, K_t, ms, bs_t, ks_t)
 
 
-__all__ = ["physics_warnings", "data_passivity", "chi2_note", "correct_exponential", "SIGN_HINT"]
+__all__ = [
+    "physics_warnings",
+    "data_passivity",
+    "chi2_note",
+    "correct_exponential",
+    "CorrectedMBK",
+    "SIGN_HINT",
+]

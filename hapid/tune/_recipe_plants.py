@@ -76,7 +76,7 @@ def predictive_scenario_plants(samples, idx, omega, seed: int = 0) -> tuple[np.n
         seed=seed,
         error_band=(om_fit[0], om_fit[-1]),
         taper_width=PREDICTIVE_TAPER,
-    )["P"]
+    ).P
     _, pol = posterior_plants(sub.models(), omega)
     return P, pol
 

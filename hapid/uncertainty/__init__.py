@@ -7,8 +7,9 @@
   (``log_prob`` jitted and vmapped over walkers);
   :func:`fix_hyperparameters` is the step that fixes a GP's hyperparameters.
 - :func:`sample_posterior` (emcee), :func:`laplace_samples` (fast path),
-  :func:`laplace_posterior` → :class:`PosteriorSamples` (files: :func:`hapid.io.save_samples`,
-  :func:`hapid.io.load_samples`); :func:`posterior_from_files` for the CLI.
+  :func:`laplace_posterior` (→ :class:`LaplacePosterior`) → :class:`PosteriorSamples`
+  (files: :func:`hapid.io.save_samples`, :func:`hapid.io.load_samples`);
+  :func:`posterior_from_files` for the CLI.
 - :func:`credible_bands` — posterior-predictive bands of |Z|, σ(Z), σ(P), σ(P P̂⁻¹).
 - :func:`predictive_plants` — draws of the true Z_H, Z_T, P on any grid *including* the
   model-error term (GP conditional on the fit residuals); :func:`band_calibration`.
@@ -21,7 +22,8 @@
   draws of the true plant, one interface (``plants(model, omega, n_draws, seed)``).
 - :func:`plant_draws` → :class:`PlantDraws` — draws of the true P on any grid by either
   construction (``params`` or ``loop_gp``), the draws of ``hapid predict``.
-- :func:`pose_study` — nominal vs re-identified controller over a grid of stylus poses.
+- :func:`pose_study` → :class:`PoseStudy` — nominal vs re-identified controller over a grid
+  of stylus poses.
 """
 
 from .. import _config  # noqa: F401  (float64)
@@ -36,9 +38,12 @@ from ._draws import ParamDraws as ParamDraws
 from ._draws import draws_from as draws_from
 from ._files import posterior_from_files as posterior_from_files
 from ._hyper import fix_hyperparameters as fix_hyperparameters
+from ._laplace import LaplacePosterior as LaplacePosterior
+from ._laplace import ModeStatus as ModeStatus
 from ._laplace import laplace_posterior as laplace_posterior
 from ._laplace import laplace_samples as laplace_samples
 from ._laplace import posterior_laplace_samples as posterior_laplace_samples
+from ._likelihood import FixedMatrices as FixedMatrices
 from ._likelihood import LogPosterior as LogPosterior
 from ._likelihood import batched_log_prob as batched_log_prob
 from ._likelihood import boundary_fixed as boundary_fixed
@@ -63,11 +68,19 @@ from ._model_error import model_error_from as model_error_from
 from ._plant_draws import DrawsStatus as DrawsStatus
 from ._plant_draws import PlantDraws as PlantDraws
 from ._plant_draws import plant_draws as plant_draws
+from ._poses import PoseLoop as PoseLoop
+from ._poses import PoseRow as PoseRow
+from ._poses import PoseStudy as PoseStudy
 from ._poses import identify as identify
 from ._poses import pose_grid as pose_grid
 from ._poses import pose_study as pose_study
 from ._posterior import make_log_posterior as make_log_posterior
 from ._predictive import QUANTITIES as QUANTITIES
+from ._predictive import BandCalibration as BandCalibration
+from ._predictive import CalibrationStatus as CalibrationStatus
+from ._predictive import CredibleBands as CredibleBands
+from ._predictive import PredictivePlants as PredictivePlants
+from ._predictive import PredictiveQuantities as PredictiveQuantities
 from ._predictive import band_calibration as band_calibration
 from ._predictive import credible_bands as credible_bands
 from ._predictive import predictive_plants as predictive_plants

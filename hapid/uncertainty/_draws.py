@@ -53,7 +53,7 @@ class ParamDraws:
         their own models)."""
         d = predictive_plants(self.samples, np.asarray(omega, dtype=float), max_samples=int(n_draws),
                               seed=seed, include_error=self.model_error)  # fmt: skip
-        return d["P"]
+        return d.P
 
 
 @dataclasses.dataclass(frozen=True)

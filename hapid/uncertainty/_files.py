@@ -68,7 +68,7 @@ def posterior_from_files(
     nls, refit = cf.fit.result, cf.refit_pd_eps
     popts = {"f_max_hz": fit_options["f_max_hz"]} | dict(posterior_options or {})
     if fix_boundary and nls.boundary and "fixed" not in popts:
-        popts["fixed"] = boundary_fixed(nls)
+        popts["fixed"] = boundary_fixed(nls).held()
     if isinstance(popts.get("model_error"), GP):
         popts.setdefault("reference", nls)
     post = make_log_posterior(frf, nls.scale, **popts)

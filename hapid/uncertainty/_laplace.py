@@ -11,11 +11,15 @@
 
 from __future__ import annotations
 
+import dataclasses
+import enum
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from .._plain import jsonable
 from ..fit._pd import MATRIX_NAMES, n_from_params
 from ..fit._result import NLSResult
 from ..samples import PosteriorSamples
@@ -112,16 +116,67 @@ def _mvn(key, mean, cov, k):
     return mean + z @ root.T
 
 
+class ModeStatus(enum.StrEnum):
+    """Verdict of a :class:`LaplacePosterior`: did the mode search converge."""
+
+    CONVERGED = "converged"
+    NOT_CONVERGED = "not converged"
+
+
+@dataclasses.dataclass(frozen=True)
+class LaplacePosterior:
+    """The Laplace approximation of a :class:`LogPosterior` (:func:`laplace_posterior`).
+
+    - ``mean``: ``(d,)``, the MAP in the posterior's sampled coordinates (matrix θ, scaled
+      units, then the model-error coordinates) — the Gaussian's mean.
+    - ``cov``: ``(d, d)``, the Gaussian's covariance (same coordinates).
+    - ``steps``: BFGS steps taken; ``converged``: the search met its tolerances.
+    - ``log_prob``: log posterior (PSD-unconstrained) at the MAP; ``mode_in_cone``: the MAP
+      is inside the PSD cone (finite constrained log posterior).
+
+    ``status`` (:class:`ModeStatus`): ``converged`` or ``not converged``; ``ok`` when
+    converged. :meth:`info` is the diagnostics entry the samples carry.
+    """
+
+    mean: np.ndarray
+    cov: np.ndarray
+    steps: int
+    converged: bool
+    log_prob: float
+    mode_in_cone: bool
+
+    @property
+    def status(self) -> ModeStatus:
+        return ModeStatus.CONVERGED if self.converged else ModeStatus.NOT_CONVERGED
+
+    @property
+    def ok(self) -> bool:
+        return self.status is ModeStatus.CONVERGED
+
+    def info(self) -> dict:
+        """``{"steps", "converged", "log_prob", "mode_in_cone"}`` as Python values (NaN
+        kept): the ``laplace`` entry of a :class:`PosteriorSamples`' diagnostics."""
+        return {"steps": self.steps, "converged": self.converged, "log_prob": self.log_prob,
+                "mode_in_cone": self.mode_in_cone}  # fmt: skip
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, ``dim`` (``d``), then :meth:`info` (a
+        non-finite ``log_prob`` is ``None``)."""
+        return jsonable({"status": self.status, "ok": self.ok, "dim": int(self.mean.shape[0]),
+                         **self.info()})  # fmt: skip
+
+
 def laplace_posterior(
     post: LogPosterior, x0, *, max_steps: int = 3000, rtol: float = 1e-9, atol: float = 1e-9
-) -> tuple[np.ndarray, np.ndarray, dict]:
-    """MAP and Laplace covariance ``(x_map (d,), cov (d, d), info)`` of a :class:`LogPosterior`.
+) -> LaplacePosterior:
+    """MAP and Laplace covariance of a :class:`LogPosterior`: a :class:`LaplacePosterior`
+    (``mean (d,)``, ``cov (d, d)``, the search's ``steps`` and ``converged``, ``log_prob`` at
+    the MAP, ``mode_in_cone``).
 
     BFGS (optimistix) on ``−log p`` from ``x0`` (e.g. the NLS θ followed by the prior mean
     of log τ). The covariance is the inverse Hessian with its eigenvalues floored at the
     prior precision ``1/prior_scale²`` (the prior alone contributes that much curvature; a
-    negative curvature at a kink ``|θ_jj| = 0`` would otherwise give nonsense). ``info``:
-    ``steps``, ``converged``, ``log_prob`` at the MAP.
+    negative curvature at a kink ``|θ_jj| = 0`` would otherwise give nonsense).
     """
     x0 = jnp.asarray(x0, dtype=jnp.float64)
     if x0.shape != (post.dim,):
@@ -137,9 +192,14 @@ def laplace_posterior(
     floor = 1.0 / post.prior_scale**2
     lam = np.maximum(lam, floor)
     cov = (V / lam) @ V.T
-    info = {"steps": int(steps), "converged": bool(ok), "log_prob": float(post_u(jnp.asarray(xm))),
-            "mode_in_cone": bool(np.isfinite(float(post(jnp.asarray(xm)))))}  # fmt: skip
-    return xm, cov, info
+    return LaplacePosterior(
+        mean=xm,
+        cov=cov,
+        steps=int(steps),
+        converged=bool(ok),
+        log_prob=float(post_u(jnp.asarray(xm))),
+        mode_in_cone=bool(np.isfinite(float(post(jnp.asarray(xm))))),
+    )
 
 
 def posterior_laplace_samples(post: LogPosterior, n_samples: int, init, key=0) -> PosteriorSamples:
@@ -160,8 +220,8 @@ def posterior_laplace_samples(post: LogPosterior, n_samples: int, init, key=0) -
         if isinstance(init, NLSResult)
         else np.asarray(init, dtype=np.float64)
     )
-    mean, cov, info = laplace_posterior(post, x0)
-    draws = post.project(_mvn(_check_key(key), mean, cov, n_samples))
+    lp = laplace_posterior(post, x0)
+    draws = post.project(_mvn(_check_key(key), lp.mean, lp.cov, n_samples))
     theta, extra = post.split(draws)
     return PosteriorSamples(
         samples=np.concatenate([theta, extra], axis=1),
@@ -169,6 +229,6 @@ def posterior_laplace_samples(post: LogPosterior, n_samples: int, init, key=0) -
         scale=post.scale,
         n=post.n,
         names=tuple(param_names(post.n, post.error)),
-        diagnostics={"method": "laplace_matrix", "laplace": info},
+        diagnostics={"method": "laplace_matrix", "laplace": lp.info()},
         predictive=post.predictive_data(),
     )

@@ -53,6 +53,7 @@ information twice.
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -317,10 +318,29 @@ def _batched_log_prob(post: LogPosterior, xs):
     return jax.vmap(post)(xs)
 
 
-def boundary_fixed(nls_result) -> dict:
-    """``{name: matrix}`` of the NLS fit's matrices at the PSD boundary (physical units,
-    projected to PSD), to pass as ``fixed`` to :func:`make_log_posterior`."""
+class FixedMatrices(NamedTuple):
+    """Matrices held at a value in a posterior (:func:`boundary_fixed`; ``fixed`` of
+    :func:`make_log_posterior`): one field per name of :data:`~hapid.fit.MATRIX_NAMES`, each
+    an ``(n, n)`` float64 matrix in physical units (kg, N·s/m, N/m) or ``None`` when that
+    matrix is sampled. :meth:`held` gives the held ones by name."""
+
+    M_H: np.ndarray | None = None
+    B_H: np.ndarray | None = None
+    K_H: np.ndarray | None = None
+    M_M: np.ndarray | None = None
+    B_M: np.ndarray | None = None
+    K_M: np.ndarray | None = None
+
+    def held(self) -> dict[str, np.ndarray]:
+        """``{name: (n, n) matrix}`` of the held matrices, in :data:`MATRIX_NAMES` order."""
+        return {k: v for k, v in self._asdict().items() if v is not None}
+
+
+def boundary_fixed(nls_result) -> FixedMatrices:
+    """The NLS fit's matrices at the PSD boundary (physical units, projected to PSD) as
+    :class:`FixedMatrices`, to pass as ``fixed`` to :func:`make_log_posterior`; the others
+    ``None``."""
     m = project_pd(nls_result.model, floor=0.0)
     mats = dict(zip(MATRIX_NAMES, (m.hand.M, m.hand.B, m.hand.K, m.mechanism.M, m.mechanism.B,
                                    m.mechanism.K), strict=True))  # fmt: skip
-    return {name: np.asarray(mats[name]) for name in nls_result.boundary}
+    return FixedMatrices(**{name: np.asarray(mats[name]) for name in nls_result.boundary})

@@ -122,7 +122,7 @@ def plant_draws(
     if isinstance(source, ParamDraws):
         d = predictive_plants(ps, omega, max_samples=int(max_samples), seed=seed,
                               include_error=include_error)  # fmt: skip
-        return PlantDraws(omega, d["P"], d["Z_H"], d["Z_T"], "params",
+        return PlantDraws(omega, d.P, d.Z_H, d.Z_T, "params",
                           ps.error_kind if include_error else "none")  # fmt: skip
     if not include_error:
         raise ValueError("loop draws are of the measured plant (no separate model error): "

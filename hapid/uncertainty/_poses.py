@@ -14,15 +14,21 @@ loses isotropy or margins. Default grid: home and ±4 cm along each axis (7 pose
 
 from __future__ import annotations
 
+import dataclasses
+from typing import NamedTuple
+
 import equinox as eqx
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from .._plain import jsonable
 from ..control import Compensator
 from ..defaults import FIT_BAND_HZ
 from ..device import cu5
 from ..experiment import Protocol, estimate_frf, periodic_run
+from ..fit._result import FitStatus
 from ..pipeline import control_fit
+from ..verdict import Verdict
 from ._robust import FIELDS, _sampled_P, robust_check, robust_omega
 
 DEFAULT_OFFSETS = (
@@ -73,6 +79,88 @@ def identify(device, protocol=None, *, noise_seed: int = 0, **fit_options):
     return control_fit(frf, **fit_options).fit.result
 
 
+class PoseLoop(NamedTuple):
+    """One controller's loop on one pose's true sampled plant (:func:`pose_study`).
+
+    - ``stable``: the closed loop is stable.
+    - ``gm_db``, ``pm_deg`` (dB, degrees), ``disk_margin``, ``disk_gm_db``, ``disk_pm_deg``
+      (the disk margin α and its gain/phase margins, dB and degrees), ``iso_bandwidth_hz``
+      (Hz), ``t_peak_db`` (peak of σ̄(T), dB): Python floats, NaN where undefined (bandwidth
+      and peak of an unstable loop).
+    - ``passed``: the robust check's requirements (stability, GM, PM) are met.
+    """
+
+    stable: bool
+    gm_db: float
+    pm_deg: float
+    disk_margin: float
+    disk_gm_db: float
+    disk_pm_deg: float
+    iso_bandwidth_hz: float
+    t_peak_db: float
+    passed: bool
+
+
+class PoseRow(NamedTuple):
+    """One pose of a :class:`PoseStudy`: the grip-point offset ``dx, dy, dz`` (m), the
+    ``nominal`` (home-pose) controller's :class:`PoseLoop`, and with re-identification the
+    ``reidentified`` controller's and its fit's ``fit_status`` (else ``None``)."""
+
+    dx: float
+    dy: float
+    dz: float
+    nominal: PoseLoop
+    reidentified: PoseLoop | None = None
+    fit_status: FitStatus | None = None
+
+    def flat(self) -> dict:
+        """The row as one flat dict: ``dx, dy, dz``, ``nominal_<field>`` for each field of
+        :class:`PoseLoop`, then (re-identified) ``fit_status`` and ``reidentified_<field>``."""
+        out = {"dx": self.dx, "dy": self.dy, "dz": self.dz}
+        out |= {f"nominal_{k}": v for k, v in self.nominal._asdict().items()}
+        if self.reidentified is not None:
+            out["fit_status"] = self.fit_status
+            out |= {f"reidentified_{k}": v for k, v in self.reidentified._asdict().items()}
+        return out
+
+
+@dataclasses.dataclass(frozen=True)
+class PoseStudy:
+    """Result of :func:`pose_study`: ``rows``, one :class:`PoseRow` per pose in the order of
+    the offsets (also ``study[i]``, ``len(study)``, iteration).
+
+    ``status`` (:class:`hapid.verdict.Verdict`): ``passed`` when the nominal (home-pose)
+    controller passes its check at every pose, else ``failed`` (its check failed, or was
+    not established, at some pose); ``ok`` when passed.
+    """
+
+    rows: tuple[PoseRow, ...]
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __getitem__(self, i) -> PoseRow:
+        return self.rows[i]
+
+    def __iter__(self):
+        return iter(self.rows)
+
+    @property
+    def status(self) -> Verdict:
+        return Verdict.PASSED if all(r.nominal.passed for r in self.rows) else Verdict.FAILED
+
+    @property
+    def ok(self) -> bool:
+        return self.status is Verdict.PASSED
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, ``n_poses``, ``nominal_passed`` (poses where
+        the nominal controller passes) and ``rows`` (:meth:`PoseRow.flat`, NaN → ``None``)."""
+        return jsonable({"status": self.status, "ok": self.ok, "n_poses": len(self.rows),
+                         "nominal_passed": sum(bool(r.nominal.passed) for r in self.rows),
+                         "rows": [r.flat() for r in self.rows]})  # fmt: skip
+
+
 def pose_study(
     device=None,
     offsets=DEFAULT_OFFSETS,
@@ -84,7 +172,7 @@ def pose_study(
     noise_seed: int = 0,
     reidentify: bool = True,
     fit_options: dict | None = None,
-) -> list[dict]:
+) -> PoseStudy:
     """Closed-loop metrics of the nominal and re-identified controllers at each pose.
 
     - ``device``: a :class:`hapid.device.ParallelDevice` at its home pose (default ``cu5()``).
@@ -96,9 +184,9 @@ def pose_study(
     - ``nominal_model``: the home-pose model (default: identified here at home).
     - ``reidentify``: also identify a controller at each pose (the costly part).
 
-    Returns one dict per pose: ``dx, dy, dz`` and, for ``nominal`` and (optionally)
-    ``reidentified``, ``{prefix}_stable``, ``{prefix}_{gm_db, pm_deg, disk_margin, …,
-    iso_bandwidth_hz, t_peak_db}`` (NaN bandwidth/peak when unstable), plus ``fit_status``.
+    Returns a :class:`PoseStudy`: one :class:`PoseRow` per pose (``dx, dy, dz``, the
+    ``nominal`` and optionally the ``reidentified`` controller's :class:`PoseLoop`, the fit's
+    ``fit_status``), passed when the nominal controller passes at every pose.
     """
     device = cu5() if device is None else device
     g = Compensator.paper() if g is None else g
@@ -116,21 +204,16 @@ def pose_study(
     for dx, dy, dz in offsets:
         dev = eqx.tree_at(lambda d: d.pose, device, device.pose.moved(dx, dy, dz))
         P = _sampled_P(dev, omega)[None]
-        row = {"dx": dx, "dy": dy, "dz": dz}
         rep = robust_check(P, (nominal_model, g), omega, p_stable_required=1.0, metrics="all")
-        row |= _row("nominal", rep)
+        row = PoseRow(dx, dy, dz, _loop(rep))
         if reidentify:
             res = identify(dev, protocol, noise_seed=noise_seed, **fit_options)
-            row["fit_status"] = res.status
             rep = robust_check(P, (res.model, g), omega, p_stable_required=1.0, metrics="all")
-            row |= _row("reidentified", rep)
+            row = row._replace(reidentified=_loop(rep), fit_status=res.status)
         rows.append(row)
-    return rows
+    return PoseStudy(tuple(rows))
 
 
-def _row(prefix, rep):
-    out = {f"{prefix}_stable": bool(rep.stable[0])}
-    for f in FIELDS:
-        out[f"{prefix}_{f}"] = float(getattr(rep, f)[0])
-    out[f"{prefix}_passed"] = bool(rep.passed)
-    return out
+def _loop(rep) -> PoseLoop:
+    return PoseLoop(stable=bool(rep.stable[0]), passed=bool(rep.passed),
+                    **{f: float(getattr(rep, f)[0]) for f in FIELDS})  # fmt: skip

@@ -19,7 +19,7 @@ from ..fit._result import NLSResult
 from ..frf import FRF
 from ._coords import fold_theta
 from ._hyper import fix_hyperparameters
-from ._likelihood import DEFAULT_PRIOR_SCALE, LogPosterior
+from ._likelihood import DEFAULT_PRIOR_SCALE, FixedMatrices, LogPosterior
 from ._model_error import GP, GPCorr, ModelError, White, as_model_error
 from ._weights import element_weights
 
@@ -32,7 +32,7 @@ def make_log_posterior(
     model_error: ModelError | None = None,
     noise_corr: float = 0.0,
     prior_scale: float = DEFAULT_PRIOR_SCALE,
-    fixed: dict | None = None,
+    fixed: FixedMatrices | dict | None = None,
     reference=None,
 ) -> LogPosterior:
     """Build the :class:`LogPosterior` of ``frf`` (module docstring for the model).
@@ -51,10 +51,10 @@ def make_log_posterior(
       for ``hyper="map"`` the NLSResult is the start of the mode search.
     - ``noise_corr``: correlation ρ ∈ (−1, 1) of the Z_H/Z_T measurement errors per element.
     - ``prior_scale``: the sd of the matrix entries' prior (scaled units).
-    - ``fixed``: ``{name: (n, n) matrix in physical units}`` for matrices of
-      ``M_H, B_H, K_H, M_M, B_M, K_M`` held at a value rather than sampled (the posterior
-      *conditional* on them). :func:`boundary_fixed` gives the NLS fit's matrices at the PSD
-      boundary — e.g. ``K_M ≈ 0`` on a mechanism without stiffness, where the cone-truncated
+    - ``fixed``: a :class:`FixedMatrices` or ``{name: (n, n) matrix in physical units}`` for
+      matrices of ``M_H, B_H, K_H, M_M, B_M, K_M`` held at a value rather than sampled (the
+      posterior *conditional* on them). :func:`boundary_fixed` gives the NLS fit's matrices at
+      the PSD boundary — e.g. ``K_M ≈ 0`` on a mechanism without stiffness, where the cone-truncated
       posterior of that matrix is nearly all boundary and makes ensemble moves crawl.
 
     Raises ``ValueError`` for a missing std, non-finite data, fewer than 3 band frequencies,
@@ -123,8 +123,10 @@ def make_log_posterior(
     return fix_hyperparameters(post, reference)
 
 
-def _fixed_entries(fixed: dict | None, scale: Scale, n: int):
+def _fixed_entries(fixed: FixedMatrices | dict | None, scale: Scale, n: int):
     """``(theta_fixed (p,) | None, free_idx)`` of the matrices held by ``fixed``."""
+    if isinstance(fixed, FixedMatrices):
+        fixed = fixed.held()
     if not fixed:
         return None, ()
     unknown = set(fixed) - set(MATRIX_NAMES)

@@ -17,6 +17,10 @@ largest singular value).
 
 from __future__ import annotations
 
+import dataclasses
+import enum
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -24,12 +28,74 @@ import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
 from .._linalg import svdvals
+from .._plain import jsonable
 from ..fit._pd import theta_to_model
 from ..impedance import plant
 from ..samples import PosteriorSamples
 from ._model_error import NoError, model_error_for
 
 QUANTITIES = ("abs_Z_H", "abs_Z_T", "sv_Z_H", "sv_Z_T", "sv_P", "sv_P_Phatinv")
+
+
+class PredictiveQuantities(NamedTuple):
+    """Per-sample quantities of the module docstring (:func:`predictive_samples`), each
+    ``(S', N, …)`` — ``S'`` samples, ``N`` frequencies — linear magnitudes (N/m for the
+    impedances, dimensionless for the plants); ``None`` for a quantity not asked for.
+
+    - ``abs_Z_H``, ``abs_Z_T``: ``(S', N, n, n)``; ``sv_Z_H``, ``sv_Z_T``, ``sv_P``,
+      ``sv_P_Phatinv``: ``(S', N, n)``, descending.
+
+    :meth:`computed` gives the computed ones by name.
+    """
+
+    abs_Z_H: np.ndarray | None = None
+    abs_Z_T: np.ndarray | None = None
+    sv_Z_H: np.ndarray | None = None
+    sv_Z_T: np.ndarray | None = None
+    sv_P: np.ndarray | None = None
+    sv_P_Phatinv: np.ndarray | None = None
+
+    def computed(self) -> dict[str, np.ndarray]:
+        """``{name: array}`` of the quantities that were computed, in :data:`QUANTITIES`
+        order."""
+        return {k: v for k, v in self._asdict().items() if v is not None}
+
+
+class CredibleBands(NamedTuple):
+    """Credible bands of the quantities of the module docstring (:func:`credible_bands`):
+    ``q`` ``(Q,)`` the quantile levels in [0, 1], and per quantity ``(Q, N, …)`` the
+    quantiles over the samples (row ``k`` at level ``q[k]``), shapes and units as in
+    :class:`PredictiveQuantities` with ``Q`` for ``S'``; ``None`` for a quantity not asked for.
+
+    :meth:`computed` gives the computed ones by name.
+    """
+
+    q: np.ndarray
+    abs_Z_H: np.ndarray | None = None
+    abs_Z_T: np.ndarray | None = None
+    sv_Z_H: np.ndarray | None = None
+    sv_Z_T: np.ndarray | None = None
+    sv_P: np.ndarray | None = None
+    sv_P_Phatinv: np.ndarray | None = None
+
+    def computed(self) -> dict[str, np.ndarray]:
+        """``{name: (Q, N, …) array}`` of the quantities that were computed, in
+        :data:`QUANTITIES` order."""
+        return {k: v for k, v in self._asdict().items() if k != "q" and v is not None}
+
+
+class PredictivePlants(NamedTuple):
+    """Posterior-predictive draws of the true impedances and plant (:func:`predictive_plants`).
+
+    - ``omega``: ``(N,)`` rad/s, the grid.
+    - ``Z_H``, ``Z_T``: ``(S', N, n, n)`` complex, N/m, one row per draw.
+    - ``P``: ``(S', N, n, n)`` complex, ``Z_H Z_T⁻¹`` per draw (dimensionless).
+    """
+
+    omega: np.ndarray
+    Z_H: np.ndarray
+    Z_T: np.ndarray
+    P: np.ndarray
 
 
 @eqx.filter_jit
@@ -59,8 +125,9 @@ def _chunk(theta, scale, s, P_ref, names):
 def predictive_samples(
     ps: PosteriorSamples, omega, quantities=("sv_Z_H", "sv_Z_T", "sv_P"), P_ref=None,
     chunk: int = 500, max_samples: int | None = 2000, seed: int = 0,
-) -> dict[str, np.ndarray]:  # fmt: skip
-    """Per-sample quantities ``{name: (S', N, …)}`` on ``omega`` (rad/s), computed in chunks.
+) -> PredictiveQuantities:  # fmt: skip
+    """Per-sample quantities (:class:`PredictiveQuantities`, each ``(S', N, …)``) on
+    ``omega`` (rad/s), computed in chunks.
 
     At most ``max_samples`` samples are used (a random subset, ``seed``); ``None`` = all.
     """
@@ -88,20 +155,23 @@ def predictive_samples(
         _chunk(jnp.asarray(theta[i : i + chunk]), ps.scale, s, P_ref, names)
         for i in range(0, theta.shape[0], chunk)
     ]
-    return {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in names}
+    return PredictiveQuantities(
+        **{k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in names}
+    )
 
 
 def credible_bands(
     ps: PosteriorSamples, omega, quantities=("sv_Z_H", "sv_Z_T", "sv_P"), P_ref=None,
     q=(0.05, 0.5, 0.95), chunk: int = 500, max_samples: int | None = 2000, seed: int = 0,
-) -> dict[str, np.ndarray]:  # fmt: skip
-    """Credible bands ``{name: (len(q), N, …)}`` of the quantities (module docstring) over
-    the posterior samples, on ``omega`` (rad/s). Default levels 5/50/95 %."""
+) -> CredibleBands:  # fmt: skip
+    """Credible bands (:class:`CredibleBands`, each ``(len(q), N, …)``) of the quantities
+    (module docstring) over the posterior samples, on ``omega`` (rad/s). Default levels
+    5/50/95 %."""
     qs = np.asarray(q, dtype=float)
     if np.any((qs < 0) | (qs > 1)):
         raise ValueError(f"quantile levels must be in [0, 1], got {q}")
     per = predictive_samples(ps, omega, quantities, P_ref, chunk, max_samples, seed)
-    return {k: np.quantile(v, qs, axis=0) for k, v in per.items()}
+    return CredibleBands(qs, **{k: np.quantile(v, qs, axis=0) for k, v in per.computed().items()})
 
 
 # --- predictive draws of the plant, model error included ------------------------------
@@ -116,7 +186,7 @@ def _taper(omega, lo, hi, width: float = 0.5):
 
 def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 500, seed: int = 0,
                       include_error: bool = True, error_band=None,
-                      taper_width: float = 0.5) -> dict[str, np.ndarray]:  # fmt: skip
+                      taper_width: float = 0.5) -> PredictivePlants:  # fmt: skip
     """Posterior-predictive draws of the *true* ``Z_H, Z_T, P = Z_H Z_T⁻¹`` on ``omega`` (rad/s,
     any grid), including the model-error term — not only parameter uncertainty.
 
@@ -148,8 +218,9 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
     e^taper_width of frequency outside — for loop analyses that need a rational plant far from
     the data (see :func:`hapid.tune._recipe.predictive_scenario_plants`).
 
-    ``Z_T`` carries ``e_H + e_M`` (``Z_T = Z_H + Z_M``). Returns ``{"omega": (N,), "Z_H",
-    "Z_T", "P": (S', N, n, n)}`` with at most ``max_samples`` draws (random subset, ``seed``).
+    ``Z_T`` carries ``e_H + e_M`` (``Z_T = Z_H + Z_M``). Returns :class:`PredictivePlants`
+    ``(omega (N,), Z_H, Z_T, P (S', N, n, n))`` with at most ``max_samples`` draws (random
+    subset, ``seed``).
     """
     omega = np.asarray(omega, dtype=np.float64)
     if (
@@ -180,12 +251,76 @@ def predictive_plants(ps: PosteriorSamples, omega, *, max_samples: int | None = 
     eH, eM = error.predictive_errors(ps, idx, ms, omega, rng, w)
     ZH, ZM = ZH + eH, ZM + eM
     ZT = ZH + ZM
-    return {"omega": omega, "Z_H": ZH, "Z_T": ZT, "P": np.asarray(plant(ZH, ZT))}
+    return PredictivePlants(omega, ZH, ZT, np.asarray(plant(ZH, ZT)))
 
 
-def band_calibration(draws, truth, level: float = 0.9, n_reference: int = 20) -> dict[str, float]:
+#: default slack of :func:`band_calibration`'s goal: the band is calibrated when its coverage
+#: is at least ``level − COVERAGE_SLACK`` (a calibrated band's coverage over a few hundred
+#: frequencies scatters by about ±0.03 around ``level``)
+COVERAGE_SLACK = 0.05
+
+
+class CalibrationStatus(enum.StrEnum):
+    """Verdict of a :class:`BandCalibration`: ``calibrated`` when the coverage reaches the
+    goal, ``overconfident`` when the band holds the truth less often (too narrow or off
+    centre)."""
+
+    CALIBRATED = "calibrated"
+    OVERCONFIDENT = "overconfident"
+
+
+@dataclasses.dataclass(frozen=True)
+class BandCalibration:
+    """How well predictive draws describe a true response (:func:`band_calibration`, which
+    defines the figures): ``coverage``, ``width_ratio``, ``width_ratio_calibrated``,
+    ``coverage_calibrated``, ``width_ratio_of_medians``, ``element_coverage``,
+    ``rel_error_median``, ``rel_radius_median`` (floats, fractions or ratios); ``level`` the
+    credible level of the band and ``goal`` the coverage that counts as calibrated.
+
+    ``status`` (:class:`CalibrationStatus`): ``calibrated`` when ``coverage ≥ goal``, else
+    ``overconfident``; ``ok`` when calibrated.
+    """
+
+    coverage: float
+    width_ratio: float
+    width_ratio_calibrated: float
+    coverage_calibrated: float
+    width_ratio_of_medians: float
+    element_coverage: float
+    rel_error_median: float
+    rel_radius_median: float
+    level: float
+    goal: float
+
+    @property
+    def status(self) -> CalibrationStatus:
+        if self.coverage >= self.goal:
+            return CalibrationStatus.CALIBRATED
+        return CalibrationStatus.OVERCONFIDENT
+
+    @property
+    def ok(self) -> bool:
+        return self.status is CalibrationStatus.CALIBRATED
+
+    def figures(self) -> dict[str, float]:
+        """The eight figures by name (Python floats, NaN kept), without ``level`` and
+        ``goal``: a row of a calibration table."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                if f.name not in ("level", "goal")}  # fmt: skip
+
+    def summary(self) -> dict:
+        """Strict-JSON dict: ``status``, ``ok``, ``level``, ``goal``, then :meth:`figures`
+        (a non-finite figure is ``None``)."""
+        return jsonable({"status": self.status, "ok": self.ok, "level": self.level,
+                         "goal": self.goal, **self.figures()})  # fmt: skip
+
+
+def band_calibration(draws, truth, level: float = 0.9, n_reference: int = 20,
+                     goal: float | None = None) -> BandCalibration:  # fmt: skip
     """How well predictive draws ``(S, N, n, n)`` (complex) describe a true response
-    ``(N, n, n)`` over ``N`` frequencies.
+    ``(N, n, n)`` over ``N`` frequencies: a :class:`BandCalibration`, ``calibrated`` when
+    ``coverage ≥ goal`` (default ``level −`` :data:`COVERAGE_SLACK`, at least 0). Raises
+    ``ValueError`` for mismatched shapes or a ``level`` or ``goal`` outside [0, 1].
 
     The band at frequency ω is the ``level`` credible *ball* around the draws' (elementwise
     re/im) median ``X̃``: radius ``r(ω) = q_level(‖X_s − X̃‖_F)``; the actual error is
@@ -209,6 +344,9 @@ def band_calibration(draws, truth, level: float = 0.9, n_reference: int = 20) ->
       ``r / ‖X_true‖_F`` (the band's half-width relative to the response itself: a band can
       meet ``width_ratio`` by being centred badly, this says how wide it is in absolute terms).
     """
+    goal = max(level - COVERAGE_SLACK, 0.0) if goal is None else float(goal)
+    if not (0.0 <= level <= 1.0 and 0.0 <= goal <= 1.0):
+        raise ValueError(f"band_calibration: level and goal must be in [0, 1], got {level}, {goal}")
     X = np.asarray(draws)
     T = np.asarray(truth)
     if X.ndim != 4 or T.shape != X.shape[1:]:
@@ -226,11 +364,15 @@ def band_calibration(draws, truth, level: float = 0.9, n_reference: int = 20) ->
     for part in (np.real, np.imag):
         lo, hi = np.quantile(part(X), [lo_q, hi_q], axis=0)
         inside.append((part(T) >= lo) & (part(T) <= hi))
-    return {"coverage": float(np.mean(e <= r)),
-            "width_ratio": float(np.median(r / np.maximum(e, tiny))),
-            "width_ratio_calibrated": float(np.mean(np.median(r / np.maximum(ref, tiny), axis=1))),
-            "coverage_calibrated": float(np.mean(ref <= r)),
-            "width_ratio_of_medians": float(np.median(r) / np.median(e)),
-            "element_coverage": float(np.mean(inside)),
-            "rel_error_median": float(np.median(e / np.linalg.norm(T, axis=(-2, -1)))),
-            "rel_radius_median": float(np.median(r / np.linalg.norm(T, axis=(-2, -1))))}  # fmt: skip
+    return BandCalibration(
+        coverage=float(np.mean(e <= r)),
+        width_ratio=float(np.median(r / np.maximum(e, tiny))),
+        width_ratio_calibrated=float(np.mean(np.median(r / np.maximum(ref, tiny), axis=1))),
+        coverage_calibrated=float(np.mean(ref <= r)),
+        width_ratio_of_medians=float(np.median(r) / np.median(e)),
+        element_coverage=float(np.mean(inside)),
+        rel_error_median=float(np.median(e / np.linalg.norm(T, axis=(-2, -1)))),
+        rel_radius_median=float(np.median(r / np.linalg.norm(T, axis=(-2, -1)))),
+        level=float(level),
+        goal=goal,
+    )

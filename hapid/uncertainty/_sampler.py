@@ -214,8 +214,8 @@ def sample_posterior(
     lp_fn = batched_log_prob(post)
     laplace_info = None
     if isinstance(init, NLSResult):
-        mean, cov, laplace_info = laplace_posterior(post, initial_point(post, init))
-        init = (mean, cov)
+        lp = laplace_posterior(post, initial_point(post, init))
+        init, laplace_info = (lp.mean, lp.cov), lp.info()
     if isinstance(init, tuple):
         mean, cov = (np.asarray(a, dtype=np.float64) for a in init)
         if mean.shape != (d,) or cov.shape != (d, d):
