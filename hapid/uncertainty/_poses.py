@@ -130,8 +130,8 @@ class PoseStudy:
     the offsets (also ``study[i]``, ``len(study)``, iteration).
 
     ``status`` (:class:`hapid.verdict.Verdict`): ``passed`` when the nominal (home-pose)
-    controller passes its check at every pose, else ``failed`` (its check failed, or was
-    not established, at some pose); ``ok`` when passed.
+    controller passes its check at every pose, else ``failed``. The check is on each pose's
+    true plant, so it is never "not established"; ``ok`` when passed.
     """
 
     rows: tuple[PoseRow, ...]
