@@ -17,6 +17,7 @@ reported for any loop, like python-control, since they describe the open loop.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -128,14 +129,25 @@ class LoopReport(eqx.Module):
         return jsonable(self.numbers())
 
 
-def loop_matrices(P, G):
-    """``L = P G``, ``S = (I + L)⁻¹`` and ``T = I − S = (I + L)⁻¹ L`` (each ``(N, n, n)``)."""
+class LoopMatrices(NamedTuple):
+    """The loop's frequency responses (:func:`loop_matrices`), each ``(N, n, n)`` complex
+    (dimensionless ratios, frequency first): ``L = P G``, ``S = (I + L)⁻¹`` (sensitivity),
+    ``T = I − S = (I + L)⁻¹ L`` (complementary sensitivity)."""
+
+    L: Array
+    S: Array
+    T: Array
+
+
+def loop_matrices(P, G) -> LoopMatrices:
+    """:class:`LoopMatrices` ``L = P G``, ``S = (I + L)⁻¹`` and ``T = I − S = (I + L)⁻¹ L``
+    of plant and controller responses ``P``, ``G`` ``(N, n, n)`` (each ``(N, n, n)``)."""
     L = P @ G
     n = L.shape[-1]
     eye = jnp.eye(n, dtype=L.dtype)
     S = jnp.linalg.solve(eye + L, jnp.broadcast_to(eye, L.shape))
     T = eye - S
-    return L, S, T
+    return LoopMatrices(L=L, S=S, T=T)
 
 
 def _first_crossing(x, omega, thr):
@@ -165,13 +177,30 @@ def _last_crossing(x, omega, thr):
     return jnp.where(~jnp.any(below), 0.0, jnp.where(j == N - 1, jnp.inf, w))
 
 
+class IsotropicBandwidth(NamedTuple):
+    """Crossings of σ̄(T − I) through the threshold (:func:`isotropic_bandwidth`), each a
+    0-d float array in rad/s.
+
+    ``lowest``: lowest ω where σ̄(T − I) reaches the threshold (log-frequency interpolation;
+    ``0`` if already reached at the first grid point, ``inf`` if never on the grid);
+    ``literal``: the paper's "maximum ω where σ̄(T − I) < threshold", the end of the last
+    sub-threshold stretch (``inf`` if below at the last grid point, ``0`` if never below).
+    """
+
+    lowest: Array
+    literal: Array
+
+
 def isotropic_bandwidth(
     sv_T_minus_I: Float[Array, "N n"], omega: Float[Array, " N"], threshold: float = ISO_THRESHOLD
-) -> tuple[Float[Array, ""], Float[Array, ""]]:
-    """(lowest crossing, paper-literal last crossing) of σ̄(T − I) through ``threshold``,
-    in rad/s. See :class:`LoopReport` for the 0/inf conventions. Does not check stability."""
+) -> IsotropicBandwidth:
+    """:class:`IsotropicBandwidth` (lowest crossing, paper-literal last crossing) of
+    σ̄(T − I) (singular values ``(N, n)``, largest first) through ``threshold`` on the grid
+    ``omega`` (rad/s, ``(N,)``). Does not check stability."""
     top = sv_T_minus_I[:, 0]
-    return _first_crossing(top, omega, threshold), _last_crossing(top, omega, threshold)
+    return IsotropicBandwidth(
+        lowest=_first_crossing(top, omega, threshold), literal=_last_crossing(top, omega, threshold)
+    )
 
 
 def scalar_fields(report, names) -> dict:
@@ -294,13 +323,13 @@ def analyze_loop(
         nyquist_resolved=resolved,
         iso_bandwidth_hz=if_stable(bw / TWO_PI),
         iso_bandwidth_literal_hz=if_stable(bw_lit / TWO_PI),
-        gm_db=mg["gm_db"],
-        pm_deg=mg["pm_deg"],
-        gm_freq_hz=mg["gm_omega"] / TWO_PI,
-        pm_freq_hz=mg["pm_omega"] / TWO_PI,
-        disk_margin=if_stable(disk["disk_margin"], 0.0),
-        disk_gm_db=if_stable(disk["disk_gm_db"], 0.0),
-        disk_pm_deg=if_stable(disk["disk_pm_deg"], 0.0),
+        gm_db=mg.gm_db,
+        pm_deg=mg.pm_deg,
+        gm_freq_hz=mg.gm_omega / TWO_PI,
+        pm_freq_hz=mg.pm_omega / TWO_PI,
+        disk_margin=if_stable(disk.disk_margin, 0.0),
+        disk_gm_db=if_stable(disk.disk_gm_db, 0.0),
+        disk_pm_deg=if_stable(disk.disk_pm_deg, 0.0),
         t_peak_db=if_stable(t_peak_db),
         t_peak_hz=if_stable(t_peak_hz),
         freq_hz=omega / TWO_PI,
