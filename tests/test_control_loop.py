@@ -3,6 +3,7 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+from oracle_loop import analyze_loop
 from oracles import example_model
 
 import hapid  # noqa: F401  (float64)
@@ -14,7 +15,6 @@ from hapid.control import (
     IsotropicBandwidth,
     LociMargins,
     LoopMatrices,
-    analyze_loop,
     characteristic_loci,
     disk_margin_from_peak,
     inverse_model_response,
