@@ -2,10 +2,11 @@
 """Loop metrics that compute only what is asked, with crossings refined off the grid.
 
 :func:`loop_metrics` decides stability by the same rules as the LAPACK reference loop
-analysis of the tests (``tests/oracle_loop.py``, its independent check): generalized Nyquist on ``det(I + L)`` with
-``P_ol`` = open-loop RHP poles of plant *and* controller, the grid resolution check of
-``det(I + L)`` and of every characteristic locus ``1 + λ_i``, and the singularity check
-``σ̲(I + L) ≤ rtol · max(1, σ̄(I + L))``. It differs in how much it computes:
+analysis of the tests (``tests/oracle_loop.py``, its independent check): generalized
+Nyquist on ``det(I + L)`` with ``P_ol`` = open-loop RHP poles of plant *and* controller,
+the grid resolution check of ``det(I + L)`` and of every characteristic locus ``1 + λ_i``,
+and the singularity check ``σ̲(I + L) ≤ rtol · max(1, σ̄(I + L))``. It differs in how much
+it computes:
 
 * ``det(I + L)`` and ``S = (I + L)⁻¹`` by the XLA kernels of :mod:`._kernels` (no LAPACK);
 * σ̄ of ``S``, ``T`` (and ``S − T``) is *bounded* cheaply at every frequency and computed

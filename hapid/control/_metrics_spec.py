@@ -81,8 +81,8 @@ class LoopMetrics(eqx.Module):
     """Result of :func:`loop_metrics` (0-d arrays, or ``(B,)`` when vmapped; Hz, dB, deg).
 
     Verdict: ``stable``, ``n_encirclements``, ``n_closed_loop_rhp``, ``singular``,
-    ``nyquist_resolved`` (the rule of :func:`~hapid.control.nyquist_verdict`). Performance (NaN when not
-    stable or not asked): ``iso_bandwidth_hz`` (0: above the threshold at the first grid
+    ``nyquist_resolved`` (the rule of :func:`~hapid.control.nyquist_verdict`). Performance
+    (NaN when not stable or not asked): ``iso_bandwidth_hz`` (0: above the threshold at the first grid
     point, inf: never reached), ``t_peak_db``/``t_peak_hz``. Margins (any loop, NaN when not
     asked; inf/NaN-frequency when no crossing): ``gm_db``/``gm_freq_hz``, ``pm_deg``/
     ``pm_freq_hz``. ``disk_margin`` (0 when not stable, NaN when not asked).
