@@ -12,8 +12,9 @@ pipeline order, on cu5 with the paper protocol:
 - ``periodic_run + estimate_frf`` (simulate the multisine experiments → FRF),
 - ``simulate_frf`` under ``eqx.filter_jit`` (the pure-JAX device → FRF path of sweeps),
 - ``wls`` (+ ``positize``), ``fit_nls`` (LM, relative weights),
-- ``analyze_loop`` under ``jax.jit`` on the 1500-point analysis grid with the inverse-model
-  controller of the NLS model.
+- ``loop_metrics`` with ``hapid.pipeline.SPEC_REPORT`` (the one-loop spec of ``hapid analyze``
+  and the paper summary) on the 1500-point analysis grid with the inverse-model controller of
+  the NLS model.
 
 Then the whole paper reproduction (``hapid paper``), cold and warm, as ``bench_paper.py``
 measures it (full run only; ``--quick`` skips it). Note: hapid writes to the persistent
@@ -50,10 +51,11 @@ def _worker():
     import numpy as np
 
     import hapid  # noqa: F401
-    from hapid.control import Compensator, analyze_loop, inverse_model_response
+    from hapid.control import Compensator, inverse_model_response, loop_metrics
     from hapid.device import cu5
     from hapid.experiment import Protocol, estimate_frf, periodic_run, simulate_frf
     from hapid.fit import fit_nls, positize, wls
+    from hapid.pipeline import SPEC_REPORT
 
     t_import = time.perf_counter() - t0
     res = {"import": t_import}
@@ -79,8 +81,8 @@ def _worker():
     omega = 2 * np.pi * np.append(f, 0.5 * dev.fs_hz)
     P = np.asarray(dev.sampled_P(omega))
     G = np.asarray(inverse_model_response(nls.model, Compensator.paper(), omega))
-    al = jax.jit(lambda P, G: analyze_loop(P, G, omega))
-    twice("analyze_loop (jit, 1500 freqs)", lambda: al(P, G))
+    twice("loop_metrics (SPEC_REPORT, 1500 freqs)",
+          lambda: loop_metrics(P, G, omega, spec=SPEC_REPORT).stable)  # fmt: skip
     res["total"] = time.perf_counter() - t0
     print("RESULT " + json.dumps(res))
 

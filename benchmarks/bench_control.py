@@ -1,4 +1,6 @@
-"""Benchmark: loop analysis (``hapid.control.analyze_loop``) for one model and vmapped batches.
+"""Benchmark: the LAPACK reference loop analysis (``analyze_loop`` of ``tests/oracle_loop.py``,
+the tests' independent check of :func:`hapid.control.loop_metrics`) for one model and vmapped
+batches; the production path's timings are ``bench_fast.py`` and ``bench_n.py``.
 
 Run: ``.venv/bin/python benchmarks/bench_control.py [--quick] [--out out/bench]`` (batch 50
 with --quick, 500 otherwise).
@@ -32,9 +34,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import Section, fs, measure, standalone, table  # noqa: E402
 
 import hapid  # noqa: E402,F401
-from hapid.control import Compensator, analyze_loop, inverse_model_response  # noqa: E402
+from hapid.control import Compensator, inverse_model_response  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from oracle_loop import analyze_loop  # noqa: E402
 from oracles import example_model  # noqa: E402
 
 
@@ -72,7 +75,7 @@ def run(
     if not quick:
         b = min(100, B)
         add(f"vmap batch {b}, loci_method='greedy'", b, greedy, PB[:b], GB[:b], repeat=3)
-    sec.add(f"analyze_loop, n = {n}, N = {N} frequencies, random second-order plants under an "
+    sec.add(f"analyze_loop (LAPACK reference, tests/oracle_loop.py), n = {n}, N = {N} frequencies, random second-order plants under an "
             "inverse-model controller designed on a perturbed model (`hapid.control._examples`).\n\n"
             + table(rows))  # fmt: skip
     rep = single(Pj[0], Gj[0])

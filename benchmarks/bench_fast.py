@@ -7,8 +7,8 @@ paper's g, Laplace posterior draws of the NLS fit.
 
 1. One loop, n = 5, N = 3000 frequencies (posterior grid, 0.005 Hz–5 kHz): numpy (``det``,
    ``inv``, ``eigvals``, ``svd`` on the stack — the ingredients of the verdict, σ̄(T − I)
-   and the loci margins), :func:`hapid.control.analyze_loop` (LAPACK reference, grid
-   values) and :func:`hapid.control.loop_metrics` (XLA kernels, screened, refined).
+   and the loci margins), ``analyze_loop`` (the LAPACK reference of the tests,
+   ``tests/oracle_loop.py``; grid values) and :func:`hapid.control.loop_metrics` (XLA kernels, screened, refined).
    Also the breakdown: each part of loop_metrics timed on its own.
 2. Robust check, S draws × 1000 frequencies: :func:`hapid.uncertainty.robust_check`
    (loop_metrics once per draw, or vmapped over padded chunks) and its
@@ -29,6 +29,9 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(
+    0, str(Path(__file__).resolve().parents[1] / "tests")
+)  # the LAPACK reference, oracle_loop
 from _common import ISSUE_GOAL, Section, fg, fs, measure, standalone, table, write_goal_rows  # noqa: E402
 
 import hapid  # noqa: E402,F401
@@ -105,10 +108,11 @@ def _breakdown(P, G, w, p_ol, specs=("verdict", "bandwidth", "margins", "peaks",
 
 
 def loop_row(sec: Section, nls, N: int = 3000):
+    from oracle_loop import analyze_loop
+
     from hapid.control import (
         Compensator,
         MetricsSpec,
-        analyze_loop,
         controller_unstable_poles,
         inverse_model_response,
         loop_metrics,
@@ -192,13 +196,13 @@ def _why(bd, budget, what, whole="loop_metrics: everything"):
 
 
 def reference_robust(Ps, G, omega, controller_rhp: int = 0):
-    """The per-plant reference the robust check is compared with: :func:`hapid.control.analyze_loop`
-    (LAPACK, grid values) on every plant ``Ps (S, N, n, n)`` with ``G (N, n, n)`` on ``omega``.
+    """The per-plant reference the robust check is compared with: ``analyze_loop`` of
+    ``tests/oracle_loop.py`` (LAPACK, grid values) on every plant ``Ps (S, N, n, n)`` with ``G (N, n, n)`` on ``omega``.
     Returns the per-plant arrays ``stable``, ``gm_db``, ``pm_deg``, ``iso_bandwidth_hz`` and
     ``p_stable`` (a namespace)."""
     from types import SimpleNamespace
 
-    from hapid.control import analyze_loop
+    from oracle_loop import analyze_loop
 
     keys = ("stable", "gm_db", "pm_deg", "iso_bandwidth_hz")
     reps = [analyze_loop(Ps[i], G, omega, controller_rhp) for i in range(Ps.shape[0])]

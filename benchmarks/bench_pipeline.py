@@ -14,7 +14,8 @@ transient, noiseless so both sides estimate the same FRF):
    (MINPACK LM) with the analytic numpy Jacobian of ``bench_fit`` on the same residual, from
    the same WLS start (computed outside scipy's timed region);
 5. controller — ``inverse_model_response`` (G = g Ẑ_T Ẑ_H⁻¹) vs numpy ``solve`` per frequency;
-6. loop analysis — ``analyze_loop`` (eager, as called, and under ``jax.jit``) vs numpy: T,
+6. loop analysis — ``analyze_loop`` (the LAPACK reference of the tests,
+   ``tests/oracle_loop.py``; eager, as called, and under ``jax.jit``) vs numpy: T,
    σ(T − I), isotropic bandwidth, σ̄(T) peak, characteristic loci (``np.linalg.eigvals`` +
    greedy tracking), the winding number of det(I + L), loci gain/phase margins, disk margin;
    hapid's pipeline calls ``loop_metrics`` (``MetricsSpec(disk=True)``), also timed.
@@ -37,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # oracle_loop
 import jax  # noqa: E402
 from _common import (  # noqa: E402
     ISSUE_GOAL,
@@ -49,9 +51,10 @@ from _common import (  # noqa: E402
     write_goal_rows,
 )
 from bench_experiment import numpy_frf, numpy_simulate  # noqa: E402
+from oracle_loop import analyze_loop  # noqa: E402
 
 import hapid  # noqa: E402,F401
-from hapid.control import ISO_THRESHOLD, Compensator, analyze_loop, inverse_model_response  # noqa: E402
+from hapid.control import ISO_THRESHOLD, Compensator, inverse_model_response  # noqa: E402
 from hapid.device import cu5  # noqa: E402
 from hapid.experiment import Protocol, estimate_frf, periodic_run  # noqa: E402
 from hapid.fit import OMEGA_C_PAPER, positize, wls  # noqa: E402

@@ -23,7 +23,7 @@ Discretizations (``ts`` in s; all differentiable and jittable):
 
 Interconnections: :func:`series` (cascade), :func:`feedback` (negative feedback
 ``u = G (r − y)``, ``y = P u``) and the closed-loop poles derived from it, the independent
-cross-check of the generalized-Nyquist verdict of :func:`hapid.control.analyze_loop`.
+cross-check of the generalized-Nyquist verdict of :func:`hapid.control.loop_metrics`.
 """
 
 from __future__ import annotations

@@ -91,8 +91,7 @@ ESTIMATOR_DEFAULT = "wls+positize"
 
 def _point_status(stable, resolved):
     """:class:`~hapid.control.LoopStatus` of one configuration: ``STABLE``, else ``UNSTABLE``
-    when the grid resolved the Nyquist count, else ``UNRESOLVED`` (as
-    :attr:`hapid.control.LoopReport.status`)."""
+    when the grid resolved the Nyquist count, else ``UNRESOLVED``."""
     if stable:
         return LoopStatus.STABLE
     return LoopStatus.UNSTABLE if resolved else LoopStatus.UNRESOLVED

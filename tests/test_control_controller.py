@@ -3,6 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from oracle_loop import analyze_loop
 from oracles import example_model
 
 import hapid  # noqa: F401  (float64)
@@ -10,7 +11,6 @@ from hapid import ImpedanceModel, SecondOrder
 from hapid.control import (
     Compensator,
     ControllerWarning,
-    analyze_loop,
     check_controller,
     controller_is_stable,
     controller_unstable_poles,

@@ -3,16 +3,25 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+from oracle_loop import analyze_loop
 from oracles import example_model
 
 import hapid  # noqa: F401  (float64)
 from hapid.control import (
     ISO_THRESHOLD,
     Compensator,
-    analyze_loop,
+    DiskMargin,
+    Encirclements,
+    IsotropicBandwidth,
+    LociMargins,
+    LoopMatrices,
+    characteristic_loci,
+    disk_margin_from_peak,
     inverse_model_response,
     isotropic_bandwidth,
+    loci_margins,
     loop_matrices,
+    nyquist_encirclements,
 )
 
 W = np.logspace(-2, 4, 2000)
@@ -96,3 +105,23 @@ def test_jit_vmap_over_batch_of_models_matches_singles():
             else:
                 np.testing.assert_allclose(batched.numbers()[name][i], v, rtol=1e-9, equal_nan=True)
         np.testing.assert_allclose(np.asarray(batched.loci[i]), np.asarray(single.loci), rtol=1e-9)
+
+
+def test_building_blocks_return_named_results_that_jit_and_vmap():
+    L = jnp.asarray(_diag_loop([20.0, 50.0]))
+    eye = jnp.broadcast_to(jnp.eye(2), L.shape)
+    lm = jax.jit(loop_matrices)(L, eye)
+    assert isinstance(lm, LoopMatrices) and lm.L.shape == lm.S.shape == lm.T.shape == L.shape
+    np.testing.assert_array_equal(np.asarray(lm.S + lm.T), np.asarray(eye))
+    sv = jnp.linalg.svd(lm.S, compute_uv=False)
+    bw = jax.jit(isotropic_bandwidth)(sv, jnp.asarray(W))
+    assert isinstance(bw, IsotropicBandwidth) and float(bw.lowest) == float(bw.literal) > 0
+    dm = jax.vmap(disk_margin_from_peak)(jnp.array([0.5, 1.0, 4.0]))
+    assert isinstance(dm, DiskMargin) and dm.disk_margin.shape == (3,)
+    np.testing.assert_allclose(np.asarray(dm.disk_margin), [4.0, 2.0, 0.5])
+    assert np.isinf(float(dm.disk_gm_db[0])) and abs(float(dm.disk_pm_deg[1]) - 90.0) < 1e-12
+    det = jnp.linalg.det(eye + L)
+    enc = jax.jit(jax.vmap(nyquist_encirclements))(jnp.stack([det, det]))
+    assert isinstance(enc, Encirclements) and enc.n.shape == (2,) and bool(enc.resolved.all())
+    mg = jax.jit(loci_margins)(characteristic_loci(L), jnp.asarray(W))
+    assert isinstance(mg, LociMargins) and np.isinf(float(mg.gm_db))  # no phase crossover

@@ -3,16 +3,11 @@
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from oracle_loop import analyze_loop
 from oracles import example_model
 
 import hapid  # noqa: F401  (float64)
-from hapid.control import (
-    Compensator,
-    MetricsSpec,
-    analyze_loop,
-    inverse_model_response,
-    loop_metrics,
-)
+from hapid.control import Compensator, MetricsSpec, inverse_model_response, loop_metrics
 from hapid.impedance import ImpedanceModel, SecondOrder
 
 SPEC = MetricsSpec(disk=True)

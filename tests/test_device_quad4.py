@@ -7,10 +7,11 @@ from __future__ import annotations
 import jax
 import numpy as np
 import pytest
+from oracle_loop import analyze_loop
 
 from hapid import pipeline
 from hapid.closed_loop import closed_loop
-from hapid.control import Compensator, analyze_loop, discretize_controller
+from hapid.control import Compensator, discretize_controller
 from hapid.device import Pose, cu5, quad4, tripod3
 from hapid.experiment import Protocol, estimate_frf, periodic_run
 from hapid.fit import positize, wls

@@ -107,7 +107,8 @@ def test_paper_notebook_writes_summary_with_both_fits(kernel_env, tmp_path):
         assert (out / f"fig{k}.png").stat().st_size > 0
 
 
-_STATE_SPACE_REFERENCE = """
+_STATE_SPACE_REFERENCE = f"""
+_TESTS = {str(Path(__file__).resolve().parent)!r}
 import dataclasses as _dc
 import jax as _jax
 import numpy as _np
@@ -123,7 +124,9 @@ _ms = _sub.models()
 _ss = [bool(_cls(_irs(_IM(m.total, m.hand)), _G))
        for m in (_jax.tree.map(lambda a, i=i: a[i], _ms) for i in range(_K))]
 _dev0 = bool(_cl(dev, discretize_controller(res.model, g, dev.ts)).is_stable())
-from hapid.control import analyze_loop as _al
+import sys as _sys
+_sys.path.insert(0, _TESTS)
+from oracle_loop import analyze_loop as _al
 from hapid.uncertainty import posterior_omega as _po
 _om = _po()
 _Gr = _np.asarray(res.model.P_inv(1j * _om)) * _np.asarray(g.at_omega(_om))[:, None, None]

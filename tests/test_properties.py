@@ -19,11 +19,12 @@ import numpy as np
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
+from oracle_loop import analyze_loop
 from test_control_nyquist import _freq_resp
 from test_control_nyquist import _random_loop as family_loop
 
 import hapid  # noqa: F401  (float64)
-from hapid.control import analyze_loop, loop_matrices
+from hapid.control import loop_matrices
 from hapid.experiment import Protocol, estimate_frf, periodic_run
 from hapid.fit import Scale, n_params, theta_to_model, wls
 

@@ -22,10 +22,8 @@ from hapid.control import (
     ControllerCheck,
     ControllerStatus,
     LoopMetrics,
-    LoopReport,
     LoopStatus,
     MetricsSpec,
-    analyze_loop,
     check_controller,
     discretize_siso_controller,
     loop_metrics,
@@ -371,11 +369,8 @@ def _triple_lag(gain, n=2):
 
 
 @pytest.mark.parametrize(("gain", "want"), [(2.0, LoopStatus.STABLE), (50.0, LoopStatus.UNSTABLE)])
-def test_loop_report_and_loop_metrics(gain, want):
+def test_loop_metrics(gain, want):
     P, G = _triple_lag(gain, n=1)  # the convention does not depend on n; n = 1 compiles fastest
-    rep = analyze_loop(P, G, OMEGA)
-    assert type(rep) is LoopReport
-    assert assert_convention(rep, LoopStatus, (LoopStatus.STABLE,)) is want
     m = loop_metrics(P, G, OMEGA, spec=MetricsSpec(disk=True))
     assert type(m) is LoopMetrics
     assert assert_convention(m, LoopStatus, (LoopStatus.STABLE,)) is want
@@ -391,7 +386,7 @@ def test_loop_report_and_loop_metrics(gain, want):
 def test_batched_loop_status_is_an_array_of_members():
     P2, G = _triple_lag(2.0)
     P50, _ = _triple_lag(50.0)
-    rep = jax.vmap(analyze_loop, in_axes=(0, None, None))(np.stack([P2, P50]), G, OMEGA)
+    rep = jax.vmap(lambda P: loop_metrics(P, G, OMEGA))(np.stack([P2, P50]))
     st = rep.status
     assert st.shape == (2,) and all(type(x) is LoopStatus for x in st)
     assert list(st) == [LoopStatus.STABLE, LoopStatus.UNSTABLE] and list(st == "stable") == [
@@ -639,7 +634,7 @@ def test_pose_study():
 RESULT_TYPES = {
     NLSResult: FitStatus, ImpedanceFit: FitStatus, pipeline.Fit: FitStatus,
     FitQuality: QualityStatus, CRHPReport: CRHPStatus, ImpedanceEstimate: EstimateStatus,
-    ControllerCheck: ControllerStatus, LoopReport: LoopStatus, LoopMetrics: LoopStatus,
+    ControllerCheck: ControllerStatus, LoopMetrics: LoopStatus,
     RobustReport: Verdict, TuneResult: TuneStatus, PosteriorSamples: SamplesStatus,
     PlantDraws: DrawsStatus, DesignReport: DesignStatus, Check: Verdict,
     pipeline.ControlFit: FitStatus, SceneRun: SceneStatus, RobustResult: Verdict,

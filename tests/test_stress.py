@@ -12,10 +12,10 @@ import warnings
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from oracle_loop import analyze_loop
 
 import hapid
 from hapid import ImpedanceModel, SecondOrder
-from hapid.control import analyze_loop
 from hapid.fit import crhp_report, n_params, theta_to_model, wls
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks", "stress"))

@@ -26,8 +26,10 @@ def _cfg_with(cfg, keys, params):
 
 def reference(cfg, keys, params, estimator, margins=True):
     """One configuration through an independent analysis path (module docstring)."""
+    from oracle_loop import analyze_loop
+
     from hapid.closed_loop import closed_loop
-    from hapid.control import analyze_loop, discretize_controller
+    from hapid.control import discretize_controller
 
     c = _cfg_with(cfg, keys, params)
     d, p = c["device"], c["protocol"]

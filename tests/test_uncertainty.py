@@ -7,12 +7,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from helpers_fit import batch_frfs, random_truth, synthetic_frf
+from oracle_loop import analyze_loop
 from oracles import log_prob_numpy
 
 import hapid
 from hapid.control import (
     Compensator,
-    analyze_loop,
     controller_unstable_poles,
     inverse_model_response,
     loop_metrics,

@@ -274,11 +274,13 @@ def test_paper_g_stable_on_cu5_predictive_plants():
     """cu5 (two-layer hand, compliant chain, delay: the model class is wrong): the paper's g is
     stable on the true plant, and it is called stable on ≥ 90 % of the GP posterior-predictive
     plants the tuner re-checks on (predictive_scenario_plants: error term confined to the fit
-    band), with a resolved Nyquist count (hapid.control.analyze_loop, the reference). Before
+    band), with a resolved Nyquist count (oracle_loop.analyze_loop, the reference). Before
     the GP prior draw was scaled per frequency this was P(stable) = 0: a jitter relative to the
     mean variance over 0.005 Hz – 5 kHz put white noise of ~5× |Z_H| into the 1–5 Hz draws."""
+    from oracle_loop import analyze_loop
+
     from hapid._grids import continuous_grid
-    from hapid.control import Compensator, analyze_loop
+    from hapid.control import Compensator
     from hapid.device import preset
     from hapid.experiment import Protocol, estimate_frf, periodic_run
     from hapid.tune import true_plant_loop

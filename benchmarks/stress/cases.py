@@ -25,10 +25,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import hapid
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "tests"))  # oracle_loop
+from oracle_loop import analyze_loop  # noqa: E402  (the LAPACK reference loop analysis)
+
+import hapid  # noqa: E402
 from hapid import ImpedanceModel, SecondOrder
 from hapid._constants import TWO_PI
-from hapid.control import StateSpace, analyze_loop, closed_loop_poles
+from hapid.control import StateSpace, closed_loop_poles
 from hapid.experiment import Protocol, estimate_frf, patterns, periodic_run
 from hapid.fit import (
     Scale,

@@ -91,7 +91,7 @@ def controller_unstable_poles(
     model: ImpedanceModel, g: Compensator | None = None, tol: float = 0.0
 ):
     """Number of poles of G in the open RHP (``Re > tol``): roots of det Ẑ_H there, plus
-    unstable poles of g. Pass it (plus the plant's) as ``P_ol_rhp`` to ``analyze_loop``.
+    unstable poles of g. Pass it (plus the plant's) as ``p_ol`` to :func:`~hapid.control.loop_metrics`.
     One compiled program (jit; traced inline under an outer jit/vmap)."""
     n = jnp.sum(jnp.real(model.hand.roots()) > tol)
     if g is not None:

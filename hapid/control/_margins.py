@@ -30,6 +30,7 @@ conservative for independent loop-at-a-time (diagonal) variations. On a grid the
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -41,6 +42,35 @@ from ._lapack import after
 
 _DB = 20.0 / np.log(10.0)
 _BISECT_STEPS = 60
+
+
+class LociMargins(NamedTuple):
+    """Worst gain and phase margins over the characteristic loci (:func:`loci_margins`);
+    each a 0-d float array (a leading batch axis under ``vmap``).
+
+    ``gm_db``: gain margin (dB) closest to 0 dB, ``inf`` without a phase crossover;
+    ``gm_omega``: its frequency (rad/s), ``NaN`` without one; ``pm_deg``: phase margin (deg)
+    of smallest magnitude, ``inf`` without a gain crossover; ``pm_omega``: its frequency
+    (rad/s), ``NaN`` without one.
+    """
+
+    gm_db: Array
+    gm_omega: Array
+    pm_deg: Array
+    pm_omega: Array
+
+
+class DiskMargin(NamedTuple):
+    """Balanced disk margin and the gain/phase variations it tolerates
+    (:func:`disk_margin_from_peak`); each a 0-d float array, shaped like the peak.
+
+    ``disk_margin``: α = 2/‖S − T‖∞ (dimensionless); ``disk_gm_db``: 20 log10((2+α)/(2−α))
+    in dB (``inf`` for α ≥ 2); ``disk_pm_deg``: 2 arctan(α/2) in degrees.
+    """
+
+    disk_margin: Array
+    disk_gm_db: Array
+    disk_pm_deg: Array
 
 
 def _interp_log_omega(omega, k, t):
@@ -134,11 +164,12 @@ def loci_margins(
     omega: Float[Array, " N"],
     L_fn: Callable | None = None,
     n_refine: int = 4,
-) -> dict[str, Array]:
-    """Worst gain and phase margins over all characteristic loci.
+) -> LociMargins:
+    """Worst gain and phase margins over all characteristic loci ``(N, n)`` on the grid
+    ``omega`` (rad/s, ``(N,)``).
 
-    Returns a dict of 0-d arrays: ``gm_db``, ``gm_omega`` (rad/s), ``pm_deg``, ``pm_omega``
-    (rad/s). ``L_fn`` (optional) maps ω ``(M,)`` rad/s to ``L(jω)`` ``(M, n, n)`` for exact
+    Returns a :class:`LociMargins` of 0-d arrays: ``gm_db``, ``gm_omega`` (rad/s),
+    ``pm_deg``, ``pm_omega`` (rad/s). ``L_fn`` (optional) maps ω ``(M,)`` rad/s to ``L(jω)`` ``(M, n, n)`` for exact
     refinement of the ``n_refine`` worst grid candidates of each kind.
     """
     N, n = loci.shape
@@ -180,11 +211,12 @@ def loci_margins(
         anyp = jnp.isfinite(pscore.ravel()[j])
         pm_out = jnp.where(anyp, pm.ravel()[j], jnp.inf)
         pm_w_out = jnp.where(anyp, pm_w.ravel()[j], jnp.nan)
-    return dict(gm_db=gm_out, gm_omega=gm_w_out, pm_deg=pm_out, pm_omega=pm_w_out)
+    return LociMargins(gm_db=gm_out, gm_omega=gm_w_out, pm_deg=pm_out, pm_omega=pm_w_out)
 
 
-def disk_margin_from_peak(peak_sv_S_minus_T: Float[Array, ""]) -> dict[str, Array]:
-    """Balanced disk margin ``α = 2/‖S − T‖∞`` and its gain (dB) and phase (deg) margins.
+def disk_margin_from_peak(peak_sv_S_minus_T: Float[Array, ""]) -> DiskMargin:
+    """Balanced disk margin ``α = 2/‖S − T‖∞`` and its gain (dB) and phase (deg) margins,
+    as a :class:`DiskMargin`, from the peak ``‖S − T‖∞`` (0-d, or any shape: elementwise).
 
     ``disk_gm_db = 20 log10((2+α)/(2−α))`` (``inf`` for α ≥ 2) and
     ``disk_pm_deg = 2 arctan(α/2)`` in degrees.
@@ -194,4 +226,4 @@ def disk_margin_from_peak(peak_sv_S_minus_T: Float[Array, ""]) -> dict[str, Arra
         alpha < 2.0, _DB * jnp.log((2.0 + alpha) / jnp.maximum(2.0 - alpha, 1e-300)), jnp.inf
     )
     pm = jnp.degrees(2.0 * jnp.arctan(alpha / 2.0))
-    return dict(disk_margin=alpha, disk_gm_db=gm, disk_pm_deg=pm)
+    return DiskMargin(disk_margin=alpha, disk_gm_db=gm, disk_pm_deg=pm)

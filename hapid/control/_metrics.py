@@ -1,11 +1,12 @@
 # ruff: noqa: F722  (jaxtyping shape strings in annotations)
 """Loop metrics that compute only what is asked, with crossings refined off the grid.
 
-:func:`loop_metrics` decides stability by the same rules as :func:`~hapid.control.analyze_loop`
-(the LAPACK reference, which stays): generalized Nyquist on ``det(I + L)`` with
-``P_ol`` = open-loop RHP poles of plant *and* controller, the grid resolution check of
-``det(I + L)`` and of every characteristic locus ``1 + λ_i``, and the singularity check
-``σ̲(I + L) ≤ rtol · max(1, σ̄(I + L))``. It differs in how much it computes:
+:func:`loop_metrics` decides stability by the same rules as the LAPACK reference loop
+analysis of the tests (``tests/oracle_loop.py``, its independent check): generalized
+Nyquist on ``det(I + L)`` with ``P_ol`` = open-loop RHP poles of plant *and* controller,
+the grid resolution check of ``det(I + L)`` and of every characteristic locus ``1 + λ_i``,
+and the singularity check ``σ̲(I + L) ≤ rtol · max(1, σ̄(I + L))``. It differs in how much
+it computes:
 
 * ``det(I + L)`` and ``S = (I + L)⁻¹`` by the XLA kernels of :mod:`._kernels` (no LAPACK);
 * σ̄ of ``S``, ``T`` (and ``S − T``) is *bounded* cheaply at every frequency and computed
@@ -102,9 +103,9 @@ def loop_metrics(
 
     Args:
         P, G: plant and controller responses ``(N, n, n)`` complex on ``omega``.
-        omega: increasing positive frequencies (rad/s), ``(N,)``; as for
-            :func:`~hapid.control.analyze_loop` it must reach the loop's real end values
-            and resolve the phase of ``det(I + L)``.
+        omega: increasing positive frequencies (rad/s), ``(N,)``; it must reach the loop's
+            real end values and resolve the phase of ``det(I + L)`` (see
+            :func:`~hapid.control.nyquist_encirclements`).
         p_ol: open-loop RHP poles of the plant **and** the controller (int or 0-d array;
             traced, so changing it does not recompile).
         spec: :class:`MetricsSpec` (static).

@@ -49,8 +49,8 @@ def refine_pass(out, tasks, L_fn, spec: MetricsSpec):
         v, _ = pk["SmT"]
         res["disk_margin"] = jnp.where(stable, 2.0 / v, 0.0)
         dm = disk_margin_from_peak(v)
-        res["disk_gm_db"] = jnp.where(stable, dm["disk_gm_db"], 0.0)
-        res["disk_pm_deg"] = jnp.where(stable, dm["disk_pm_deg"], 0.0)
+        res["disk_gm_db"] = jnp.where(stable, dm.disk_gm_db, 0.0)
+        res["disk_pm_deg"] = jnp.where(stable, dm.disk_pm_deg, 0.0)
     if spec.literal:
         t = tasks["literal"]
         w = _threshold_crossing(

@@ -30,7 +30,9 @@ class MetricsSpec:
     - ``disk``: balanced disk margin ``2/max σ̄(S − T)`` (peak refined).
     - ``arrays``: also the per-frequency ``freq_hz``, ``sv_T_minus_I`` (σ̄ only, ``(N,)``)
       and tracked ``loci`` ``(N, n)`` (costs the full eigenvalue stack).
-    - ``singular_rtol``, ``max_phase_step``: as :func:`~hapid.control.analyze_loop`.
+    - ``singular_rtol``: ``I + L`` is flagged singular where σ̲(I+L) ≤ rtol·max(1, σ̄(I+L));
+      ``max_phase_step``: largest allowed step (rad) of the unwrapped phase of det(I + L)
+      and of every locus 1 + λᵢ (:func:`~hapid.control.nyquist_encirclements`).
     - ``n_candidates``: how many undecided grid points get exact values per step of the
       refinement loops (a work-size knob; results do not depend on it).
     - ``kernels``: ``"xla"`` (default) or ``"lapack"`` (LU/SVD custom calls; the reference
@@ -79,8 +81,8 @@ class LoopMetrics(eqx.Module):
     """Result of :func:`loop_metrics` (0-d arrays, or ``(B,)`` when vmapped; Hz, dB, deg).
 
     Verdict: ``stable``, ``n_encirclements``, ``n_closed_loop_rhp``, ``singular``,
-    ``nyquist_resolved`` (as :class:`~hapid.control.LoopReport`). Performance (NaN when not
-    stable or not asked): ``iso_bandwidth_hz`` (0: above the threshold at the first grid
+    ``nyquist_resolved`` (the rule of :func:`~hapid.control.nyquist_verdict`). Performance
+    (NaN when not stable or not asked): ``iso_bandwidth_hz`` (0: above the threshold at the first grid
     point, inf: never reached), ``t_peak_db``/``t_peak_hz``. Margins (any loop, NaN when not
     asked; inf/NaN-frequency when no crossing): ``gm_db``/``gm_freq_hz``, ``pm_deg``/
     ``pm_freq_hz``. ``disk_margin`` (0 when not stable, NaN when not asked).

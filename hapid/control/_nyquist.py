@@ -29,15 +29,30 @@ Sign convention and assumptions of :func:`nyquist_encirclements`:
 from __future__ import annotations
 
 import itertools
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Complex, Float
+from jaxtyping import Array, Complex
 
 from .. import _config  # noqa: F401  (float64)
 
 _MAX_PERMUTATION_N = 6
+
+
+class Encirclements(NamedTuple):
+    """Result of :func:`nyquist_encirclements`; each 0-d (a leading batch axis under ``vmap``).
+
+    ``n``: clockwise encirclements of 0 by det(I + L) over the full Nyquist contour, rounded
+    to an integer (float dtype); ``raw``: the unrounded count; ``resolved`` (bool): the grid
+    resolved the phase of det(I + L), reached its real end values (``|raw − n| < 0.2``) and
+    det(I + L) is finite.
+    """
+
+    n: Array
+    raw: Array
+    resolved: Array
 
 
 def _match_permutation(prev, cur, perms):
@@ -98,12 +113,12 @@ def characteristic_loci(L: Complex[Array, "N n n"], method: str = "auto") -> Com
 
 def nyquist_encirclements(
     det_I_plus_L: Complex[Array, " N"], max_phase_step: float = np.pi / 2
-) -> tuple[Float[Array, ""], Float[Array, ""], Bool[Array, ""]]:
+) -> Encirclements:
     """Clockwise encirclements of 0 by ``det(I + L)`` over the full Nyquist contour.
 
     Input: ``det(I + L(jω))`` on an increasing grid ``ω > 0`` (``(N,)``). Returns
-    ``(N_rounded, N_raw, resolved)``: the integer count (as float), the unrounded value and
-    whether the grid resolved the phase (see module docstring).
+    :class:`Encirclements` ``(n, raw, resolved)``: the integer count (as float), the
+    unrounded value and whether the grid resolved the phase (see module docstring).
     """
     theta = jnp.unwrap(jnp.angle(det_I_plus_L))
     raw = -(theta[-1] - theta[0]) / jnp.pi
@@ -111,7 +126,7 @@ def nyquist_encirclements(
     step_ok = jnp.all(jnp.abs(jnp.diff(theta)) < max_phase_step)
     ends_ok = jnp.abs(raw - rounded) < 0.2
     finite = jnp.all(jnp.isfinite(det_I_plus_L))
-    return rounded, raw, step_ok & ends_ok & finite
+    return Encirclements(n=rounded, raw=raw, resolved=step_ok & ends_ok & finite)
 
 
 def nyquist_verdict(n_encirclements, p_ol, resolved, singular) -> Array:

@@ -17,8 +17,8 @@ class ControllerStatus(enum.StrEnum):
 
 
 class LoopStatus(enum.StrEnum):
-    """Closed-loop verdict of :class:`~hapid.control.LoopReport` and
-    :class:`~hapid.control.LoopMetrics`; ``ok`` means ``STABLE``.
+    """Closed-loop verdict of :class:`~hapid.control.LoopMetrics` (and of the sweep's
+    points); ``ok`` means ``STABLE``.
 
     ``SINGULAR``: a closed-loop pole on the imaginary axis (I + L singular at a grid
     frequency); ``UNRESOLVED``: the grid did not resolve the Nyquist count.

@@ -20,7 +20,7 @@ Decision variables ``z = (x, u)``: ``x`` the log-parameters of g (:class:`.Param
   (≥ max), ``s_p`` (≥ σ̄) and the window (full weight at ω_b) all err on the safe side: the
   claimed ω_b is at or below the first crossing.
 * **margins** — per characteristic locus ``ℓ_i = g λ_i(Q)`` (exactly the loci
-  :func:`hapid.control.analyze_loop` tracks), a sensitivity bound ``|1 + ℓ_i(jω)| ≥ 1/M_s``
+  :func:`hapid.control.loop_metrics` follows), a sensitivity bound ``|1 + ℓ_i(jω)| ≥ 1/M_s``
   at every ω keeps each locus outside the disc of radius ``1/M_s`` around −1, which implies
   ``GM ≥ M_s/(M_s − 1)`` and ``PM ≥ 2 arcsin(1/(2M_s))``. :attr:`Requirements.ms` is the
   largest ``M_s`` giving both required margins (6 dB, 30° → ``M_s = 1.932``: GM ≥ 6.3 dB).

@@ -14,8 +14,8 @@ plant (``vectorize=False``, the default); or the whole analysis ``vmap``-ed over
 (``vectorize=True``; the last chunk padded, ``p_ol`` an array: one compile). The grid pass
 per plant is the faster: under ``vmap`` the batch axis sits in front of the kernels'
 entry-major ``(n, n, N)`` layout (timings: benchmarks/README.md, "Per-plant program, not
-vmap"). Same verdicts as :func:`hapid.control.analyze_loop` (the LAPACK reference, a test
-oracle; benchmarks/bench_fast.py, tests/test_control_metrics.py).
+vmap"). Same verdicts as the LAPACK reference loop analysis of the tests
+(``tests/oracle_loop.py``; benchmarks/bench_fast.py, tests/test_control_metrics.py).
 """
 
 from __future__ import annotations

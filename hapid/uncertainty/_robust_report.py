@@ -50,7 +50,7 @@ class RobustReport:
 
     ``stable``, ``n_closed_loop_rhp``, ``gm_db``, ``pm_deg``, ``disk_margin``, ``disk_gm_db``,
     ``disk_pm_deg``, ``iso_bandwidth_hz``, ``t_peak_db`` (raw values of
-    :class:`hapid.control.LoopReport`); ``labels`` (optional names per plant);
+    :class:`hapid.control.LoopMetrics`); ``labels`` (optional names per plant);
     requirements ``gm_req_db``, ``pm_req_deg``, ``p_stable_required``; ``computed``: the
     fields of :data:`FIELDS` that were computed (the others are NaN and not reported — see
     "What is computed" in the module docstring; default: all). ``draws``: which family of
