@@ -10,6 +10,7 @@ from ._analyze_check import loop_check, loop_label, margin_words
 from ._cli_device import device_from_args
 from ._cli_errors import CLIError
 from ._cli_verdict import check_line
+from .defaults import CONTINUOUS_BAND_HZ
 
 FEW_FRF_FREQUENCIES = 200  # an FRF with fewer points may leave the Nyquist count unresolved
 
@@ -47,7 +48,8 @@ def cmd_analyze(a):
         if dev.n != model.n:
             raise CLIError(f"model has n = {model.n} rods but device {a.device} has {dev.n}")
         if a.continuous:
-            omega = pipeline.analysis_grid(5e-3, int(cfg["analysis"]["n_freq"]), f_max_hz=5e3)
+            omega = pipeline.analysis_grid(CONTINUOUS_BAND_HZ[0], int(cfg["analysis"]["n_freq"]),
+                                           f_max_hz=CONTINUOUS_BAND_HZ[1])  # fmt: skip
         else:
             omega = scene.analysis_grid(cfg["analysis"], dev.fs_hz)
         plant = pipeline.device_plant(dev, omega, continuous=a.continuous)

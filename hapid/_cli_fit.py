@@ -28,7 +28,7 @@ from . import io
 from ._cli_lab import matrices_report
 from ._constants import TWO_PI
 from ._grids import band_mask
-from .defaults import FIT_BAND_HZ, NLS_MAX_STEPS, NLS_SOLVER
+from .defaults import FIT_BAND_HZ, NLS_MAX_STEPS, NLS_SOLVER, PPHAT_BAND_HZ
 from .device import preset
 from .experiment import estimate_frf
 from .impedance_frf import model_units
@@ -374,7 +374,7 @@ def register_fit(sub, func) -> None:
         default=NLS_MAX_STEPS,
         help=f"NLS solver step limit (default: {NLS_MAX_STEPS})",
     )
-    f.add_argument("--band-hz", type=float, default=30.0,
+    f.add_argument("--band-hz", type=float, default=PPHAT_BAND_HZ,
                    help="report the P·P̂⁻¹ band to here (haptic pair)")  # fmt: skip
     f.add_argument("--allow-unconverged", action="store_true")
     f.add_argument("--keep-boundary", action="store_true",

@@ -15,6 +15,15 @@ GM_DB = 6.0
 PM_DEG = 30.0
 """Required phase margin (degrees) of a robust check, a tuned design and the SISO gain rule."""
 
+PPHAT_BAND_HZ = 30.0
+"""Upper edge (Hz) of the band over which the P·P̂⁻¹ band (dB) and the anisotropy reduction are
+read (the paper's "to 30 Hz"): ``hapid fit --band-hz``, ``hapid paper``, ``hapid design``, the
+scenes' ``analysis.band_hz`` and :func:`hapid.fit.pphat_band_db` callers."""
+
+CONTINUOUS_BAND_HZ = (5e-3, 5e3)
+"""Frequency span (Hz) of a continuous-time loop analysis (``hapid analyze --continuous``): far
+below the lowest and above the highest dynamics of the devices, so the Nyquist count closes."""
+
 FS_HZ = 1000.0
 """Sampling rate (Hz) of the simulated device, its experiments and sampled-loop analyses."""
 

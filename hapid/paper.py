@@ -15,6 +15,7 @@ import numpy as np
 from . import io
 from ._constants import TWO_PI
 from ._plain import jsonable
+from .defaults import PPHAT_BAND_HZ
 from .fit import FitStatus, anisotropy_reduction, pphat_band_db
 from .impedance import span_db
 
@@ -173,14 +174,14 @@ def summary(
     w = frf.omega
     P_true = np.asarray(device.sampled_P(w))
     f = np.asarray(frf.freq_hz)
-    band = f <= 30.0
+    band = f <= PPHAT_BAND_HZ
     span = np.asarray(span_db(P_true))
     dev = {"n": device.n, "fs_hz": device.fs_hz, "delay_samples": device.delay_samples}
     fits = {}
     for key, label, out in (("wls", "paper WLS + positize", wls), ("nls", "hapid NLS + PD", nls)):
-        lo, hi = pphat_band_db(P_true, out["model"], w, 30.0)
-        rlo, rhi = anisotropy_reduction(P_true, out["model"], w, 30.0)
-        lom, him = pphat_band_db(np.asarray(frf.P), out["model"], w, 30.0)
+        lo, hi = pphat_band_db(P_true, out["model"], w, PPHAT_BAND_HZ)
+        rlo, rhi = anisotropy_reduction(P_true, out["model"], w, PPHAT_BAND_HZ)
+        lom, him = pphat_band_db(np.asarray(frf.P), out["model"], w, PPHAT_BAND_HZ)
         entry = {
             "label": label,
             "pphat_band_db_to_30hz": [float(lo), float(hi)],

@@ -13,6 +13,7 @@ import numpy as np  # noqa: E402
 from matplotlib.lines import Line2D
 
 from ._constants import COHERENCE_LOW  # noqa: E402
+from .defaults import PPHAT_BAND_HZ  # noqa: E402
 
 
 def _sv(A):
@@ -224,7 +225,9 @@ def coherence(f, gamma2: dict, *, title: str = "", level: float = COHERENCE_LOW)
     return fig, axes[0]
 
 
-def pphat(f, curves: dict, *, title: str = "", band_db: float = 7.0, f_band_hz: float = 30.0):
+def pphat(
+    f, curves: dict, *, title: str = "", band_db: float = 7.0, f_band_hz: float = PPHAT_BAND_HZ
+):
     """Singular values of P·P̂⁻¹ (ideally 0 dB) with the paper's ±7 dB band to 30 Hz shaded
     — the paper's Fig. 8."""
     k = len(curves)

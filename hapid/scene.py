@@ -49,7 +49,16 @@ from ._grids import nyquist_grid
 from ._plain import jsonable
 from ._stages import Graph, Stage
 from .control import discretize_compensator, max_siso_gain
-from .defaults import FIT_BAND_HZ, NLS_ATOL, NLS_MAX_STEPS, NLS_RTOL, NLS_SOLVER
+from .defaults import (
+    FIT_BAND_HZ,
+    GM_DB,
+    NLS_ATOL,
+    NLS_MAX_STEPS,
+    NLS_RTOL,
+    NLS_SOLVER,
+    PM_DEG,
+    PPHAT_BAND_HZ,
+)
 
 DEFAULTS: dict = {
     "device": {"preset": "cu5", "move": [0.0] * 6, "subject_seed": None, "light_damping": False,
@@ -65,8 +74,8 @@ DEFAULTS: dict = {
             "init_floor": 1e-6, "boundary_refit": True},
     "controller": {"k": 0.85, "lag_zero_hz": 30.0, "lag_pole_hz": 0.6,
                    "notch_hz": [17.0, 55.0, 100.0], "zeta_num": 0.2, "zeta_den": 0.5,
-                   "lowpass_hz": [100.0, 200.0], "siso_gm_db": 6.0, "siso_pm_deg": 30.0},
-    "analysis": {"f_min_hz": 1e-3, "n_freq": 1500, "band_hz": 30.0},
+                   "lowpass_hz": [100.0, 200.0], "siso_gm_db": GM_DB, "siso_pm_deg": PM_DEG},
+    "analysis": {"f_min_hz": 1e-3, "n_freq": 1500, "band_hz": PPHAT_BAND_HZ},
     "posterior": {"walkers": 0, "steps": 3000, "seed": 0, "samples": 400},
     "outputs": {"want": ["summary"], "dir": "out/scene"},
 }  # fmt: skip

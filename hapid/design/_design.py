@@ -14,6 +14,7 @@ import numpy as np
 from .. import __version__, io
 from .._constants import COHERENCE_LOW
 from ..control import Compensator
+from ..defaults import PPHAT_BAND_HZ
 from ..experiment import low_coherence_note
 from ..fit import crhp_report, pphat_band_db
 from ..impedance_frf import ImpedanceFRF
@@ -23,7 +24,7 @@ from ._commands import FILES, DesignOptions, analyze_command, shell_line
 from ._figures import LABELS, coherences, figures, loops
 from ._verdict import TUNED, robust_check, tuned_check, tuned_row
 
-BAND_HZ = 30.0  # the P P̂⁻¹ band's upper edge, as hapid fit reports it (--band-hz default)
+BAND_HZ = PPHAT_BAND_HZ
 
 
 class DesignStatus(enum.StrEnum):

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..defaults import FIT_BAND_HZ
+from ..defaults import FIT_BAND_HZ, PPHAT_BAND_HZ
 from ..experiment import Run, estimate_frf
 from ..impedance import ImpedanceModel, singular_values
 from ._checks import TWO_PI
@@ -83,7 +83,7 @@ def crb_band_db(
     scale: Scale,
     omega,
     *,
-    f_max_hz: float = 30.0,
+    f_max_hz: float = PPHAT_BAND_HZ,
     n_draws: int = 200,
     seed: int = 0,
     quantile: float = 0.5,

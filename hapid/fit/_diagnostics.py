@@ -15,6 +15,7 @@ import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from .._constants import TWO_PI
+from ..defaults import PPHAT_BAND_HZ
 from ..frf import FRF
 from ..impedance import ImpedanceModel, singular_values
 from ._checks import is_concrete
@@ -83,7 +84,7 @@ def pphat_band_db(
     P: Complex[Array, "N n n"],
     model: ImpedanceModel,
     omega: Float[Array, " N"],
-    f_max_hz: float = 30.0,
+    f_max_hz: float = PPHAT_BAND_HZ,
 ) -> PPhatBand:
     """:class:`PPhatBand` ``(lo_db, hi_db)``: min and max dB over all singular values of
     ``P P̂⁻¹`` at frequencies ≤ f_max_hz (jittable; an empty band is an error when ``omega``
@@ -100,7 +101,7 @@ def anisotropy_reduction(
     P: Complex[Array, "N n n"],
     model: ImpedanceModel,
     omega: Float[Array, " N"],
-    f_max_hz: float = 30.0,
+    f_max_hz: float = PPHAT_BAND_HZ,
 ) -> AnisotropyReduction:
     """:class:`AnisotropyReduction` ``(lo, hi)``: min and max over frequencies ≤ f_max_hz of
     span(P) / span(P P̂⁻¹).

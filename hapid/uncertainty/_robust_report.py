@@ -26,6 +26,7 @@ import dataclasses
 import numpy as np
 
 from .._plain import jsonable
+from ..defaults import GM_DB, PM_DEG
 from ..verdict import Check, Verdict
 from ._cover import EvidenceCover, cover_check
 
@@ -67,8 +68,8 @@ class RobustReport:
     disk_pm_deg: np.ndarray
     iso_bandwidth_hz: np.ndarray
     t_peak_db: np.ndarray
-    gm_req_db: float = 6.0
-    pm_req_deg: float = 30.0
+    gm_req_db: float = GM_DB
+    pm_req_deg: float = PM_DEG
     p_stable_required: float = 0.95
     labels: tuple | None = None
     computed: tuple = FIELDS
