@@ -232,12 +232,13 @@ def test_refinement_windows_give_the_whole_grid_interpolant(monkeypatch):
     import jax
 
     from hapid.control import _metrics as Mx
+    from hapid.control import _metrics_local
 
     on, _ = _loop(n=2, eps=0.05, seed=4)
     P, G, w = on(16, -1.0, 3.5)
     spec = MetricsSpec(disk=True, literal=True)
     a = loop_metrics(P, G, w, spec=spec).numbers()
-    monkeypatch.setattr(Mx, "_W", 10**6)
+    monkeypatch.setattr(_metrics_local, "_W", 10**6)  # the window width
     b = jax.jit(lambda P, G, w: Mx.metrics_screened(P, G, w, 0.0, None, spec))(P, G, w)
     for k in ("gm_db", "pm_deg", "pm_freq_hz", "iso_bandwidth_hz", "iso_bandwidth_literal_hz",
               "t_peak_db", "t_peak_hz", "disk_margin"):  # fmt: skip
