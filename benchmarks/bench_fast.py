@@ -202,7 +202,10 @@ def reference_robust(Ps, G, omega, controller_rhp: int = 0):
     ``p_stable`` (a namespace)."""
     from types import SimpleNamespace
 
-    from oracle_loop import analyze_loop
+    try:
+        from oracle_loop import analyze_loop
+    except ImportError:  # an older tree on PYTHONPATH (bench_route's "before"): its own export
+        from hapid.control import analyze_loop
 
     keys = ("stable", "gm_db", "pm_deg", "iso_bandwidth_hz")
     reps = [analyze_loop(Ps[i], G, omega, controller_rhp) for i in range(Ps.shape[0])]
