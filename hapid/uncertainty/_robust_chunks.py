@@ -7,7 +7,8 @@ Compute path: every plant is analysed by
 :func:`hapid.control.loop_metrics`'s program (XLA small-matrix kernels for det/inverse/σ̄ and
 the eigenvalues of the loci, no LAPACK inside; exact values only where the cheap bounds do
 not decide; refined crossings) in its two passes (:mod:`hapid.control._metrics`): the
-grid pass (every frequency) once per plant — the plain jitted program, no ``vmap`` — and the
+grid pass (every frequency) once per plant — the plain jitted program, no ``vmap``, the plants
+side by side on a thread per core — and the
 refinement pass (a few small sequential root-finding steps per plant) once per chunk of
 ``chunk`` plants, ``vmap``-ed, so its step count is paid once per chunk instead of once per
 plant (``vectorize=False``, the default); or the whole analysis ``vmap``-ed over chunks
@@ -19,6 +20,10 @@ vmap"). Same verdicts as the LAPACK reference loop analysis of the tests
 """
 
 from __future__ import annotations
+
+import functools
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import equinox as eqx
 import jax
@@ -79,6 +84,18 @@ def refine_chunk(grids, spec):
 _refine_chunk = cached_jit(refine_chunk)
 
 
+@functools.cache
+def _pool() -> ThreadPoolExecutor:
+    """Threads that run the per-plant grid passes side by side, one per core this process may
+    use: each pass is one single-threaded XLA:CPU program (no LAPACK call, so no concurrent
+    LAPACK kernels), and the plants are independent, so the results are those of a serial loop
+    (benchmarks/README.md, "The user's route": 1.6× on two cores)."""
+    cores = (
+        os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else range(os.cpu_count() or 1)
+    )
+    return ThreadPoolExecutor(max(1, len(cores)), thread_name_prefix="hapid-grid")
+
+
 def _analyze_chunk(P, p_ol, G, omega, vectorize, spec, m=None):
     """Per-plant fields of a (padded) chunk: :func:`~hapid.control.loop_metrics`'s program
     vmapped over the chunk (``vectorize=True``), or its grid pass once per plant and its
@@ -92,7 +109,12 @@ def _analyze_chunk(P, p_ol, G, omega, vectorize, spec, m=None):
     # is a few small sequential steps, whose cost is their count, so it is shared
     size = P.shape[0]
     m = size if m is None else int(m)
-    grids = [_grid_one(P, np.asarray(i, np.int32), p_ol, G, omega, spec) for i in range(m)]
+
+    def one(i):
+        return _grid_one(P, np.asarray(i, np.int32), p_ol, G, omega, spec)
+
+    first = one(0)  # alone: the program is loaded (or compiled) once, not by two threads
+    grids = [first, *_pool().map(one, range(1, m))]
     grids += [grids[-1]] * (size - m)
     return {k: np.asarray(v) for k, v in _refine_chunk(grids, spec).items()}
 
