@@ -26,7 +26,7 @@ from ..control import Compensator
 from ..defaults import FIT_BAND_HZ
 from ..device import cu5
 from ..experiment import Protocol, estimate_frf, periodic_run
-from ..fit._result import FitStatus
+from ..fit import FitStatus
 from ..pipeline import control_fit
 from ..verdict import Verdict
 from ._robust import FIELDS, _sampled_P, robust_check, robust_omega

@@ -89,7 +89,7 @@ def _pool() -> ThreadPoolExecutor:
     """Threads that run the per-plant grid passes side by side, one per core this process may
     use: each pass is one single-threaded XLA:CPU program (no LAPACK call, so no concurrent
     LAPACK kernels), and the plants are independent, so the results are those of a serial loop
-    (benchmarks/README.md, "The user's route": 1.6× on two cores)."""
+    (timings: benchmarks/README.md, "The route after the redesign, on a slower machine")."""
     cores = (
         os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else range(os.cpu_count() or 1)
     )
