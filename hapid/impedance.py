@@ -26,6 +26,51 @@ def _check_square_triplet(M, B, K, name: str) -> None:
         raise ValueError(f"{name}: M, B, K must be square (…, n, n) matrices, got shape {shape}")
 
 
+@jax.jit
+def _evaluate(M, B, K, s):
+    """``M s² + B s + K`` ``(..., N, n, n)`` at ``s (N,)`` (one compiled program per shape)."""
+    s = s[..., None, None]
+    return M[..., None, :, :] * s**2 + B[..., None, :, :] * s + K[..., None, :, :]
+
+
+@jax.jit
+def _roots(M, B, K):
+    """:meth:`SecondOrder.roots` of the coefficients (one compiled program per shape)."""
+    n = M.shape[-1]
+    eye = jnp.broadcast_to(jnp.eye(n, dtype=M.dtype), M.shape)
+    zero = jnp.zeros_like(M)
+    fro = lambda A: jnp.sqrt(jnp.sum(jnp.abs(A) ** 2, axis=(-2, -1)))  # noqa: E731
+    Minv = jnp.linalg.inv(M)
+    cond_M = fro(M) * fro(Minv)
+    good = jnp.isfinite(cond_M) & (cond_M <= 1e8)  # (...,)
+    Minv = jnp.where(good[..., None, None] & jnp.isfinite(Minv), Minv, 0.0)
+    top = jnp.concatenate([zero, eye], -1)
+    companion = jnp.concatenate([top, jnp.concatenate([-Minv @ K, -Minv @ B], -1)], -2)
+    # shift-and-invert of the pencil A − sE (σ in the upper right quadrant: not a root of
+    # a stable model, and generically not of any other)
+    nM, nB, nK = fro(M), fro(B), fro(K)
+    tiny = jnp.finfo(M.dtype).tiny
+    w0 = jnp.where(
+        (nM > 0) & (nK > 0),
+        jnp.sqrt(nK / jnp.maximum(nM, tiny)),
+        jnp.where((nB > 0) & (nK > 0), nK / jnp.maximum(nB, tiny), 1.0),
+    )
+    sigma = (w0 * jnp.exp(1j * np.pi * 0.2371))[..., None, None]
+    A = jnp.concatenate([top, jnp.concatenate([-K, -B], -1)], -2).astype(jnp.complex128)
+    E = jnp.concatenate(
+        [jnp.concatenate([eye, zero], -1), jnp.concatenate([zero, M], -1)], -2
+    ).astype(jnp.complex128)
+    # one LAPACK kernel at a time (XLA:CPU deadlock, see hapid/_linalg.py)
+    A, E = jax.lax.optimization_barrier((A, E, companion))[:2]
+    X = jnp.linalg.solve(A - sigma * E, E)
+    mu = jnp.linalg.eigvals(jax.lax.optimization_barrier((X, companion))[0])
+    big = jnp.max(jnp.abs(mu), axis=-1, keepdims=True)
+    at_inf = jnp.abs(mu) <= 1e-10 * big
+    s_shift = jnp.where(at_inf, jnp.inf + 0j, sigma[..., 0] + 1.0 / jnp.where(at_inf, 1.0, mu))
+    s_comp = jnp.linalg.eigvals(jax.lax.optimization_barrier((companion, mu))[0])
+    return jnp.where(good[..., None], s_comp, s_shift)
+
+
 class SecondOrder(eqx.Module):
     """A matrix polynomial ``Z(s) = M s² + B s + K`` with real ``(n, n)`` coefficients.
 
@@ -46,10 +91,7 @@ class SecondOrder(eqx.Module):
 
     def __call__(self, s: Complex[Array, " N"]) -> Complex[Array, "N n n"]:
         """Evaluate ``Z(s)`` at complex ``s`` (rad/s), returning ``(N, n, n)``."""
-        s = jnp.asarray(s, dtype=jnp.complex128)[..., None, None]
-        return (
-            self.M[..., None, :, :] * s**2 + self.B[..., None, :, :] * s + self.K[..., None, :, :]
-        )
+        return _evaluate(self.M, self.B, self.K, jnp.asarray(s, dtype=jnp.complex128))
 
     def at_omega(self, omega: Float[Array, " N"]) -> Complex[Array, "N n n"]:
         """Evaluate on the imaginary axis, ``s = jω`` with ω in rad/s."""
@@ -78,40 +120,7 @@ class SecondOrder(eqx.Module):
         spurious large finite value), and :meth:`n_crhp_roots` counts them as closed-RHP,
         the conservative reading that ``hapid.control`` uses too.
         """
-        n = self.n
-        M, B, K = self.M, self.B, self.K
-        eye = jnp.broadcast_to(jnp.eye(n, dtype=M.dtype), M.shape)
-        zero = jnp.zeros_like(M)
-        fro = lambda A: jnp.sqrt(jnp.sum(jnp.abs(A) ** 2, axis=(-2, -1)))  # noqa: E731
-        Minv = jnp.linalg.inv(M)
-        cond_M = fro(M) * fro(Minv)
-        good = jnp.isfinite(cond_M) & (cond_M <= 1e8)  # (...,)
-        Minv = jnp.where(good[..., None, None] & jnp.isfinite(Minv), Minv, 0.0)
-        top = jnp.concatenate([zero, eye], -1)
-        companion = jnp.concatenate([top, jnp.concatenate([-Minv @ K, -Minv @ B], -1)], -2)
-        # shift-and-invert of the pencil A − sE (σ in the upper right quadrant: not a root of
-        # a stable model, and generically not of any other)
-        nM, nB, nK = fro(M), fro(B), fro(K)
-        tiny = jnp.finfo(M.dtype).tiny
-        w0 = jnp.where(
-            (nM > 0) & (nK > 0),
-            jnp.sqrt(nK / jnp.maximum(nM, tiny)),
-            jnp.where((nB > 0) & (nK > 0), nK / jnp.maximum(nB, tiny), 1.0),
-        )
-        sigma = (w0 * jnp.exp(1j * np.pi * 0.2371))[..., None, None]
-        A = jnp.concatenate([top, jnp.concatenate([-K, -B], -1)], -2).astype(jnp.complex128)
-        E = jnp.concatenate(
-            [jnp.concatenate([eye, zero], -1), jnp.concatenate([zero, M], -1)], -2
-        ).astype(jnp.complex128)
-        # one LAPACK kernel at a time (XLA:CPU deadlock, see hapid/_linalg.py)
-        A, E = jax.lax.optimization_barrier((A, E, companion))[:2]
-        X = jnp.linalg.solve(A - sigma * E, E)
-        mu = jnp.linalg.eigvals(jax.lax.optimization_barrier((X, companion))[0])
-        big = jnp.max(jnp.abs(mu), axis=-1, keepdims=True)
-        at_inf = jnp.abs(mu) <= 1e-10 * big
-        s_shift = jnp.where(at_inf, jnp.inf + 0j, sigma[..., 0] + 1.0 / jnp.where(at_inf, 1.0, mu))
-        s_comp = jnp.linalg.eigvals(jax.lax.optimization_barrier((companion, mu))[0])
-        return jnp.where(good[..., None], s_comp, s_shift)
+        return _roots(self.M, self.B, self.K)
 
     def n_crhp_roots(self, tol: float = 0.0) -> Array:
         """Number of roots with real part ≥ ``-tol`` (closed right half plane); roots at
@@ -163,6 +172,7 @@ class ImpedanceModel(eqx.Module):
         return plant(self.total(s), self.hand(s))
 
 
+@jax.jit
 def plant(Z_H: Complex[Array, "N n n"], Z_T: Complex[Array, "N n n"]) -> Complex[Array, "N n n"]:
     """``P = Z_H Z_T⁻¹`` per frequency, computed as a solve (``(Z_T^T \\ Z_H^T)^T``)."""
     return jnp.swapaxes(

@@ -14,6 +14,7 @@ pure ``jnp`` and can be differentiated with respect to every parameter (gradient
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
@@ -109,16 +110,7 @@ class Compensator(eqx.Module):
 
     def __call__(self, s: Complex[Array, " N"]) -> Complex[Array, " N"]:
         """``g(s)`` at complex ``s`` (rad/s), shape of ``s``."""
-        s = jnp.asarray(s, dtype=jnp.complex128)[..., None]
-        lag = jnp.prod((s + self.lag_zeros) / (s + self.lag_poles), axis=-1)
-        w = self.notch_omega
-        notch = jnp.prod(
-            (s**2 + 2 * self.notch_zeta_num * w * s + w**2)
-            / (s**2 + 2 * self.notch_zeta_den * w * s + w**2),
-            axis=-1,
-        )
-        lp = jnp.prod(self.lowpass / (s + self.lowpass), axis=-1)
-        return self.k * lag * notch * lp
+        return _response(self, jnp.asarray(s, dtype=jnp.complex128))
 
     def at_omega(self, omega: Float[Array, " N"]) -> Complex[Array, " N"]:
         """Frequency response ``g(jω)`` with ω in rad/s."""
@@ -204,3 +196,17 @@ class Compensator(eqx.Module):
             r = jnp.sqrt(a).reshape(1, 1)
             sys = series(sys, StateSpace(-a.reshape(1, 1), r, r, jnp.zeros((1, 1))))
         return sys
+
+
+@jax.jit
+def _response(g: Compensator, s):
+    """``g(s)`` at complex ``s`` (one compiled program per shape of ``s`` and of g's terms)."""
+    s = s[..., None]
+    lag = jnp.prod((s + g.lag_zeros) / (s + g.lag_poles), axis=-1)
+    w = g.notch_omega
+    notch = jnp.prod(
+        (s**2 + 2 * g.notch_zeta_num * w * s + w**2) / (s**2 + 2 * g.notch_zeta_den * w * s + w**2),
+        axis=-1,
+    )
+    lp = jnp.prod(g.lowpass / (s + g.lowpass), axis=-1)
+    return g.k * lag * notch * lp

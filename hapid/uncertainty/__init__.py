@@ -24,7 +24,13 @@
   construction (``params`` or ``loop_gp``), the draws of ``hapid predict``.
 - :func:`pose_study` → :class:`PoseStudy` — nominal vs re-identified controller over a grid
   of stylus poses.
+
+Names that need emcee (the sampler and the command that runs it) load on first use (PEP 562):
+the loop draws, the robust check and the Laplace posterior do not pay emcee's and
+scipy.stats' import.
 """
+
+import importlib
 
 from .. import _config  # noqa: F401  (float64)
 from ..samples import PosteriorSamples as PosteriorSamples
@@ -36,7 +42,6 @@ from ._draws import Draws as Draws
 from ._draws import LoopDraws as LoopDraws
 from ._draws import ParamDraws as ParamDraws
 from ._draws import draws_from as draws_from
-from ._files import posterior_from_files as posterior_from_files
 from ._hyper import fix_hyperparameters as fix_hyperparameters
 from ._laplace import LaplacePosterior as LaplacePosterior
 from ._laplace import ModeStatus as ModeStatus
@@ -91,6 +96,21 @@ from ._robust import device_plants as device_plants
 from ._robust import posterior_omega as posterior_omega
 from ._robust import robust_check as robust_check
 from ._robust import robust_omega as robust_omega
-from ._sampler import MOVES as MOVES
-from ._sampler import ShortChainWarning as ShortChainWarning
-from ._sampler import sample_posterior as sample_posterior
+
+_LAZY = {
+    "posterior_from_files": "_files",
+    "MOVES": "_sampler",
+    "ShortChainWarning": "_sampler",
+    "sample_posterior": "_sampler",
+}
+__all__ = sorted([n for n in globals() if not n.startswith("_") and n != "importlib"] + list(_LAZY))
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module 'hapid.uncertainty' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted([*globals(), *__all__])

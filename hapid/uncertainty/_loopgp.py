@@ -215,20 +215,28 @@ def loop_gp_draws(
     mean, cov = conditional(gp, u_pred)
     rng = np.random.default_rng(seed)
     E = gp.D.shape[1]
-    Dd = mean[None] + (0.0 if mean_only else _correlated(cov, n_draws, E, rng))  # (S, M, E)
+    if mean_only:
+        Dd = np.broadcast_to(mean, (n_draws, *mean.shape))
+    else:  # in place: the draws are the largest arrays of a robust check (S·M·E complex)
+        Dd = _correlated(cov, n_draws, E, rng)
+        Dd += mean[None]  # (S, M, E)
     d1, din, de = Dd[:, 0], Dd[:, 1:-1], Dd[:, -1]
     N = omega.size
-    out = np.zeros((n_draws, N, E), complex)
+    out = np.empty((n_draws, N, E), complex)  # lo, inside and hi cover every frequency
     out[:, inside] = din
     if np.any(lo):
-        dlo = _below(gp, u[lo], d1, rng)
         if mean_only:  # the continuation's mean: ρ(u) d1
             dlo = matern52((gp.u[0] - u[lo]) / gp.ell)[None, :, None] * d1[:, None, :]
+        else:
+            dlo = _below(gp, u[lo], d1, rng)
         dlo.imag *= (omega[lo] / np.exp(u1))[None, :, None]
         out[:, lo] = dlo
     t = np.clip((u[hi] - ue) / TOP_TAPER, 0.0, 1.0)
     out[:, hi] = de[:, None] * (0.5 * (1.0 + np.cos(np.pi * t)))[None, :, None]
-    return np.eye(gp.n) + out.reshape(n_draws, N, gp.n, gp.n)
+    Q = out.reshape(n_draws, N, gp.n, gp.n)
+    diag = np.arange(gp.n)
+    Q[..., diag, diag] += 1.0  # I + Δ, without a second (S, N, n, n) array
+    return Q
 
 
 def loop_gp_mean(gp: LoopGP, omega) -> np.ndarray:
