@@ -74,6 +74,22 @@ the requirement itself, and the re-check and the verdict keep the requirement as
 by ``hapid.tune``. Why: docs/robust-design.md, Evidence E6 ("One loop for training and
 re-check")."""
 
+GAP_RATIO = 1.2
+"""Two consecutive measured frequencies further apart than this ratio leave a *measurement gap*
+between them: a phase margin the draws decide there is read from their interpolation. Used by
+the verdicts of ``hapid robust`` and ``hapid tune`` (:func:`hapid.uncertainty._cover.gap_check`).
+Why: a locus's phase between two measured points was seen to turn 4–5° more than the loop draws
+show across a 1.33 ratio (15 → 20 Hz); an interpolation error grows about as the square of the
+gap's width in ln ω, so across 1.2 it is about (ln 1.2 / ln 1.33)² ≈ 0.4 of that, ≈ 2°, inside
+:data:`GAP_PM_DEG` (docs/robust-design.md, Evidence E6)."""
+
+GAP_PM_DEG = TUNE_PM_ALLOWANCE_DEG
+"""Degrees by which a phase margin decided in a measurement gap (:data:`GAP_RATIO`) must exceed
+the requirement for the verdict to be ``passed``; below that (and above the requirement) it is
+``not established``, with the frequencies to measure. The same figure as the tuner's training
+allowance: the largest shortfall between measured points seen on the true plants
+(docs/robust-design.md, Evidence E6)."""
+
 TUNE_TOL_WORST = 1e-8
 """The same tolerance when every family is worst-case (quantile 1: the device's variants of
 ``hapid paper``'s tuned column): no draws to over-fit, and a loose solve leaves the penalty's

@@ -127,7 +127,8 @@ def loop_gp_check(
                                                  else wb[0]) / TWO_PI  # fmt: skip
     lo, hi = float(data["omega"][0] / TWO_PI), float(data["omega"][-1] / TWO_PI)
     cover = EvidenceCover((lo, hi), cert.beyond_loop_gain, float(ev.kappa), clear,
-                          float(ev.g_max), loop)  # fmt: skip
+                          float(ev.g_max), loop,
+                          tuple(float(x) for x in np.asarray(data["omega"]) / TWO_PI))  # fmt: skip
     nominal_bw = float(rep.iso_bandwidth_hz[-1]) if bool(rep.stable[-1]) else None
     keep = ("stable", "n_closed_loop_rhp", "nyquist_resolved", "gm_freq_hz", "pm_freq_hz") + FIELDS
     rep = dataclasses.replace(rep, cover=cover, loop=loop,

@@ -10,9 +10,11 @@ requirements hold. :func:`design_check` turns the returned design's row into one
   fewer held-out draws than the chance level meet the margins; the simulated true plant
   (``--device``) is unstable or misses GM/PM; a held-out device variant fails;
 - **not established** when nothing failed but the evidence does not cover the loop: the loop
-  gain above the measured band exceeds κ (the draws are the model's own plant there), or
-  there is neither a measured FRF nor a simulated device (parameter draws only: the model
-  class's uncertainty, not the plant's);
+  gain above the measured band exceeds κ (the draws are the model's own plant there), the
+  held-out draws' phase margin is decided in a measurement gap by less than
+  :data:`~hapid.defaults.GAP_PM_DEG` (:func:`hapid.uncertainty._cover.gap_check`; without a
+  true plant to settle it), or there is neither a measured FRF nor a simulated device
+  (parameter draws only: the model class's uncertainty, not the plant's);
 - **passed** otherwise.
 
 The check's name states the requirements and the loop (continuous-time controller, or the
@@ -25,17 +27,20 @@ import numpy as np
 
 from .._analyze_check import loop_label  # noqa: F401  (re-exported)
 from .._constants import KAPPA
+from ..uncertainty._cover import gap_check
 from ..verdict import Check, Verdict
 
 FRF_FLOOR = 0.5  # min |1 + λ_i| ≥ 0.5 on the measured loop ⇒ loci GM ≥ 6 dB, PM ≥ 29° there
 
 
 def design_check(row: dict, *, gm_db: float, pm_deg: float, quantile: float, ts=None,
-                 g_max: float | None = None) -> Check:  # fmt: skip
+                 g_max: float | None = None, frequencies_hz=()) -> Check:  # fmt: skip
     """The :class:`~hapid.verdict.Check` of a design's re-check ``row`` (module docstring).
     ``quantile``: the chance level the held-out draws must meet; ``ts``: the controller's
     sampling period (``None``: continuous), named in the check; ``g_max``: the largest
-    ``|g|`` above the evidence the small-gain condition allows (for the remedy)."""
+    ``|g|`` above the evidence the small-gain condition allows (for the remedy);
+    ``frequencies_hz``: the measured FRF's frequencies (Hz), for the gap rule (empty: not
+    applied)."""
     name = f"GM ≥ {gm_db:g} dB, PM ≥ {pm_deg:g}° ({loop_label(ts)})"
     fail = []
     if row.get("nominal_stable") is False:
@@ -67,6 +72,11 @@ def design_check(row: dict, *, gm_db: float, pm_deg: float, quantile: float, ts=
                      reason=f"the loop gain above the measured band (to {fe:.3g} Hz) is {bg:.3g} > "
                      "0.5: the draws are the model's own plant there and do not cover the loop",
                      remedy=f"measure the FRF higher, or lower |g| above {fe:.3g} Hz{lower}")  # fmt: skip
+    gap = None if "true_stable" in row else gap_check(
+        row.get("posterior_pm_deg_q05", float("nan")), pm_deg,
+        row.get("posterior_pm_deciding_hz", float("nan")), frequencies_hz)  # fmt: skip
+    if gap is not None:
+        return Check(Verdict.NOT_ESTABLISHED, name=name, reason=gap[0], remedy=gap[1])
     if bg is None and "true_stable" not in row:
         return Check(Verdict.NOT_ESTABLISHED, name=name,
                      reason="no measured FRF and no device: the draws cover the model class's "

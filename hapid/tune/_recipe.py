@@ -311,6 +311,7 @@ def robust_design(
             out = _with_g(res, g_fb)
     row = table.get("returned") or table["tuned" if decision.keeps_tuned else "start"]
     ck = design_check(row, gm_db=req.gm_db, pm_deg=req.pm_deg, quantile=r.quantile, ts=ts,
-                      g_max=None if ev is None else ev.g_max)  # fmt: skip
+                      g_max=None if ev is None else ev.g_max,
+                      frequencies_hz=() if ev is None else np.asarray(ev.omega) / TWO_PI)  # fmt: skip
     return RobustDesign(dataclasses.replace(out, check=ck), res, decision, info, table,
                         validation, loop_label(ts))  # fmt: skip

@@ -31,6 +31,7 @@ from ..closed_loop import closed_loop, simulate_loop
 from ..control import Compensator
 from ..defaults import GM_DB, PM_DEG
 from ..uncertainty import posterior_omega, robust_check
+from ..uncertainty._cover import deciding_pm_hz
 from ..verdict import Verdict, combine
 
 
@@ -286,6 +287,8 @@ def table_row(v: Validation) -> dict:
                 & (rep.penalized("pm_deg") >= rep.pm_req_deg)
             )
             row[f"{fam}_frac_meeting_margins"] = float(np.mean(ok))
+            if rep.pm_freq_hz is not None:  # where the PM quantile is decided (the gap rule)
+                row[f"{fam}_pm_deciding_hz"] = deciding_pm_hz(rep)
     if v.time_domain is not None:
         t = v.time_domain.numbers()
         row |= {
