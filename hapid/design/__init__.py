@@ -12,7 +12,7 @@ and :class:`DesignOptions` (:mod:`._commands`, light) without importing the stag
 other ``hapid`` command paid at start-up).
 """
 
-import importlib
+from .._lazy import lazy_names as _lazy_names
 
 _NAMES = {
     "PAIR_ONLY": "_commands",
@@ -28,12 +28,4 @@ _NAMES = {
 }
 __all__ = list(_NAMES)
 
-
-def __getattr__(name: str):
-    if name in _NAMES:
-        return getattr(importlib.import_module(f".{_NAMES[name]}", __name__), name)
-    raise AttributeError(f"module 'hapid.design' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted([*globals(), *__all__])
+__getattr__, __dir__ = _lazy_names(__name__, _NAMES)

@@ -15,9 +15,8 @@ Names load on first use (PEP 562): a command that needs only the certificate or 
 response (``hapid robust``, ``hapid analyze``) does not import the optimizer stack.
 """
 
-import importlib
-
 from .. import _config  # noqa: F401  (float64)
+from .._lazy import lazy_names as _lazy_names
 
 _NAMES = {
     "Binding": "_binding",
@@ -68,12 +67,4 @@ _NAMES = {
 }
 __all__ = list(_NAMES)
 
-
-def __getattr__(name: str):
-    if name in _NAMES:
-        return getattr(importlib.import_module(f".{_NAMES[name]}", __name__), name)
-    raise AttributeError(f"module 'hapid.tune' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted([*globals(), *__all__])
+__getattr__, __dir__ = _lazy_names(__name__, _NAMES)

@@ -30,9 +30,8 @@ the loop draws, the robust check and the Laplace posterior do not pay emcee's an
 scipy.stats' import.
 """
 
-import importlib
-
 from .. import _config  # noqa: F401  (float64)
+from .._lazy import lazy_names as _lazy_names
 from ..samples import PosteriorSamples as PosteriorSamples
 from ..samples import SamplesStatus as SamplesStatus
 from ._coords import fold_theta as fold_theta
@@ -103,14 +102,6 @@ _LAZY = {
     "ShortChainWarning": "_sampler",
     "sample_posterior": "_sampler",
 }
-__all__ = sorted([n for n in globals() if not n.startswith("_") and n != "importlib"] + list(_LAZY))
+__all__ = sorted([n for n in globals() if not n.startswith("_")] + list(_LAZY))
 
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
-    raise AttributeError(f"module 'hapid.uncertainty' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted([*globals(), *__all__])
+__getattr__, __dir__ = _lazy_names(__name__, _LAZY)

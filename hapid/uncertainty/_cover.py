@@ -120,8 +120,8 @@ def cover_check(report, cover: EvidenceCover, name: str) -> Check:
             reasons.append(f"the {label} crossovers that decide the {key.upper()} quantile lie "
                            f"below the measured band (from {lo:g} Hz), down to {np.min(below):.3g} Hz")  # fmt: skip
             remedies.append(f"measure the FRF down to {np.min(below) / 1.2:.3g} Hz")
-    gap = gap_check(report.quantile("pm_deg", 0.05), report.pm_req_deg,
-                    deciding_pm_hz(report), cover.frequencies_hz)  # fmt: skip
+    gap = gap_check(report.quantile("pm_deg", 0.05), report.pm_req_deg, _median(f["pm"]),
+                    cover.frequencies_hz)  # fmt: skip
     if gap is not None:
         reasons.append(gap[0])
         remedies.append(gap[1])
@@ -134,7 +134,10 @@ def cover_check(report, cover: EvidenceCover, name: str) -> Check:
 def deciding_pm_hz(report) -> float:
     """The median gain-crossover frequency (Hz) of the draws that decide the ``|PM|`` 5 %
     quantile (:func:`deciding_frequencies`); NaN when none has one."""
-    f = deciding_frequencies(report)["pm"]
+    return _median(deciding_frequencies(report)["pm"])
+
+
+def _median(f) -> float:
     return float(np.median(f)) if f.size else float("nan")
 
 
