@@ -34,7 +34,12 @@ rule (those were chosen on cu5 and tripod3 + 2 samples of delay):
 - ``delay``: 1–3 samples of actuator delay the second-order model lacks:
   ``quad4:delay=1``, ``cu5:delay=2``, ``hexapod6:delay=3``;
 - ``rods``: 3 to 6 rods at a moved stylus: ``tripod3:move=0.01,0,0``,
-  ``quad4:move=0,0.01,0``, ``cu5:move=0,0,0.01``, ``hexapod6:move=0.01,0.01,0``.
+  ``quad4:move=0,0.01,0``, ``cu5:move=0,0,0.01``, ``hexapod6:move=0.01,0.01,0``;
+- ``mixed`` (written 2026-12-05, after the gap rule of :func:`hapid.uncertainty._cover.gap_check`
+  and before any run of it, to judge that rule on devices it has not seen): delay, compliance
+  and a moved stylus together, 3 to 6 rods: ``tripod3:delay=1:compliance=2``,
+  ``quad4:delay=2:move=0.01,0,0``, ``cu5:compliance=2:move=0,0.01,0``,
+  ``hexapod6:delay=1:compliance=2``.
 
 For the ``loop_gp`` kind the verdict is :func:`hapid.robust.loop_gp_check`'s three-valued
 check with the controller sampled at the device's rate (the loop the truth is judged on), and
@@ -67,6 +72,8 @@ FAMILIES = {
     "delay": ["quad4:delay=1", "cu5:delay=2", "hexapod6:delay=3"],
     "rods": ["tripod3:move=0.01,0,0", "quad4:move=0,0.01,0", "cu5:move=0,0,0.01",
              "hexapod6:move=0.01,0.01,0"],
+    "mixed": ["tripod3:delay=1:compliance=2", "quad4:delay=2:move=0.01,0,0",
+              "cu5:compliance=2:move=0,0.01,0", "hexapod6:delay=1:compliance=2"],
 }  # fmt: skip
 
 
