@@ -5,6 +5,7 @@ gradients). Library imports stay inside the commands (start-up time)."""
 from __future__ import annotations
 
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -43,17 +44,19 @@ def cmd_robust(a):
     from .robust import robust_from_files, side_by_side  # local: CLI start-up (hapid.uncertainty)
 
     dev = device_or_none(a)
+    say = _stderr_progress("robust", enabled=not a.quiet)
     if len(a.model) == 1:
-        res = robust_from_files(a.samples, a.model[0], a.out, **_robust_kw(a, dev))
+        res = robust_from_files(a.samples, a.model[0], a.out, progress=say, **_robust_kw(a, dev))
         for line in verdict_lines(res):
             print(line)
         print(to_json(res.numbers())[:4000])
         print(_draws_line(res.posterior.draws))
     else:
-        res = {
-            Path(m).stem: robust_from_files(a.samples, m, None, **_robust_kw(a, dev))
-            for m in a.model
-        }
+        res = {}
+        for m in a.model:
+            say(f"model {m}")
+            res[Path(m).stem] = robust_from_files(a.samples, m, None, progress=say,
+                                                  **_robust_kw(a, dev))  # fmt: skip
         for name, r in res.items():
             for line in verdict_lines(r):
                 print(f"{name}: {line}")
@@ -68,6 +71,20 @@ def cmd_robust(a):
         print("disk margin and peak of σ̄(T): not computed (null; add --all-metrics)")
     if a.out:
         print(f"report → {a.out}")
+
+
+def _stderr_progress(command: str, enabled: bool = True):
+    """A callable that prints ``<command>: <line> (<elapsed> s)`` on stderr (stdout keeps the
+    report); a no-op when not ``enabled``. The first run of a check compiles its programs
+    (~40 s), later runs read them from the cache."""
+    t0 = time.perf_counter()
+
+    def say(line: str) -> None:
+        if enabled:
+            print(f"{command}: {line} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr,
+                  flush=True)  # fmt: skip
+
+    return say
 
 
 def _robust_kw(a, dev) -> dict:

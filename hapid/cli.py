@@ -248,6 +248,7 @@ def _register_stages(sub):
     ro.add_argument("--controller", default="mimo", choices=["mimo"], help="controller kind")
     add_device_args(ro, default=None, what=" whose true plant is also checked (poses, subjects)")
     ro.add_argument("--subjects", type=int, default=0, help="virtual subjects for --device")
+    ro.add_argument("--quiet", action="store_true", help="no progress on stderr")
     ro.add_argument("--gm-db", type=float, default=GM_DB)
     ro.add_argument("--pm-deg", type=float, default=PM_DEG)
     ro.add_argument("--fs", type=float, default=None,

@@ -161,6 +161,7 @@ def robust_from_files(
     seed: int = 0,
     ts: float | None = None,
     n_freq: int | None = None,
+    progress=None,
 ) -> RobustResult:
     """Samples file and/or measured FRF + nominal model file → :class:`RobustResult` (and
     optional JSON file of its :meth:`~RobustResult.numbers`).
@@ -187,9 +188,11 @@ def robust_from_files(
     draws (default: the device's with ``device``, else the continuous-time controller).
     ``n_freq``: points of the analysis grid (default: :func:`loop_gp_check`'s for loop draws,
     :func:`~hapid._grids.continuous_grid`'s for parameter draws); a denser grid resolves
-    loci whose phase the default grid does not.
+    loci whose phase the default grid does not. ``progress``: a callable taking one line of
+    text (``hapid robust`` prints it on stderr), told what the check is doing before each step.
     """
 
+    say = progress if progress is not None else (lambda _line: None)
     if draws not in DRAWS:  # before any file is read
         raise ValueError(f"draws must be one of {DRAWS}, got {draws!r}")
     if n_freq is not None and int(n_freq) < 50:
@@ -208,10 +211,13 @@ def robust_from_files(
         if ts is None and device is not None:
             ts = (preset(device) if isinstance(device, str) else device).ts
         kw = {} if n_freq is None else {"n_freq": int(n_freq)}
+        say(f"{max_samples} loop draws conditioned on the measured FRF, each checked on "
+            f"{kw.get('n_freq', 1000)} frequencies")  # fmt: skip
         post = loop_gp_check(measured, model, g, n_draws=max_samples, seed=seed, gm_db=gm_db,
                              pm_deg=pm_deg, metrics=metrics, ts=ts, **kw)  # fmt: skip
     else:
         om = posterior_omega() if n_freq is None else posterior_omega(int(n_freq))
+        say(f"at most {max_samples} parameter draws, each checked on {len(om)} frequencies")
         rep = robust_check(ps, (model, g), om, gm_db=gm_db, pm_deg=pm_deg,
                            max_samples=max_samples, metrics=metrics, seed=seed)  # fmt: skip
         post = dataclasses.replace(rep, loop="continuous-time controller, second-order parameter draws",
@@ -225,6 +231,7 @@ def robust_from_files(
         # grid to fs/2, refined crossings: the nominal row is the single analysis's numbers
 
         omega = nyquist_grid(dev.fs_hz)
+        say(f"the device's true plants ({1 + len(poses)} pose(s), {n_subjects} virtual subject(s))")
         labels, P = device_plants(dev, omega, poses=poses, n_subjects=n_subjects)
         ctrl = pipeline.controller(model, g, ts=dev.ts)
         rep = robust_check(P, np.asarray(ctrl.response(omega)), omega,

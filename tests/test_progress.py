@@ -17,3 +17,29 @@ def test_one_bar_counts_every_step_of_every_chunk(capsys):
     err = capsys.readouterr().err
     assert err.count("| 0/1000") == 1  # one bar was opened (emcee's own opens one per chunk)
     assert _adaptive_bar(False, 1000) is None
+
+
+def test_robust_says_what_it_checks_on_stderr_before_the_long_step(tmp_path, monkeypatch):
+    """``hapid robust``: a progress line on stderr (not stdout) before the loop draws are made
+    and checked — the ~13 s step — and none with ``--quiet``."""
+    import hapid.robust
+    from helpers_cli import run_cli, write_valid_files
+
+    write_valid_files(tmp_path)
+    calls = []
+
+    def stop(*a, **k):  # stands in for the long step: the line must already be out
+        calls.append(k.get("n_draws"))
+        raise ValueError("stopped by the test")
+
+    monkeypatch.setattr(hapid.robust, "loop_gp_check", stop)
+    argv = ["robust", "--frf", "frf.npz", "--model", "model.npz", "--max-samples", "37"]
+    rc, out, err, _, _ = run_cli(argv, tmp_path)
+    assert rc == 2 and calls == [37]
+    lines = err.splitlines()
+    said = [i for i, ln in enumerate(lines) if ln.startswith("robust: 37 loop draws conditioned")]
+    stopped = [i for i, ln in enumerate(lines) if "stopped by the test" in ln]
+    assert said and stopped and said[0] < stopped[0], err
+    assert "robust:" not in out
+    rc, out, err, _, _ = run_cli(argv + ["--quiet"], tmp_path)
+    assert rc == 2 and calls == [37, 37] and "robust:" not in err + out
