@@ -22,8 +22,9 @@ def test_one_bar_counts_every_step_of_every_chunk(capsys):
 def test_robust_says_what_it_checks_on_stderr_before_the_long_step(tmp_path, monkeypatch):
     """``hapid robust``: a progress line on stderr (not stdout) before the loop draws are made
     and checked — the ~13 s step — and none with ``--quiet``."""
-    import hapid.robust
     from helpers_cli import run_cli, write_valid_files
+
+    import hapid.robust
 
     write_valid_files(tmp_path)
     calls = []
