@@ -23,6 +23,11 @@ coverage). Devices:
   ``cu5_d2`` (cu5, 2-sample delay), ``tripod3_c3`` (tripod3, rod compliance ×3, the CLI's
   ``--rod-compliance 3``), ``hexapod6_d2`` (above), ``quad4`` (the preset). ``cu5`` and
   ``tripod3`` at their defaults were development devices of the loop draws and do not count;
+- the **second held-out family** (``--family second``; written 2026-12-05 before any run of
+  it, after the first family's table was seen, to check both ``hapid posterior`` methods on
+  devices that chose nothing): ``tripod3:delay=1:compliance=2``, ``quad4:delay=2``,
+  ``cu5:delay=2:compliance=2``, ``hexapod6:compliance=2`` (``preset[:delay=S][:compliance=F]``,
+  delay in samples, the chain-compliance factor);
 - ``second_order`` — a strictly second-order n = 2 device. Its *measured* response is the
   sampled one (ZOH): Z_T carries a half-sample lag (~ωT/2) the continuous model lacks, and
   with force noise only the FRF's ``Z_T_std`` is 0 while the encoder quantization (2 µm)
@@ -85,6 +90,13 @@ from hapid.uncertainty import (
 
 TWO_PI = 2.0 * np.pi
 
+FAMILIES = {
+    "first": ["cu5_soft", "cu5_d2", "tripod3_c3", "hexapod6_d2", "quad4"],
+    "second": ["tripod3:delay=1:compliance=2", "quad4:delay=2", "cu5:delay=2:compliance=2",
+               "hexapod6:compliance=2"],
+}  # fmt: skip
+"""The held-out families of the module docstring (each written down before any run of it)."""
+
 
 def _spd(rng, n, scale, cond=10.0):
     Q, _ = np.linalg.qr(rng.normal(size=(n, n)))
@@ -92,6 +104,16 @@ def _spd(rng, n, scale, cond=10.0):
 
 
 def device(name: str):
+    if ":" in name:  # preset[:delay=S][:compliance=F]
+        base, *opts = name.split(":")
+        kw = {}
+        for o in opts:
+            key, _, val = o.partition("=")
+            if key not in ("delay", "compliance"):
+                raise ValueError(f"device option {key!r}: use delay= or compliance=")
+            kw["delay_samples" if key == "delay" else "rod_compliance"] = (
+                int(val) if key == "delay" else float(val))  # fmt: skip
+        return preset(base, **kw)
     if name == "cu5":
         return preset("cu5")
     if name == "tripod3_d2":
@@ -219,6 +241,8 @@ def main(argv=None):
     ap.add_argument("--method", choices=["laplace", "emcee"], default="laplace")
     ap.add_argument("--draws", type=int, default=400)
     ap.add_argument("--devices", default="cu5,tripod3_d2,second_order")
+    ap.add_argument("--family", choices=sorted(FAMILIES),
+                    help="the devices of a held-out family (module docstring) instead of --devices")  # fmt: skip
     ap.add_argument("--kinds", default="white,gp,gp_corr",
                     help="model errors to compare: white, gp, gp_corr, gp_corr_el (gp_corr "
                          "with scale='element'), loop_gp (loop draws conditioned on the "
@@ -233,7 +257,7 @@ def main(argv=None):
           "element coverage | rel. error of median | rel. radius | eval ms | build s | "
           "posterior s | τ | steps/τ | predict s |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for name in a.devices.split(","):
+    for name in FAMILIES[a.family] if a.family else a.devices.split(","):
         for r in calibrate(name, kinds=a.kinds.split(","), method=a.method, draws=a.draws,
                            quantities=a.quantities.split(",")):  # fmt: skip
             print(f"| {r['device']} | {r['error model']} | {r['quantity']} | {r['coverage']:.3f} | "
