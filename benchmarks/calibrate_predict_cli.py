@@ -17,6 +17,7 @@ This route differs from that benchmark's (its own protocol noise, a plain NLS fi
 route a user takes.
 
 Run:  PYTHONPATH=. python benchmarks/calibrate_predict_cli.py [--draws 200] [--samples 400]
+      [--method laplace|emcee]
       [--devices cu5_soft,cu5_d2,tripod3_c3,hexapod6_d2,quad4]
 Prints a markdown table.
 """
@@ -46,8 +47,14 @@ DEVICES = {  # name: (preset, --delay, --rod-compliance)
     "quad4": ("quad4", None, None),
     "cu5": ("cu5", None, None),  # a development device (not in the default list)
     "cu5_c2": ("cu5", None, 2.0),  # compliant cu5 (not in the default list)
+    # the second held-out family of calibrate_predictive.py (written before any run of it)
+    "tripod3_d1c2": ("tripod3", 1, 2.0),
+    "quad4_d2": ("quad4", 2, None),
+    "cu5_d2c2": ("cu5", 2, 2.0),
+    "hexapod6_c2": ("hexapod6", None, 2.0),
 }
 HELD_OUT = "cu5_soft,cu5_d2,tripod3_c3,hexapod6_d2,quad4"
+HELD_OUT_2 = "tripod3_d1c2,quad4_d2,cu5_d2c2,hexapod6_c2"
 
 
 def _run(argv):
@@ -60,7 +67,7 @@ def _run(argv):
 
 
 def calibrate(name: str, d: Path, draws: int, samples: int, truth: str = "sampled",
-              n_freq: int = 200, held_out: bool = True):  # fmt: skip
+              n_freq: int = 200, held_out: bool = True, method: str = "laplace"):  # fmt: skip
     pre, delay, comp = DEVICES[name]
     variant = (["--delay", delay] if delay is not None else []) + (
         ["--rod-compliance", comp] if comp is not None else []
@@ -71,7 +78,8 @@ def calibrate(name: str, d: Path, draws: int, samples: int, truth: str = "sample
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
         try:
-            _run(["posterior", d / "frf.npz", "--method", "laplace", "--samples", samples,
+            how = ["--samples", samples] if method == "laplace" else []  # emcee: to 50 τ
+            _run(["posterior", d / "frf.npz", "--method", method, *how,
                   "--out", d / "samples.npz"])  # fmt: skip
         except RuntimeError as e:  # hapid posterior failed: say so in the table
             return [{"device": name, "failed": f"{e}: {err.getvalue().strip()}"}]
@@ -102,6 +110,9 @@ def main(argv=None):
     ap.add_argument("--draws", type=int, default=200, help="hapid predict --max-samples")
     ap.add_argument("--samples", type=int, default=400, help="hapid posterior --samples")
     ap.add_argument("--devices", default=HELD_OUT)
+    ap.add_argument("--method", choices=["laplace", "emcee"], default="laplace",
+                    help="hapid posterior --method (emcee: the command's default, run to 50 τ; "
+                    "--samples applies to laplace)")  # fmt: skip
     ap.add_argument("--truth", choices=["sampled", "continuous"], default="sampled",
                     help="the true P compared: sampled (ZOH at 1 kHz, what the experiment "
                     "measures and hapid plant writes) or the continuous-time P")  # fmt: skip
@@ -109,7 +120,7 @@ def main(argv=None):
     ap.add_argument("--all-frequencies", action="store_true",
                     help="compare at every predicted frequency, not only the held-out ones")  # fmt: skip
     a = ap.parse_args(argv)
-    print("route: simulate → frf → posterior --method laplace → predict; 90 % band of P; "
+    print(f"route: simulate → frf → posterior --method {a.method} → predict; 90 % band of P; "
           f"{'all' if a.all_frequencies else 'held-out'} frequencies of {a.n_freq} in 1–40 Hz; "
           f"truth: {a.truth} P\n")  # fmt: skip
     print("| device | draws | compared freqs | coverage | width / error | calibrated | "
@@ -118,7 +129,7 @@ def main(argv=None):
     for name in a.devices.split(","):
         with tempfile.TemporaryDirectory() as tmp:
             for r in calibrate(name, Path(tmp), a.draws, a.samples, a.truth, a.n_freq,
-                               not a.all_frequencies):  # fmt: skip
+                               not a.all_frequencies, a.method):  # fmt: skip
                 if "failed" in r:
                     print(f"| {r['device']} | — | {r['failed']} |", flush=True)
                     continue
