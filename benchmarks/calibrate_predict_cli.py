@@ -109,7 +109,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--draws", type=int, default=200, help="hapid predict --max-samples")
     ap.add_argument("--samples", type=int, default=400, help="hapid posterior --samples")
-    ap.add_argument("--devices", default=HELD_OUT)
+    ap.add_argument("--devices", default=HELD_OUT,
+                    help=f"device names (default: the first held-out family; the second: {HELD_OUT_2})")  # fmt: skip
     ap.add_argument("--method", choices=["laplace", "emcee"], default="laplace",
                     help="hapid posterior --method (emcee: the command's default, run to 50 τ; "
                     "--samples applies to laplace)")  # fmt: skip

@@ -27,7 +27,8 @@ coverage). Devices:
   it, after the first family's table was seen, to check both ``hapid posterior`` methods on
   devices that chose nothing): ``tripod3:delay=1:compliance=2``, ``quad4:delay=2``,
   ``cu5:delay=2:compliance=2``, ``hexapod6:compliance=2`` (``preset[:delay=S][:compliance=F]``,
-  delay in samples, the chain-compliance factor);
+  delay in samples, the chain-compliance factor: ``calibrate_robust.parse_device``). The cu5
+  variant turned out to be the cu5_soft preset again, so three of the four devices are new;
 - ``second_order`` — a strictly second-order n = 2 device. Its *measured* response is the
   sampled one (ZOH): Z_T carries a half-sample lag (~ωT/2) the continuous model lacks, and
   with force noise only the FRF's ``Z_T_std`` is 0 while the encoder quantization (2 µm)
@@ -104,16 +105,10 @@ def _spd(rng, n, scale, cond=10.0):
 
 
 def device(name: str):
-    if ":" in name:  # preset[:delay=S][:compliance=F]
-        base, *opts = name.split(":")
-        kw = {}
-        for o in opts:
-            key, _, val = o.partition("=")
-            if key not in ("delay", "compliance"):
-                raise ValueError(f"device option {key!r}: use delay= or compliance=")
-            kw["delay_samples" if key == "delay" else "rod_compliance"] = (
-                int(val) if key == "delay" else float(val))  # fmt: skip
-        return preset(base, **kw)
+    if ":" in name:  # preset[:delay=S][:compliance=F]: calibrate_robust.py's device specs
+        from calibrate_robust import parse_device
+
+        return parse_device(name)
     if name == "cu5":
         return preset("cu5")
     if name == "tripod3_d2":

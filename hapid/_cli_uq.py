@@ -5,7 +5,6 @@ gradients). Library imports stay inside the commands (start-up time)."""
 from __future__ import annotations
 
 import math
-import sys
 import time
 from pathlib import Path
 
@@ -13,6 +12,7 @@ from ._cli_errors import CLIError
 from ._cli_kw import device_or_none, posterior_kw, robust_metrics, tune_kw, uncertified_warning
 from ._cli_processes import _is_main
 from ._cli_verdict import check_line, verdict_lines
+from ._constants import ROBUST_EXPECTED_S
 from .defaults import NLS_MAX_STEPS
 
 
@@ -44,7 +44,9 @@ def cmd_robust(a):
     from .robust import robust_from_files, side_by_side  # local: CLI start-up (hapid.uncertainty)
 
     dev = device_or_none(a)
-    say = _stderr_progress("robust", enabled=not a.quiet)
+    from .tune._progress import TuneProgress  # local: CLI start-up (tqdm)
+
+    say = TuneProgress(enabled=not a.quiet, expected_s=ROBUST_EXPECTED_S, command="robust").phase
     if len(a.model) == 1:
         res = robust_from_files(a.samples, a.model[0], a.out, progress=say, **_robust_kw(a, dev))
         for line in verdict_lines(res):
@@ -71,20 +73,6 @@ def cmd_robust(a):
         print("disk margin and peak of σ̄(T): not computed (null; add --all-metrics)")
     if a.out:
         print(f"report → {a.out}")
-
-
-def _stderr_progress(command: str, enabled: bool = True):
-    """A callable that prints ``<command>: <line> (<elapsed> s)`` on stderr (stdout keeps the
-    report); a no-op when not ``enabled``. The first run of a check compiles its programs
-    (~40 s), later runs read them from the cache."""
-    t0 = time.perf_counter()
-
-    def say(line: str) -> None:
-        if enabled:
-            print(f"{command}: {line} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr,
-                  flush=True)  # fmt: skip
-
-    return say
 
 
 def _robust_kw(a, dev) -> dict:

@@ -26,3 +26,8 @@ KAPPA = 0.5
 #: (benchmarks/README.md); 41–96 s over the study devices. The "expected" time of its
 #: progress report and ``--help``.
 TUNE_EXPECTED_S = 60.0
+
+#: Wall time (s) of ``hapid robust`` with its defaults (one model, 1000 loop draws on 1000
+#: frequencies): 13.5 s (13.2–13.8) warm on a 2-core machine, ~56 s on the first run (compiles),
+#: by ``benchmarks/bench_route.py`` (benchmarks/README.md). The "expected" time of its progress.
+ROBUST_EXPECTED_S = 15.0

@@ -61,13 +61,17 @@ class RobustResult:
         return jsonable({"status": self.status, "ok": self.ok} | self.numbers())
 
 
+LOOP_N_FREQ = 1000
+"""Points of :func:`loop_gp_check`'s analysis grid when none is given."""
+
+
 def loop_gp_check(
     measured,
     model,
     g,
     *,
     n_draws: int = N_DRAWS,
-    n_freq: int = 1000,
+    n_freq: int = LOOP_N_FREQ,
     seed: int = 0,
     gm_db: float = GM_DB,
     pm_deg: float = PM_DEG,
@@ -210,11 +214,11 @@ def robust_from_files(
             )
         if ts is None and device is not None:
             ts = (preset(device) if isinstance(device, str) else device).ts
-        kw = {} if n_freq is None else {"n_freq": int(n_freq)}
-        say(f"{max_samples} loop draws conditioned on the measured FRF, each checked on "
-            f"{kw.get('n_freq', 1000)} frequencies")  # fmt: skip
-        post = loop_gp_check(measured, model, g, n_draws=max_samples, seed=seed, gm_db=gm_db,
-                             pm_deg=pm_deg, metrics=metrics, ts=ts, **kw)  # fmt: skip
+        n = LOOP_N_FREQ if n_freq is None else int(n_freq)
+        say(f"{max_samples} loop draws conditioned on the measured FRF, each checked on {n} "
+            "frequencies")  # fmt: skip
+        post = loop_gp_check(measured, model, g, n_draws=max_samples, n_freq=n, seed=seed,
+                             gm_db=gm_db, pm_deg=pm_deg, metrics=metrics, ts=ts)  # fmt: skip
     else:
         om = posterior_omega() if n_freq is None else posterior_omega(int(n_freq))
         say(f"at most {max_samples} parameter draws, each checked on {len(om)} frequencies")

@@ -41,6 +41,7 @@ def test_robust_says_what_it_checks_on_stderr_before_the_long_step(tmp_path, mon
     said = [i for i, ln in enumerate(lines) if ln.startswith("robust: 37 loop draws conditioned")]
     stopped = [i for i, ln in enumerate(lines) if "stopped by the test" in ln]
     assert said and stopped and said[0] < stopped[0], err
+    assert "expected)" in lines[said[0]]  # elapsed against the expected time
     assert "robust:" not in out
     rc, out, err, _, _ = run_cli(argv + ["--quiet"], tmp_path)
     assert rc == 2 and calls == [37, 37] and "robust:" not in err + out

@@ -34,10 +34,14 @@ class TuneProgress:
       :data:`REFRESH_S` s; its postfix the last finished stage's steps, objective and worst
       constraint (name and value, ≤ 0 met).
 
-    ``expected_s``: the run's expected wall time (s), printed next to the elapsed time.
+    ``expected_s``: the run's expected wall time (s), printed next to the elapsed time;
+    ``command``: the prefix of the phase lines (``hapid robust`` reports its steps through
+    :meth:`phase` too, with ``command="robust"``).
     """
 
-    def __init__(self, file=None, enabled: bool = True, expected_s: float = EXPECTED_S):
+    def __init__(self, file=None, enabled: bool = True, expected_s: float = EXPECTED_S,
+                 command: str = "tune"):  # fmt: skip
+        self.command = command
         self.file = sys.stderr if file is None else file
         self.enabled = bool(enabled)
         self.expected_s = float(expected_s)
@@ -54,7 +58,7 @@ class TuneProgress:
     def phase(self, what: str) -> None:
         """One line on ``file``: what the run is doing now, and the time."""
         if self.enabled:
-            self._write(f"tune: {what} ({self.elapsed()})")
+            self._write(f"{self.command}: {what} ({self.elapsed()})")
 
     def stage(self, index: int, n_stages: int, mu: float) -> None:
         """Stage ``index`` (0-based) of ``n_stages`` (penalty weight ``mu``) starts."""
