@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
+import re
 import tempfile
 import time
 from pathlib import Path
@@ -55,6 +56,30 @@ DEVICES = {  # name: (preset, --delay, --rod-compliance)
 }
 HELD_OUT = "cu5_soft,cu5_d2,tripod3_c3,hexapod6_d2,quad4"
 HELD_OUT_2 = "tripod3_d1c2,quad4_d2,cu5_d2c2,hexapod6_c2"
+HELD_OUT_3 = ("tripod3:delay=3,quad4:delay=1:compliance=2,cu5:delay=3:move=0,0,0.01,"
+              "hexapod6:delay=3,hexapod6:move=0.01,0,0")  # fmt: skip
+"""The third held-out family of calibrate_predictive.py, as device specs (a name with ``:``
+is ``preset[:delay=S][:compliance=F][:move=dx,dy,dz]``, calibrate_robust.parse_device)."""
+
+
+def _spec(name: str):
+    """``(hapid simulate's device options, the true device)`` of a device name or spec."""
+    if ":" in name:
+        from calibrate_robust import parse_device
+
+        pre, *opts = name.split(":")
+        flag = {"delay": "--delay", "compliance": "--rod-compliance", "move": "--move"}
+        variant = []
+        for o in opts:
+            key, _, val = o.partition("=")
+            variant += [flag[key], *val.split(",")]
+        return [pre, *variant], parse_device(name)
+    pre, delay, comp = DEVICES[name]
+    variant = (["--delay", delay] if delay is not None else []) + (
+        ["--rod-compliance", comp] if comp is not None else []
+    )
+    dev = base_device({"preset": pre, "delay_samples": delay, "rod_compliance": comp})
+    return [pre, *variant], dev
 
 
 def _run(argv):
@@ -68,12 +93,9 @@ def _run(argv):
 
 def calibrate(name: str, d: Path, draws: int, samples: int, truth: str = "sampled",
               n_freq: int = 200, held_out: bool = True, method: str = "laplace"):  # fmt: skip
-    pre, delay, comp = DEVICES[name]
-    variant = (["--delay", delay] if delay is not None else []) + (
-        ["--rod-compliance", comp] if comp is not None else []
-    )
+    device_args, dev = _spec(name)
     t0 = time.perf_counter()
-    _run(["simulate", "--device", pre, *variant, "--out", d / "run.npz"])
+    _run(["simulate", "--device", *device_args, "--out", d / "run.npz"])
     _run(["frf", d / "run.npz", "--out", d / "frf.npz"])
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
@@ -85,7 +107,6 @@ def calibrate(name: str, d: Path, draws: int, samples: int, truth: str = "sample
             return [{"device": name, "failed": f"{e}: {err.getvalue().strip()}"}]
     t_post = time.perf_counter() - t0
     f_exp = np.asarray(load_frf(d / "frf.npz").omega) / TWO_PI
-    dev = base_device({"preset": pre, "delay_samples": delay, "rod_compliance": comp})
     rows = []
     for family in ("params", "loop_gp"):
         out = d / f"draws_{family}.npz"
@@ -110,7 +131,8 @@ def main(argv=None):
     ap.add_argument("--draws", type=int, default=200, help="hapid predict --max-samples")
     ap.add_argument("--samples", type=int, default=400, help="hapid posterior --samples")
     ap.add_argument("--devices", default=HELD_OUT,
-                    help=f"device names (default: the first held-out family; the second: {HELD_OUT_2})")  # fmt: skip
+                    help=f"device names or specs (default: the first held-out family; the second: "
+                         f"{HELD_OUT_2}; the third: {HELD_OUT_3})")  # fmt: skip
     ap.add_argument("--method", choices=["laplace", "emcee"], default="laplace",
                     help="hapid posterior --method (emcee: the command's default, run to 50 τ; "
                     "--samples applies to laplace)")  # fmt: skip
@@ -127,7 +149,7 @@ def main(argv=None):
     print("| device | draws | compared freqs | coverage | width / error | calibrated | "
           "rel. error of median | rel. radius | simulate→posterior s | predict s |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for name in a.devices.split(","):
+    for name in re.split(r",(?=[A-Za-z])", a.devices):  # a move's commas stay in its spec
         with tempfile.TemporaryDirectory() as tmp:
             for r in calibrate(name, Path(tmp), a.draws, a.samples, a.truth, a.n_freq,
                                not a.all_frequencies, a.method):  # fmt: skip
