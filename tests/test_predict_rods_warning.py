@@ -1,0 +1,56 @@
+"""``hapid predict`` says in the run where its band was measured not calibrated: a warning for
+a model of 6 or more rods (the params band measured too wide on 6-rod hexapods), none for
+3–5 rods (measured calibrated) or for loop draws."""
+
+import numpy as np
+import pytest
+
+from hapid import SecondOrder
+from hapid._cli_predict import RODS_TOO_WIDE, rods_warning
+from hapid.cli import main
+from hapid.fit import Scale, model_to_theta
+from hapid.impedance import ImpedanceModel
+from hapid.io import save_samples
+from hapid.samples import PosteriorSamples
+from hapid.uncertainty import param_names
+
+
+def _spd(rng, n, scale):
+    A = rng.normal(size=(n, n))
+    return scale * (A @ A.T / n + np.eye(n))
+
+
+def _samples(tmp_path, n, S=6):
+    """``S`` draws of an ``n``-rod second-order model near one point (no model error)."""
+    rng = np.random.default_rng(n)
+    hand = SecondOrder(_spd(rng, n, 0.3), _spd(rng, n, 10.0), _spd(rng, n, 500.0))
+    total = SecondOrder(_spd(rng, n, 1.0) + hand.M, _spd(rng, n, 40.0) + hand.B,
+                        _spd(rng, n, 200.0) + hand.K)  # fmt: skip
+    scale = Scale(np.asarray(2 * np.pi * 8.0), np.asarray(500.0))
+    th = np.asarray(model_to_theta(ImpedanceModel(hand=hand, total=total), scale))
+    th = np.abs(th + 1e-4 * rng.standard_normal((S, th.size)))
+    ps = PosteriorSamples(samples=th, log_prob=np.zeros(S), scale=scale, n=n,
+                          names=tuple(param_names(n)))  # fmt: skip
+    return save_samples(tmp_path / f"s{n}.npz", ps)
+
+
+@pytest.mark.parametrize("n", [3, 5, 6, 7])
+def test_predict_warns_on_models_of_six_or_more_rods(n, tmp_path, capsys):
+    s = _samples(tmp_path, n)
+    out = tmp_path / "d.npz"
+    assert main(["predict", "--samples", str(s), "--n-freq", "5", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    with np.load(out) as z:
+        assert z["P"].shape[1:] == (5, n, n) and np.all(np.isfinite(z["P"]))
+    warned = [ln for ln in text.splitlines() if ln.startswith("WARNING")]
+    if n < RODS_TOO_WIDE:
+        assert not warned
+    else:
+        assert len(warned) == 1 and f"{n} rods" in warned[0] and "too wide" in warned[0]
+        assert ("no device with more than 6 rods" in warned[0]) == (n > 6)
+
+
+def test_rods_warning_only_for_parameter_draws():
+    assert rods_warning("loop_gp", 6) is None
+    assert rods_warning("params", RODS_TOO_WIDE - 1) is None
+    assert rods_warning("params", RODS_TOO_WIDE).startswith("WARNING")
