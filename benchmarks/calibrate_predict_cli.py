@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import re
 import tempfile
 import time
 from pathlib import Path
@@ -65,15 +64,9 @@ is ``preset[:delay=S][:compliance=F][:move=dx,dy,dz]``, calibrate_robust.parse_d
 def _spec(name: str):
     """``(hapid simulate's device options, the true device)`` of a device name or spec."""
     if ":" in name:
-        from calibrate_robust import parse_device
+        from calibrate_robust import parse_device, spec_cli_args
 
-        pre, *opts = name.split(":")
-        flag = {"delay": "--delay", "compliance": "--rod-compliance", "move": "--move"}
-        variant = []
-        for o in opts:
-            key, _, val = o.partition("=")
-            variant += [flag[key], *val.split(",")]
-        return [pre, *variant], parse_device(name)
+        return spec_cli_args(name), parse_device(name)
     pre, delay, comp = DEVICES[name]
     variant = (["--delay", delay] if delay is not None else []) + (
         ["--rod-compliance", comp] if comp is not None else []
@@ -149,7 +142,9 @@ def main(argv=None):
     print("| device | draws | compared freqs | coverage | width / error | calibrated | "
           "rel. error of median | rel. radius | simulate→posterior s | predict s |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for name in re.split(r",(?=[A-Za-z])", a.devices):  # a move's commas stay in its spec
+    from calibrate_robust import split_specs
+
+    for name in split_specs(a.devices):
         with tempfile.TemporaryDirectory() as tmp:
             for r in calibrate(name, Path(tmp), a.draws, a.samples, a.truth, a.n_freq,
                                not a.all_frequencies, a.method):  # fmt: skip

@@ -266,8 +266,10 @@ def main(argv=None):
           "element coverage | rel. error of median | rel. radius | eval ms | build s | "
           "posterior s | τ | steps/τ | predict s |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    from calibrate_robust import split_specs
+
     seeds = [int(x) for x in a.seeds.split(",")]
-    for name in FAMILIES[a.family] if a.family else a.devices.split(","):
+    for name in FAMILIES[a.family] if a.family else split_specs(a.devices):
         for seed in seeds:
             for r in calibrate(name, kinds=a.kinds.split(","), method=a.method, draws=a.draws,
                                seed=seed, quantities=a.quantities.split(",")):  # fmt: skip

@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -77,23 +78,47 @@ FAMILIES = {
 }  # fmt: skip
 
 
+SPEC_FLAGS = {"delay": "--delay", "compliance": "--rod-compliance", "move": "--move"}
+"""The options of a device spec and the ``hapid simulate`` flag of each."""
+
+
+def spec_options(spec: str) -> tuple[str, dict[str, str]]:
+    """``(preset, {option: value text})`` of ``preset[:delay=S][:compliance=F][:move=dx,dy,dz]``;
+    raises ``ValueError`` for an option not in :data:`SPEC_FLAGS`."""
+    name, *opts = spec.split(":")
+    out = {}
+    for o in opts:
+        key, _, val = o.partition("=")
+        if key not in SPEC_FLAGS:
+            raise ValueError(f"device option {key!r}: use delay=, compliance=, move=")
+        out[key] = val
+    return name, out
+
+
 def parse_device(spec: str):
     """``preset[:delay=S][:compliance=F][:move=dx,dy,dz]`` → a device."""
     from hapid.device import Pose, preset
 
-    name, *opts = spec.split(":")
+    name, opts = spec_options(spec)
     kw = {}
-    for o in opts:
-        key, _, val = o.partition("=")
-        if key == "delay":
-            kw["delay_samples"] = int(val)
-        elif key == "compliance":
-            kw["rod_compliance"] = float(val)
-        elif key == "move":
-            kw["pose"] = Pose().moved(*[float(v) for v in val.split(",")])
-        else:
-            raise ValueError(f"device option {key!r}: use delay=, compliance=, move=")
+    if "delay" in opts:
+        kw["delay_samples"] = int(opts["delay"])
+    if "compliance" in opts:
+        kw["rod_compliance"] = float(opts["compliance"])
+    if "move" in opts:
+        kw["pose"] = Pose().moved(*[float(v) for v in opts["move"].split(",")])
     return preset(name, **kw)
+
+
+def spec_cli_args(spec: str) -> list[str]:
+    """``hapid simulate --device``'s arguments for a device spec (preset, then its flags)."""
+    name, opts = spec_options(spec)
+    return [name, *(a for k, v in opts.items() for a in (SPEC_FLAGS[k], *v.split(",")))]
+
+
+def split_specs(text: str) -> list[str]:
+    """Comma-separated device names or specs; a ``move=dx,dy,dz``'s commas stay in its spec."""
+    return re.split(r",(?=[A-Za-z])", text)
 
 
 def setup(dev, seed: int = 0):

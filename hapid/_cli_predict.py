@@ -78,8 +78,8 @@ PREDICT_CALIBRATION_NOTE = {
 (benchmarks/calibrate_predictive.py and calibrate_predict_cli.py, docs/conventions.md)."""
 
 RODS_TOO_WIDE = 6
-"""The number of rods of the devices on which the ``params`` band was measured too wide
-(hexapod6 variants: width/error over 3 in 13 of 20 runs); no device with more was measured."""
+"""The rods of the measured devices on which the ``params`` band was too wide (figures in
+docs/conventions.md, "Posterior"); no device with more rods was measured."""
 
 
 def rods_warning(draws: str, n: int) -> str | None:
@@ -89,7 +89,7 @@ def rods_warning(draws: str, n: int) -> str | None:
     if draws != "params" or n < RODS_TOO_WIDE:
         return None
     where = (
-        "on 6-rod devices this band was measured too wide (width/error 2.4–3.6 against the goal "
+        f"on {RODS_TOO_WIDE}-rod devices this band was measured too wide (width/error 2.4–3.6 against the goal "
         "≤ 3, over it in 13 of 20 runs; coverage 86–100 %): read it as conservative"
     )
     if n > RODS_TOO_WIDE:
