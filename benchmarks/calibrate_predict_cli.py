@@ -36,7 +36,6 @@ import numpy as np
 from hapid.cli import main as hapid
 from hapid.io import load_frf
 from hapid.pipeline._experiment import base_device
-from hapid.uncertainty import band_calibration
 
 TWO_PI = 2.0 * np.pi
 DEVICES = {  # name: (preset, --delay, --rod-compliance)
@@ -85,7 +84,10 @@ def _run(argv):
 
 
 def calibrate(name: str, d: Path, draws: int, samples: int, truth: str = "sampled",
-              n_freq: int = 200, held_out: bool = True, method: str = "laplace"):  # fmt: skip
+              n_freq: int = 200, held_out: bool = True, method: str = "laplace",
+              split_hz: float | None = None):  # fmt: skip
+    from calibrate_predictive import split_figures
+
     device_args, dev = _spec(name)
     t0 = time.perf_counter()
     _run(["simulate", "--device", *device_args, "--out", d / "run.npz"])
@@ -113,9 +115,9 @@ def calibrate(name: str, d: Path, draws: int, samples: int, truth: str = "sample
         keep = keep if held_out else np.ones_like(keep)
         om = TWO_PI * f[keep]
         true_P = dev.sampled_P(om) if truth == "sampled" else dev.P(1j * om)
-        c = band_calibration(P[:, keep], np.asarray(true_P)).figures()
-        rows.append({"device": name, "draws": family, "n_held_out": int(keep.sum()), **c,
-                     "posterior_s": t_post, "predict_s": t_pred})  # fmt: skip
+        for band, c, k in split_figures(P[:, keep], true_P, f[keep], split_hz):
+            rows.append({"device": name, "draws": family, "band": band, "n_held_out": k, **c,
+                         "posterior_s": t_post, "predict_s": t_pred})  # fmt: skip
     return rows
 
 
@@ -135,23 +137,26 @@ def main(argv=None):
     ap.add_argument("--n-freq", type=int, default=200, help="hapid predict --n-freq (1–40 Hz)")
     ap.add_argument("--all-frequencies", action="store_true",
                     help="compare at every predicted frequency, not only the held-out ones")  # fmt: skip
+    ap.add_argument("--split-hz", type=float, default=None,
+                    help="also give each band's figures below and at or above this frequency "
+                         "(Hz): where it is wide or short")  # fmt: skip
     a = ap.parse_args(argv)
     print(f"route: simulate → frf → posterior --method {a.method} → predict; 90 % band of P; "
           f"{'all' if a.all_frequencies else 'held-out'} frequencies of {a.n_freq} in 1–40 Hz; "
           f"truth: {a.truth} P\n")  # fmt: skip
-    print("| device | draws | compared freqs | coverage | width / error | calibrated | "
+    print("| device | draws | band | compared freqs | coverage | width / error | calibrated | "
           "rel. error of median | rel. radius | simulate→posterior s | predict s |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     from calibrate_robust import split_specs
 
     for name in split_specs(a.devices):
         with tempfile.TemporaryDirectory() as tmp:
             for r in calibrate(name, Path(tmp), a.draws, a.samples, a.truth, a.n_freq,
-                               not a.all_frequencies, a.method):  # fmt: skip
+                               not a.all_frequencies, a.method, a.split_hz):  # fmt: skip
                 if "failed" in r:
                     print(f"| {r['device']} | — | {r['failed']} |", flush=True)
                     continue
-                print(f"| {r['device']} | {r['draws']} | {r['n_held_out']} | {r['coverage']:.3f} | "
+                print(f"| {r['device']} | {r['draws']} | {r['band']} | {r['n_held_out']} | {r['coverage']:.3f} | "
                       f"{r['width_ratio']:.2f} | {r['width_ratio_calibrated']:.2f} | "
                       f"{r['rel_error_median']:.4f} | {r['rel_radius_median']:.4f} | "
                       f"{r['posterior_s']:.1f} | {r['predict_s']:.1f} |", flush=True)  # fmt: skip

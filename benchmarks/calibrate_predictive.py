@@ -64,7 +64,8 @@ Held-out family (both constructions):
       PYTHONPATH=. python benchmarks/calibrate_predictive.py --draws 200 --kinds gp_corr,loop_gp
       --devices cu5_soft,cu5_d2,tripod3_c3,hexapod6_d2,quad4 --quantities P
 Spread over noise realizations: ``--seeds 0,1,2,3,4,5`` (one row per seed; the seed sets the
-experiment's noise, the Laplace/emcee draws and the predictive draws).
+experiment's noise, the Laplace/emcee draws and the predictive draws). Where in frequency:
+``--split-hz 16`` adds rows for the held-out frequencies below 16 Hz and at or above it.
 Prints a markdown table.
 """
 
@@ -155,6 +156,21 @@ def truth(dev, omega, exact: bool = False):
     return {"Z_H": ZH, "Z_T": ZT, "P": np.asarray(dev.sampled_P(omega))}
 
 
+def split_figures(draws, truth, freq_hz, split_hz=None):
+    """``[(band, figures, n)]``: :func:`~hapid.uncertainty.band_calibration`'s figures of the
+    draws ``(S, N, n, n)`` against ``truth (N, n, n)`` over all ``N`` frequencies (``"all"``)
+    and, with ``split_hz``, over the ``n`` below it and those at or above it (``freq_hz
+    (N,)``): where in frequency a band is wide or short, which the median over all of them
+    hides."""
+    draws, truth, f = np.asarray(draws), np.asarray(truth), np.asarray(freq_hz)
+    out = [("all", band_calibration(draws, truth).figures(), f.size)]
+    if split_hz:
+        for band, m in ((f"<{split_hz:g} Hz", f < split_hz), (f"≥{split_hz:g} Hz", f >= split_hz)):
+            if m.any():
+                out.append((band, band_calibration(draws[:, m], truth[m]).figures(), int(m.sum())))
+    return out
+
+
 def _eval_ms(post, x0, walkers=200, reps=20):
     f = batched_log_prob(post)
     X = post.project(x0 + 1e-4 * np.random.default_rng(0).standard_normal((walkers, x0.size)))
@@ -165,7 +181,7 @@ def _eval_ms(post, x0, walkers=200, reps=20):
     return (time.perf_counter() - t0) / reps * 1e3
 
 
-def _loop_gp_rows(name, frf, nls, om, tr, draws, seed, quantities):
+def _loop_gp_rows(name, frf, nls, om, tr, draws, seed, quantities, split_hz=None):
     """The ``loop_gp`` construction: ``hapid predict --draws loop_gp``'s library call on a
     samples stand-in that carries the measured FRF and the NLS fit (no posterior needed)."""
     n = np.asarray(frf.Z_H).shape[-1]
@@ -177,14 +193,15 @@ def _loop_gp_rows(name, frf, nls, om, tr, draws, seed, quantities):
     pd = plant_draws(ps, om, draws="loop_gp", max_samples=draws, seed=seed)
     t_pred = time.perf_counter() - t0
     nan = float("nan")
-    return [{"device": name, "error model": "loop_gp", "quantity": q,
-             **band_calibration(pd.P, tr[q]).figures(), "eval_ms": nan, "build_s": nan,
-             "posterior_s": nan, "predict_s": t_pred, "n_held_out": len(om), "tau": nan,
-             "steps_over_tau": nan} for q in quantities if q == "P"]  # fmt: skip
+    return [{"device": name, "error model": "loop_gp", "quantity": q, "band": band, **c,
+             "eval_ms": nan, "build_s": nan, "posterior_s": nan, "predict_s": t_pred,
+             "n_held_out": k, "tau": nan, "steps_over_tau": nan}
+            for q in quantities if q == "P"
+            for band, c, k in split_figures(pd.P, tr[q], om / TWO_PI, split_hz)]  # fmt: skip
 
 
 def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", draws=400, seed=0,
-              quantities=("P", "Z_H", "Z_T")):  # fmt: skip
+              quantities=("P", "Z_H", "Z_T"), split_hz=None):  # fmt: skip
     dev = device(name)
     noise = 5e-3 if not isinstance(dev, SecondOrderDevice) else 2e-2
     pattern = "hadamard" if dev.n < 3 else "paper"  # the paper's pattern is singular for n = 2
@@ -208,7 +225,7 @@ def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", dra
     rows = []
     for kind in kinds:
         if kind == "loop_gp":
-            rows += _loop_gp_rows(name, frf, nls, om, tr, draws, seed, quantities)
+            rows += _loop_gp_rows(name, frf, nls, om, tr, draws, seed, quantities, split_hz)
             continue
         fixed = boundary_fixed(nls) if nls.boundary else None
         base, _, mode = kind.partition("@")  # e.g. "gp_corr@map": the hyperparameters' fixing
@@ -231,13 +248,14 @@ def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", dra
         t0 = time.perf_counter()
         pred = predictive_plants(ps, om, max_samples=draws, seed=seed)
         t_pred = time.perf_counter() - t0
+        d = ps.diagnostics
         for q in quantities:
-            c = band_calibration(getattr(pred, q), tr[q]).figures()
-            d = ps.diagnostics
-            rows.append({"device": name, "error model": kind, "quantity": q, **c, "eval_ms": ms,
-                         "build_s": t_build, "posterior_s": t_post, "predict_s": t_pred,
-                         "n_held_out": len(om), "tau": d.get("tau_max", np.nan),
-                         "steps_over_tau": d.get("steps_over_tau", np.nan)})  # fmt: skip
+            for band, c, k in split_figures(getattr(pred, q), tr[q], om / TWO_PI, split_hz):
+                rows.append({"device": name, "error model": kind, "quantity": q, "band": band,
+                             **c, "eval_ms": ms, "build_s": t_build, "posterior_s": t_post,
+                             "predict_s": t_pred, "n_held_out": k,
+                             "tau": d.get("tau_max", np.nan),
+                             "steps_over_tau": d.get("steps_over_tau", np.nan)})  # fmt: skip
     return rows
 
 
@@ -260,20 +278,25 @@ def main(argv=None):
                     help="comma-separated seeds of the experiment's noise, the posterior and the "
                          "draws: one row per device, kind and seed (the spread of the figures "
                          "over noise realizations)")  # fmt: skip
+    ap.add_argument("--split-hz", type=float, default=None,
+                    help="also give each band's figures below and at or above this frequency "
+                         "(Hz): where it is wide or short")  # fmt: skip
     a = ap.parse_args(argv)
     print(f"posterior: {a.method}; 90 % predictive band; held-out frequencies in 1–40 Hz\n")
-    print("| device | seed | model error | quantity | coverage | width / error | calibrated | "
+    print("| device | seed | model error | quantity | band | coverage | width / error | calibrated | "
           "element coverage | rel. error of median | rel. radius | eval ms | build s | "
           "posterior s | τ | steps/τ | predict s |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     from calibrate_robust import split_specs
 
     seeds = [int(x) for x in a.seeds.split(",")]
     for name in FAMILIES[a.family] if a.family else split_specs(a.devices):
         for seed in seeds:
             for r in calibrate(name, kinds=a.kinds.split(","), method=a.method, draws=a.draws,
-                               seed=seed, quantities=a.quantities.split(",")):  # fmt: skip
-                print(f"| {r['device']} | {seed} | {r['error model']} | {r['quantity']} | {r['coverage']:.3f} | "
+                               seed=seed, quantities=a.quantities.split(","),
+                               split_hz=a.split_hz):  # fmt: skip
+                print(f"| {r['device']} | {seed} | {r['error model']} | {r['quantity']} | "
+                  f"{r['band']} | {r['coverage']:.3f} | "
                   f"{r['width_ratio']:.2f} | {r['width_ratio_calibrated']:.2f} | "
                   f"{r['element_coverage']:.3f} | {r['rel_error_median']:.4f} | "
                   f"{r['rel_radius_median']:.4f} | {r['eval_ms']:.2f} | "

@@ -1,6 +1,6 @@
 """``hapid predict`` says in the run where its band was measured not calibrated: a warning for
-a model of 6 or more rods (the params band measured too wide on 6-rod hexapods), none for
-3–5 rods (measured calibrated) or for loop draws."""
+a model of 6 or more rods (the params band measured too narrow at 16–40 Hz and too wide below
+on 6-rod hexapods), none for 3–5 rods (measured calibrated) or for loop draws."""
 
 import numpy as np
 import pytest
@@ -46,7 +46,8 @@ def test_predict_warns_on_models_of_six_or_more_rods(n, tmp_path, capsys):
     if n < RODS_TOO_WIDE:
         assert not warned
     else:
-        assert len(warned) == 1 and f"{n} rods" in warned[0] and "too wide" in warned[0]
+        assert len(warned) == 1 and f"{n} rods" in warned[0]
+        assert "too narrow at 16–40 Hz" in warned[0] and "too wide below 16 Hz" in warned[0]
         assert ("no device with more than 6 rods" in warned[0]) == (n > 6)
 
 
