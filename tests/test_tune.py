@@ -244,7 +244,7 @@ def test_tuning_notebook_runs_in_fast_mode(tmp_path):
         probe, _ = run_notebook(
             "04_robust_tuning",
             tmp_path,
-            "{'grad': grad_rel_err, 'stable': bool(true_tuned['stable']), 'n': tab['tuned'].get('posterior_n')}",
+            "{'grad': grad_rel_err, 'stable': bool(true_tuned.stable), 'n': tab['tuned'].get('posterior_n')}",
         )
     finally:
         mp.undo()
