@@ -20,6 +20,7 @@ _NAMES = {
     "plant": "impedance",
     "singular_values": "impedance",
     "span_db": "impedance",
+    "clear_programs": "_aot",
 }
 __all__ = [*_SUBPACKAGES, *_NAMES]
 

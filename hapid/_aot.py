@@ -46,6 +46,7 @@ SUBDIR = "export"
 """Sub-folder of the persistent cache that holds the exported programs."""
 _VERSION = 1  # bump when the stored record's layout changes
 _SRC = Path(__file__).resolve().parent
+_MEMOS: list[dict] = []  # every cached_jit's in-process program tables (clear_programs)
 
 
 @functools.cache
@@ -157,6 +158,7 @@ def cached_jit(fn: Callable, name: str | None = None) -> Callable:
     plain = eqx.filter_jit(fn)
     memo: dict[str, _Program | None] = {}
     local: dict[tuple, _Program | None] = {}  # _local_key → the program of memo
+    _MEMOS.extend((memo, local))
 
     @functools.wraps(fn)
     def wrapper(*args):
@@ -194,3 +196,16 @@ def cached_jit(fn: Callable, name: str | None = None) -> Callable:
 
     wrapper.plain = plain
     return wrapper
+
+
+def clear_programs() -> None:
+    """Drop every compiled program this process holds: :func:`cached_jit`'s tables and JAX's
+    own caches (``jax.clear_caches``). Later calls reload them from the persistent caches.
+
+    Each live XLA:CPU executable keeps its machine code in memory mappings of its own, and
+    Linux allows a process ``vm.max_map_count`` of them (65 530 by default): a process that
+    compiles thousands of distinct programs — a test session, a long notebook — crashes
+    with a segmentation fault in the compiler once it reaches that number."""
+    for table in _MEMOS:
+        table.clear()
+    jax.clear_caches()

@@ -1,3 +1,4 @@
+import gc
 import os
 
 # The suite is compile-bound (hundreds of small programs, each run a few times): XLA's LLVM
@@ -14,6 +15,8 @@ if os.environ.get("HAPID_TEST_XLA_OPT") != "1":
 os.environ.setdefault(
     "HAPID_JAX_CACHE", os.path.join(os.path.dirname(__file__), "..", ".hapid_cache", "jax")
 )
+
+import pytest  # noqa: E402
 
 import hapid  # noqa: E402,F401  (float64 before any test builds arrays)
 
@@ -53,3 +56,15 @@ _HEAVY_FIRST = (
 def pytest_collection_modifyitems(config, items):
     rank = {name: i for i, name in enumerate(_HEAVY_FIRST)}
     items.sort(key=lambda it: rank.get(it.path.name, len(rank)))  # stable: file order kept
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_programs():
+    """Drop the compiled programs after each test module (hapid._aot.clear_programs): a
+    process that keeps every program it compiled reaches Linux's vm.max_map_count (each
+    executable maps its code separately) and the XLA compiler segfaults."""
+    yield
+    from hapid._aot import clear_programs
+
+    clear_programs()
+    gc.collect()
