@@ -164,7 +164,7 @@ def split_figures(draws, truth, freq_hz, split_hz=None):
     hides."""
     draws, truth, f = np.asarray(draws), np.asarray(truth), np.asarray(freq_hz)
     out = [("all", band_calibration(draws, truth).figures(), f.size)]
-    if split_hz:
+    if split_hz is not None:
         for band, m in ((f"<{split_hz:g} Hz", f < split_hz), (f"≥{split_hz:g} Hz", f >= split_hz)):
             if m.any():
                 out.append((band, band_calibration(draws[:, m], truth[m]).figures(), int(m.sum())))

@@ -30,6 +30,7 @@ import dataclasses
 import functools
 import hashlib
 import pickle
+import weakref
 from collections.abc import Callable
 from pathlib import Path
 
@@ -46,7 +47,7 @@ SUBDIR = "export"
 """Sub-folder of the persistent cache that holds the exported programs."""
 _VERSION = 1  # bump when the stored record's layout changes
 _SRC = Path(__file__).resolve().parent
-_MEMOS: list[dict] = []  # every cached_jit's in-process program tables (clear_programs)
+_WRAPPERS: weakref.WeakSet = weakref.WeakSet()  # live cached_jit wrappers (clear_programs)
 
 
 @functools.cache
@@ -158,7 +159,6 @@ def cached_jit(fn: Callable, name: str | None = None) -> Callable:
     plain = eqx.filter_jit(fn)
     memo: dict[str, _Program | None] = {}
     local: dict[tuple, _Program | None] = {}  # _local_key → the program of memo
-    _MEMOS.extend((memo, local))
 
     @functools.wraps(fn)
     def wrapper(*args):
@@ -195,6 +195,9 @@ def cached_jit(fn: Callable, name: str | None = None) -> Callable:
         return _unflatten(prog.skeleton, prog.call(leaves))
 
     wrapper.plain = plain
+    wrapper.programs = memo  # the programs held in this process, by key (clear_programs)
+    wrapper.clear = lambda: (memo.clear(), local.clear())
+    _WRAPPERS.add(wrapper)
     return wrapper
 
 
@@ -206,6 +209,6 @@ def clear_programs() -> None:
     Linux allows a process ``vm.max_map_count`` of them (65 530 by default): a process that
     compiles thousands of distinct programs — a test session, a long notebook — crashes
     with a segmentation fault in the compiler once it reaches that number."""
-    for table in _MEMOS:
-        table.clear()
+    for wrapper in list(_WRAPPERS):
+        wrapper.clear()
     jax.clear_caches()

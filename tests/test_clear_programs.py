@@ -30,13 +30,16 @@ def test_clear_programs_releases_compiled_code_and_results_stay_the_same():
     prog = _aot.cached_jit(f, name="test_clear_programs_f")
     xs = [np.full((3 + k % 5, 3 + k % 5), 0.01 * (k + 1)) for k in range(40)]
     before = [np.asarray(prog(x, k)) for k, x in enumerate(xs)]  # 40 programs (k is static)
+    exported = _aot.export_dir() is not None  # else cached_jit is eqx.filter_jit: no table
+    assert len(prog.programs) == (40 if exported else 0)
     gc.collect()
     held = _mappings()
     hapid.clear_programs()
     gc.collect()
     released = held - _mappings()
     assert released >= 40, f"clear_programs released {released} memory mappings of 40 programs"
-    assert all(not table for table in _aot._MEMOS)
+    assert not prog.programs
     after = [np.asarray(prog(x, k)) for k, x in enumerate(xs)]  # reloaded from the caches
+    assert len(prog.programs) == (40 if exported else 0)  # through the export cache again
     for a, b in zip(before, after, strict=True):
         np.testing.assert_array_equal(a, b)

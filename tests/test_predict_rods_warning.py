@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hapid import SecondOrder
-from hapid._cli_predict import RODS_TOO_WIDE, rods_warning
+from hapid._cli_predict import RODS_UNCALIBRATED, rods_warning
 from hapid.cli import main
 from hapid.fit import Scale, model_to_theta
 from hapid.impedance import ImpedanceModel
@@ -43,7 +43,7 @@ def test_predict_warns_on_models_of_six_or_more_rods(n, tmp_path, capsys):
     with np.load(out) as z:
         assert z["P"].shape[1:] == (5, n, n) and np.all(np.isfinite(z["P"]))
     warned = [ln for ln in text.splitlines() if ln.startswith("WARNING")]
-    if n < RODS_TOO_WIDE:
+    if n < RODS_UNCALIBRATED:
         assert not warned
     else:
         assert len(warned) == 1 and f"{n} rods" in warned[0]
@@ -53,5 +53,5 @@ def test_predict_warns_on_models_of_six_or_more_rods(n, tmp_path, capsys):
 
 def test_rods_warning_only_for_parameter_draws():
     assert rods_warning("loop_gp", 6) is None
-    assert rods_warning("params", RODS_TOO_WIDE - 1) is None
-    assert rods_warning("params", RODS_TOO_WIDE).startswith("WARNING")
+    assert rods_warning("params", RODS_UNCALIBRATED - 1) is None
+    assert rods_warning("params", RODS_UNCALIBRATED).startswith("WARNING")
