@@ -36,8 +36,7 @@ DRAWS = ("auto", "loop_gp", "params")
 ``loop_gp`` (the loop conditioned on the measured FRF), ``params`` (the posterior's parameter
 draws), ``auto`` (``loop_gp`` when the measured FRF is known). ``hapid predict`` offers
 ``params`` (its default: the band measured calibrated on 3–5 rods; on 6 too narrow at 16–40 Hz
-and too wide below) and
-``loop_gp``."""
+and too wide below) and ``loop_gp``."""
 
 NLS_MAX_STEPS = 2000
 """Step limit of the NLS and ML fits (``hapid fit``, the fit ``hapid posterior`` centres on, the

@@ -63,14 +63,6 @@ _MAPPINGS_HIGH = 20_000
 mappings (a third of Linux's default ``vm.max_map_count``, 65 530)."""
 
 
-def _mappings() -> int:
-    try:
-        with open("/proc/self/maps") as fh:
-            return sum(1 for _ in fh)
-    except OSError:  # not Linux: no such limit
-        return 0
-
-
 @pytest.fixture(autouse=True, scope="module")
 def _release_programs():
     """Drop the compiled programs after a test module when the process holds many memory
@@ -79,8 +71,8 @@ def _release_programs():
     segfaults — a serial slow-suite run did after 32 tests. Below the threshold nothing is
     dropped, so later modules keep reusing programs in memory."""
     yield
-    if _mappings() > _MAPPINGS_HIGH:
-        from hapid import clear_programs
+    from hapid._aot import clear_programs, mapping_count
 
+    if mapping_count() > _MAPPINGS_HIGH:  # 0 off Linux: no such limit
         clear_programs()
         gc.collect()

@@ -14,11 +14,6 @@ import hapid
 from hapid import _aot
 
 
-def _mappings() -> int:
-    with open("/proc/self/maps") as fh:
-        return sum(1 for _ in fh)
-
-
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="counts /proc/self/maps")
 def test_clear_programs_releases_compiled_code_and_results_stay_the_same():
     def f(x, k):
@@ -33,10 +28,10 @@ def test_clear_programs_releases_compiled_code_and_results_stay_the_same():
     exported = _aot.export_dir() is not None  # else cached_jit is eqx.filter_jit: no table
     assert len(prog.programs) == (40 if exported else 0)
     gc.collect()
-    held = _mappings()
+    held = _aot.mapping_count()
     hapid.clear_programs()
     gc.collect()
-    released = held - _mappings()
+    released = held - _aot.mapping_count()
     assert released >= 40, f"clear_programs released {released} memory mappings of 40 programs"
     assert not prog.programs
     after = [np.asarray(prog(x, k)) for k, x in enumerate(xs)]  # reloaded from the caches
