@@ -73,6 +73,9 @@ Held-out family (both constructions):
 Spread over noise realizations: ``--seeds 0,1,2,3,4,5`` (one row per seed; the seed sets the
 experiment's noise, the Laplace/emcee draws and the predictive draws). Where in frequency:
 ``--split-hz 16`` adds rows for the held-out frequencies below 16 Hz and at or above it.
+``--holdout`` runs ``hapid predict``'s leave-one-frequency-out check and adds rows for the
+held-out frequencies it leaves established (``est.``, and ``est. ≥16 Hz`` with ``--split-hz``)
+and those it flags (``flagged``); a comment line per run names the flagged intervals.
 Prints a markdown table.
 """
 
@@ -94,6 +97,7 @@ from hapid.uncertainty import (
     band_calibration,
     batched_log_prob,
     boundary_fixed,
+    holdout_check,
     initial_point,
     make_log_posterior,
     measured_data,
@@ -166,19 +170,25 @@ def truth(dev, omega, exact: bool = False):
     return {"Z_H": ZH, "Z_T": ZT, "P": np.asarray(dev.sampled_P(omega))}
 
 
-def split_figures(draws, truth, freq_hz, split_hz=None):
+def split_figures(draws, truth, freq_hz, split_hz=None, check=None):
     """``[(band, figures, n)]``: :func:`~hapid.uncertainty.band_calibration`'s figures of the
     draws ``(S, N, n, n)`` against ``truth (N, n, n)`` over all ``N`` frequencies (``"all"``)
     and, with ``split_hz``, over the ``n`` below it and those at or above it (``freq_hz
     (N,)``): where in frequency a band is wide or short, which the median over all of them
-    hides."""
+    hides. With ``check`` (a :class:`~hapid.uncertainty.HoldoutCheck`) also over the
+    frequencies it leaves established (``"est."``, ``"est. ≥F Hz"``) and those it flags
+    (``"flagged"``)."""
     draws, truth, f = np.asarray(draws), np.asarray(truth), np.asarray(freq_hz)
-    out = [("all", band_calibration(draws, truth).figures(), f.size)]
+    parts = [("all", np.ones(f.size, bool))]
     if split_hz is not None:
-        for band, m in ((f"<{split_hz:g} Hz", f < split_hz), (f"≥{split_hz:g} Hz", f >= split_hz)):
-            if m.any():
-                out.append((band, band_calibration(draws[:, m], truth[m]).figures(), int(m.sum())))
-    return out
+        parts += [(f"<{split_hz:g} Hz", f < split_hz), (f"≥{split_hz:g} Hz", f >= split_hz)]
+    if check is not None:
+        ok = check.covers(f)
+        parts += [("est.", ok), ("flagged", ~ok)]
+        if split_hz is not None:
+            parts.append((f"est. ≥{split_hz:g} Hz", ok & (f >= split_hz)))
+    return [(band, band_calibration(draws[:, m], truth[m]).figures(), int(m.sum()))
+            for band, m in parts if m.any()]  # fmt: skip
 
 
 def _eval_ms(post, x0, walkers=200, reps=20):
@@ -211,7 +221,7 @@ def _loop_gp_rows(name, frf, nls, om, tr, draws, seed, quantities, split_hz=None
 
 
 def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", draws=400, seed=0,
-              quantities=("P", "Z_H", "Z_T"), split_hz=None):  # fmt: skip
+              quantities=("P", "Z_H", "Z_T"), split_hz=None, holdout=False):  # fmt: skip
     dev = device(name)
     noise = 5e-3 if not isinstance(dev, SecondOrderDevice) else 2e-2
     pattern = "hadamard" if dev.n < 3 else "paper"  # the paper's pattern is singular for n = 2
@@ -258,9 +268,15 @@ def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", dra
         t0 = time.perf_counter()
         pred = predictive_plants(ps, om, max_samples=draws, seed=seed)
         t_pred = time.perf_counter() - t0
+        check = holdout_check(ps, max_samples=draws, seed=seed) if holdout else None
+        if check is not None:
+            gaps = ", ".join(f"{a:g}–{b:g}" for a, b in check.not_established_hz) or "none"
+            print(f"<!-- {name} seed {seed}: check {check.status}; not established (Hz): "
+                  f"{gaps}; ratio min {check.ratio.min():.2f} -->", flush=True)  # fmt: skip
         d = ps.diagnostics
         for q in quantities:
-            for band, c, k in split_figures(getattr(pred, q), tr[q], om / TWO_PI, split_hz):
+            for band, c, k in split_figures(getattr(pred, q), tr[q], om / TWO_PI, split_hz,
+                                            check):  # fmt: skip
                 rows.append({"device": name, "error model": kind, "quantity": q, "band": band,
                              **c, "eval_ms": ms, "build_s": t_build, "posterior_s": t_post,
                              "predict_s": t_pred, "n_held_out": k,
@@ -291,6 +307,10 @@ def main(argv=None):
     ap.add_argument("--split-hz", type=float, default=None,
                     help="also give each band's figures below and at or above this frequency "
                          "(Hz): where it is wide or short")  # fmt: skip
+    ap.add_argument("--holdout", action="store_true",
+                    help="also run hapid predict's leave-one-frequency-out check "
+                         "(hapid.uncertainty.holdout_check) and give the band's figures where it "
+                         "leaves the band established and where it flags it")  # fmt: skip
     a = ap.parse_args(argv)
     print(f"posterior: {a.method}; 90 % predictive band; held-out frequencies in 1–40 Hz\n")
     print("| device | seed | model error | quantity | band | coverage | width / error | calibrated | "
@@ -304,7 +324,7 @@ def main(argv=None):
         for seed in seeds:
             for r in calibrate(name, kinds=a.kinds.split(","), method=a.method, draws=a.draws,
                                seed=seed, quantities=a.quantities.split(","),
-                               split_hz=a.split_hz):  # fmt: skip
+                               split_hz=a.split_hz, holdout=a.holdout):  # fmt: skip
                 print(f"| {r['device']} | {seed} | {r['error model']} | {r['quantity']} | "
                   f"{r['band']} | {r['coverage']:.3f} | "
                   f"{r['width_ratio']:.2f} | {r['width_ratio_calibrated']:.2f} | "

@@ -12,7 +12,9 @@
   :func:`posterior_from_files` for the CLI.
 - :func:`credible_bands` — posterior-predictive bands of |Z|, σ(Z), σ(P), σ(P P̂⁻¹).
 - :func:`predictive_plants` — draws of the true Z_H, Z_T, P on any grid *including* the
-  model-error term (GP conditional on the fit residuals); :func:`band_calibration`.
+  model-error term (GP conditional on the fit residuals); :func:`band_calibration`;
+  :func:`holdout_check` (→ :class:`HoldoutCheck`) — where between the measured frequencies
+  that band is not established (each one left out in turn and predicted from the rest).
 - :func:`robust_check`, :func:`device_plants` → :class:`RobustReport` — P(stable), margin
   and bandwidth quantiles of a fixed controller over posterior samples or device variants.
 - :func:`fit_loop_gp`, :func:`loop_gp_plants` — draws of the loop ``Q = P P̂⁻¹`` conditioned
@@ -41,6 +43,9 @@ from ._draws import Draws as Draws
 from ._draws import LoopDraws as LoopDraws
 from ._draws import ParamDraws as ParamDraws
 from ._draws import draws_from as draws_from
+from ._holdout import HoldoutCheck as HoldoutCheck
+from ._holdout import HoldoutStatus as HoldoutStatus
+from ._holdout import holdout_check as holdout_check
 from ._hyper import fix_hyperparameters as fix_hyperparameters
 from ._laplace import LaplacePosterior as LaplacePosterior
 from ._laplace import ModeStatus as ModeStatus

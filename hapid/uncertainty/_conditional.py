@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _config  # noqa: F401  (float64)
+from .._aot import cached_jit
 from ..samples import PosteriorSamples
 from ._gp import (
     GP_CORR_KERNEL,
@@ -49,14 +50,14 @@ def _fit_residuals(ps: PosteriorSamples, models):
     return np.asarray(data["Z_H"])[None] - ZHf, np.asarray(data["Z_T"])[None] - ZTf
 
 
-def _batched(one, hyper, y_all, rng):
-    """``jit(vmap(one))`` over ``(hyper, y, key)`` in batches of :data:`_BATCH` draws, with
-    keys split from one seed drawn from ``rng``; the per-batch outputs (a pair)."""
+def _batched(run, hyper, y_all, rng, *consts):
+    """``run(hyper, y, keys, *consts)`` (a jitted, vmapped function of the draws) in batches
+    of :data:`_BATCH` draws, with keys split from one seed drawn from ``rng``; the per-batch
+    outputs (a pair)."""
     S_ = hyper.shape[0]
-    run = jax.jit(jax.vmap(one))
     keys = jax.random.split(jax.random.PRNGKey(int(rng.integers(2**31))), S_)
     return [run(jnp.asarray(hyper[i : i + _BATCH]), jnp.asarray(y_all[i : i + _BATCH]),
-                keys[i : i + _BATCH]) for i in range(0, S_, _BATCH)]  # fmt: skip
+                keys[i : i + _BATCH], *consts) for i in range(0, S_, _BATCH)]  # fmt: skip
 
 
 def white_errors(ps: PosteriorSamples, idx, omega, rng, weight=None):
@@ -107,41 +108,10 @@ def gp_errors(ps: PosteriorSamples, idx, models, omega, rng):
     flat = lambda r: np.moveaxis(r.reshape(r.shape[0], Nf, E), 1, 2)  # noqa: E731  (S, E, Nf)
     y_all = np.stack([np.concatenate([flat(rH.real), flat(rT.real)], -1),
                       np.concatenate([flat(rH.imag), flat(rT.imag)], -1)], -1)  # fmt: skip
-    u_j, a_j = jnp.asarray(u), tuple(jnp.asarray(a) for a in a_all)
-    sdH, cT = jnp.sqrt(jnp.asarray(dH)), jnp.asarray(cond_T)
-    lamT = jnp.asarray(np.where(dH > 0, dHT / np.where(dH > 0, np.sqrt(dH), 1), 0))
-
-    def one(h, y, key):  # y (E, 2Nf, 2): residuals; returns gH, gM (E, 2, N)
-        tau, ell, beta, kap = split_hyper(h)
-        # the amplitude slope is learned on the fit band: held constant beyond it
-        b = [a_j[i] * jnp.exp(beta[i] * jnp.clip(u_j, u_j[0], u_j[Nf - 1])) for i in range(2)]
-        wu = [warp(u_j, kap[i]) for i in range(2)]
-        R = [kernel(wu[i], wu[i], ell[i]) for i in range(2)]  # correlations, unit diagonal
-        Ks = [0.5 * tau[i] ** 2 * jnp.outer(b[i], b[i]) * R[i] for i in range(2)]
-        C = gp_covariance(u_j[:Nf], a_j[0][:Nf], a_j[1][:Nf], var_H, var_T, rho, h)
-        k1, k2, k3 = jax.random.split(key, 3)
-        f = []
-        for i, kk in enumerate((k1, k2)):
-            # prior draw = amplitude × draw of the unit-variance correlation: the jitter is
-            # relative to each frequency's own variance (a jitter relative to the mean
-            # diagonal of K is dominated by the kHz amplitudes, ~10¹⁴ × the 1 Hz ones, and
-            # added white noise far larger than the error itself at low frequency)
-            Lr = jnp.linalg.cholesky(R[i] + 1e-9 * jnp.eye(R[i].shape[0]))
-            z = Lr @ jax.random.normal(kk, (Nf + N, 2 * E))
-            sd = jnp.sqrt(0.5) * tau[i] * b[i]
-            f.append((sd[:, None] * z).T.reshape(E, 2, Nf + N))
-        z1, z2 = jax.random.normal(k3, (2, E, 2, Nf))
-        eH = sdH[:, None] * z1
-        eT = lamT[:, None] * z1 + cT[:, None] * z2
-        sim = jnp.concatenate([f[0][..., :Nf] + eH, f[0][..., :Nf] + f[1][..., :Nf] + eT], -1)
-        resid = jnp.moveaxis(y, -1, 1) - sim  # (E, 2, 2Nf)
-        Lc = jnp.linalg.cholesky(C)[:, None]
-        alpha = jax.scipy.linalg.cho_solve((Lc, True), resid[..., None])[..., 0]
-        outH = f[0][..., Nf:] + (alpha[..., :Nf] + alpha[..., Nf:]) @ Ks[0][Nf:, :Nf].T
-        outM = f[1][..., Nf:] + alpha[..., Nf:] @ Ks[1][Nf:, :Nf].T
-        return outH, outM
-
-    parts = _batched(one, hyper, y_all, rng)
+    sdH, cT = np.sqrt(dH), cond_T
+    lamT = np.where(dH > 0, dHT / np.where(dH > 0, np.sqrt(dH), 1), 0)
+    consts = tuple(jnp.asarray(x) for x in (u, *a_all, sdH, lamT, cT, var_H, var_T, rho))
+    parts = _batched(_gp_chunk, hyper, y_all, rng, consts)
     oH = np.concatenate([np.asarray(p[0]) for p in parts])  # (S, E, 2, N)
     oM = np.concatenate([np.asarray(p[1]) for p in parts])
     cplx = lambda o: np.moveaxis(o[:, :, 0] + 1j * o[:, :, 1], 1, 2).reshape(S_, N, n, n)  # noqa: E731
@@ -173,59 +143,126 @@ def gp_corr_errors(ps: PosteriorSamples, idx, models, omega, rng, element: bool 
     sdH = jnp.asarray(np.sqrt(var_H.reshape(Nf, E).T))  # (E, Nf)
     sdT = jnp.asarray(np.sqrt(var_T.reshape(Nf, E).T))
     om_all = np.concatenate([om_fit, omega])
-    u = jnp.asarray(np.log(om_all / float(np.asarray(ps.scale.omega_ref))))
+    u = jnp.asarray(np.log(om_all / float(np.asarray(ps.scale.omega_ref))))  # (Nf + N,)
     a_all = (np.concatenate([aH_f, aH_n]), np.concatenate([aM_f, aM_n]))  # (Nf + N,) each
     if element:  # per element: (E, Nf + N)
         w = element_weights(np.asarray(data["ref_theta"]), ps.scale, om_all)
         a_all = tuple(a[None] * wi for a, wi in zip(a_all, w, strict=True))
-    a_all = tuple(jnp.asarray(a) for a in a_all)
-    M = Nf + N
-
-    def circ(key, shape):  # circular complex, unit variance
-        z = jax.random.normal(key, (2,) + shape)
-        return (z[0] + 1j * z[1]) * np.sqrt(0.5)
-
-    def one(h, y, key):  # y (E, 2Nf) complex; returns e_H, e_M (E, N)
-        tau, ell, beta, kap = split_hyper(h)
-        rho = hm_correlation(h)
-        r2 = jnp.abs(rho) ** 2
-        C = gp_corr_covariance(u[:Nf], a_all[0][..., :Nf], a_all[1][..., :Nf], var_H, var_T,
-                               rho_n, h)  # fmt: skip
-        # the amplitude slope is learned on the fit band: held constant beyond it
-        g = [
-            jnp.broadcast_to(
-                tau[i] * a_all[i] * jnp.exp(beta[i] * jnp.clip(u, u[0], u[Nf - 1])), (E, M)
-            ).T
-            for i in range(2)
-        ]  # fmt: skip  (M, E) error sizes
-        k = jax.random.split(key, 4)
-        R, f = [], []
-        for i in range(2):  # unit-variance latent draws (relative jitter: see gp_errors)
-            wi = corr_warp(u, kap[i])
-            R.append(KERNELS[GP_CORR_KERNEL](wi, wi, ell[i]))
-            Lr = jnp.linalg.cholesky(R[i] + 1e-9 * jnp.eye(M))
-            f.append(Lr @ circ(k[i], (M, E)))  # (M, E)
-        eH = g[0] * f[0]
-        eM = g[1] * (rho * f[0] + jnp.sqrt(1.0 - r2) * f[1])
-        z1, z2 = circ(k[2], (E, Nf)), circ(k[3], (E, Nf))
-        nH = sdH * z1
-        nT = sdT * (rho_n * z1 + np.sqrt(1.0 - rho_n**2) * z2)
-        sim = jnp.concatenate([eH[:Nf].T + nH, (eH[:Nf] + eM[:Nf]).T + nT], -1)  # (E, 2Nf)
-        Lc = jnp.linalg.cholesky(C)
-        alpha = jax.scipy.linalg.cho_solve((Lc, True), (y - sim)[..., None])[..., 0]
-        aH_, aT_ = alpha[:, :Nf], alpha[:, Nf:]  # (E, Nf)
-        # Cov(e_X(*), [r_H; r_T]) C⁻¹ (r − r̃) through the unit correlations k₁, k₂
-        # (gp_corr_blocks: K_HH = g_H g_Hᵀ k₁, K_HM = ρ̄ g_H g_Mᵀ k₁, K_MH = ρ g_M g_Hᵀ k₁,
-        # K_MM = g_M g_Mᵀ (|ρ|² k₁ + (1 − |ρ|²) k₂); e_T = e_H + e_M)
-        vH = g[0][:Nf].T * (aH_ + aT_)
-        vM = g[1][:Nf].T * aT_
-        k1s, k2s = R[0][Nf:, :Nf], R[1][Nf:, :Nf]  # (N, Nf)
-        p1H, p1M, p2M = vH @ k1s.T, vM @ k1s.T, vM @ k2s.T  # (E, N)
-        outH = eH[Nf:].T + g[0][Nf:].T * (p1H + jnp.conj(rho) * p1M)
-        outM = eM[Nf:].T + g[1][Nf:].T * (rho * p1H + r2 * p1M + (1.0 - r2) * p2M)
-        return outH, outM
-
-    parts = _batched(one, hyper, y_all, rng)
+    consts = (u, *(jnp.asarray(a) for a in a_all), sdH, sdT, jnp.asarray(var_H),
+              jnp.asarray(var_T), jnp.asarray(rho_n))  # fmt: skip
+    parts = _batched(_gp_corr_chunk, hyper, y_all, rng, consts)
     cplx = lambda o: np.moveaxis(o, 1, 2).reshape(S_, N, n, n)  # noqa: E731  (S, E, N) → (S, N, n, n)
     return (cplx(np.concatenate([np.asarray(p[0]) for p in parts])),
             cplx(np.concatenate([np.asarray(p[1]) for p in parts])))  # fmt: skip
+
+
+def _gp_one(h, y, key, u, aH, aM, sdH, lamT, cT, var_H, var_T, rho):
+    """One draw of :func:`gp_errors`: ``h`` the hyperparameters, ``y (E, 2Nf, 2)`` the
+    residuals (re, im), ``u (Nf + N,)`` log-frequency of fit ∪ new frequencies, ``aH, aM
+    (Nf + N,)`` amplitudes, ``sdH, lamT, cT (E, Nf)`` the measurement-noise factors per re/im
+    part, ``var_H, var_T (Nf, n, n)`` the FRF's variance, ``rho`` its H–T correlation;
+    returns ``g_H, g_M (E, 2, N)``. The data are arguments (see :func:`_gp_corr_one`)."""
+    E, Nf = y.shape[0], y.shape[1] // 2
+    N = u.shape[0] - Nf
+    a_j = (aH, aM)
+    tau, ell, beta, kap = split_hyper(h)
+    # the amplitude slope is learned on the fit band: held constant beyond it
+    b = [a_j[i] * jnp.exp(beta[i] * jnp.clip(u, u[0], u[Nf - 1])) for i in range(2)]
+    wu = [warp(u, kap[i]) for i in range(2)]
+    R = [kernel(wu[i], wu[i], ell[i]) for i in range(2)]  # correlations, unit diagonal
+    Ks = [0.5 * tau[i] ** 2 * jnp.outer(b[i], b[i]) * R[i] for i in range(2)]
+    C = gp_covariance(u[:Nf], aH[:Nf], aM[:Nf], var_H, var_T, rho, h)
+    k1, k2, k3 = jax.random.split(key, 3)
+    f = []
+    for i, kk in enumerate((k1, k2)):
+        # prior draw = amplitude × draw of the unit-variance correlation: the jitter is
+        # relative to each frequency's own variance (a jitter relative to the mean
+        # diagonal of K is dominated by the kHz amplitudes, ~10¹⁴ × the 1 Hz ones, and
+        # added white noise far larger than the error itself at low frequency)
+        Lr = jnp.linalg.cholesky(R[i] + 1e-9 * jnp.eye(R[i].shape[0]))
+        z = Lr @ jax.random.normal(kk, (Nf + N, 2 * E))
+        sd = jnp.sqrt(0.5) * tau[i] * b[i]
+        f.append((sd[:, None] * z).T.reshape(E, 2, Nf + N))
+    z1, z2 = jax.random.normal(k3, (2, E, 2, Nf))
+    eH = sdH[:, None] * z1
+    eT = lamT[:, None] * z1 + cT[:, None] * z2
+    sim = jnp.concatenate([f[0][..., :Nf] + eH, f[0][..., :Nf] + f[1][..., :Nf] + eT], -1)
+    resid = jnp.moveaxis(y, -1, 1) - sim  # (E, 2, 2Nf)
+    Lc = jnp.linalg.cholesky(C)[:, None]
+    alpha = jax.scipy.linalg.cho_solve((Lc, True), resid[..., None])[..., 0]
+    outH = f[0][..., Nf:] + (alpha[..., :Nf] + alpha[..., Nf:]) @ Ks[0][Nf:, :Nf].T
+    outM = f[1][..., Nf:] + alpha[..., Nf:] @ Ks[1][Nf:, :Nf].T
+    return outH, outM
+
+
+def gp_chunk(hyper, y, keys, consts):
+    """:func:`_gp_one` vmapped over the draws ``hyper (B, H)``, ``y (B, E, 2Nf, 2)``,
+    ``keys (B, 2)``; ``consts`` the shared data (its arguments after ``key``)."""
+    return jax.vmap(lambda h, yy, kk: _gp_one(h, yy, kk, *consts))(hyper, y, keys)
+
+
+_gp_chunk = cached_jit(gp_chunk)
+
+
+def _circ(key, shape):
+    """Circular complex standard normals of ``shape`` (unit variance)."""
+    z = jax.random.normal(key, (2,) + shape)
+    return (z[0] + 1j * z[1]) * np.sqrt(0.5)
+
+
+def _gp_corr_one(h, y, key, u, aH, aM, sdH, sdT, var_H, var_T, rho_n):
+    """One draw of :func:`gp_corr_errors`: ``h`` the hyperparameters, ``y (E, 2Nf)`` the
+    residuals ``[r_H, r_T]``, ``u (Nf + N,)`` log-frequency of fit ∪ new frequencies,
+    ``aH, aM`` ``(Nf + N,)`` or ``(E, Nf + N)`` amplitudes, ``sdH, sdT (E, Nf)`` and
+    ``var_H, var_T (Nf, n, n)`` the FRF's std and variance, ``rho_n`` its H–T correlation;
+    returns ``e_H, e_M (E, N)``. The data are arguments, not constants, so one compiled
+    program serves every data set of these shapes (:func:`loo_plants`)."""
+    E, Nf = y.shape[0], y.shape[1] // 2
+    M = u.shape[0]
+    tau, ell, beta, kap = split_hyper(h)
+    rho = hm_correlation(h)
+    r2 = jnp.abs(rho) ** 2
+    a_all = (aH, aM)
+    C = gp_corr_covariance(u[:Nf], aH[..., :Nf], aM[..., :Nf], var_H, var_T, rho_n, h)
+    # the amplitude slope is learned on the fit band: held constant beyond it
+    g = [
+        jnp.broadcast_to(
+            tau[i] * a_all[i] * jnp.exp(beta[i] * jnp.clip(u, u[0], u[Nf - 1])), (E, M)
+        ).T
+        for i in range(2)
+    ]  # fmt: skip  (M, E) error sizes
+    k = jax.random.split(key, 4)
+    R, f = [], []
+    for i in range(2):  # unit-variance latent draws (relative jitter: see gp_errors)
+        wi = corr_warp(u, kap[i])
+        R.append(KERNELS[GP_CORR_KERNEL](wi, wi, ell[i]))
+        Lr = jnp.linalg.cholesky(R[i] + 1e-9 * jnp.eye(M))
+        f.append(Lr @ _circ(k[i], (M, E)))  # (M, E)
+    eH = g[0] * f[0]
+    eM = g[1] * (rho * f[0] + jnp.sqrt(1.0 - r2) * f[1])
+    z1, z2 = _circ(k[2], (E, Nf)), _circ(k[3], (E, Nf))
+    nH = sdH * z1
+    nT = sdT * (rho_n * z1 + jnp.sqrt(1.0 - rho_n**2) * z2)
+    sim = jnp.concatenate([eH[:Nf].T + nH, (eH[:Nf] + eM[:Nf]).T + nT], -1)  # (E, 2Nf)
+    Lc = jnp.linalg.cholesky(C)
+    alpha = jax.scipy.linalg.cho_solve((Lc, True), (y - sim)[..., None])[..., 0]
+    aH_, aT_ = alpha[:, :Nf], alpha[:, Nf:]  # (E, Nf)
+    # Cov(e_X(*), [r_H; r_T]) C⁻¹ (r − r̃) through the unit correlations k₁, k₂
+    # (gp_corr_blocks: K_HH = g_H g_Hᵀ k₁, K_HM = ρ̄ g_H g_Mᵀ k₁, K_MH = ρ g_M g_Hᵀ k₁,
+    # K_MM = g_M g_Mᵀ (|ρ|² k₁ + (1 − |ρ|²) k₂); e_T = e_H + e_M)
+    vH = g[0][:Nf].T * (aH_ + aT_)
+    vM = g[1][:Nf].T * aT_
+    k1s, k2s = R[0][Nf:, :Nf], R[1][Nf:, :Nf]  # (N, Nf)
+    p1H, p1M, p2M = vH @ k1s.T, vM @ k1s.T, vM @ k2s.T  # (E, N)
+    outH = eH[Nf:].T + g[0][Nf:].T * (p1H + jnp.conj(rho) * p1M)
+    outM = eM[Nf:].T + g[1][Nf:].T * (rho * p1H + r2 * p1M + (1.0 - r2) * p2M)
+    return outH, outM
+
+
+def gp_corr_chunk(hyper, y, keys, consts):
+    """:func:`_gp_corr_one` vmapped over the draws ``hyper (B, H)``, ``y (B, E, 2Nf)``,
+    ``keys (B, 2)``; ``consts`` the shared data (its arguments after ``key``)."""
+    return jax.vmap(lambda h, yy, kk: _gp_corr_one(h, yy, kk, *consts))(hyper, y, keys)
+
+
+_gp_corr_chunk = cached_jit(gp_corr_chunk)

@@ -1,0 +1,211 @@
+"""Leave-one-frequency-out check of the ``params`` predictive band of ``P``:
+:func:`holdout_check` → :class:`HoldoutCheck`.
+
+The band of :func:`~hapid.uncertainty.predictive_plants` between two measured frequencies is
+an interpolation of the model error (a GP conditioned on the fit residuals). Where the
+misfit changes faster than the GP allows, the band is too narrow there (docs/conventions.md,
+"Where in frequency") and nothing in the band itself shows it. This check asks the data:
+each interior measured frequency ``ω_k`` in turn is given no weight (its FRF variance
+inflated far above everything else, so the GP conditions on the other frequencies only),
+``P`` is drawn at ``ω_k`` with the measurement noise of ``ω_k`` added, and the measured
+``P̂(ω_k) = Ẑ_H Ẑ_T⁻¹`` is compared with the band's ``level`` ball (the same ball as
+:func:`~hapid.uncertainty.band_calibration`): radius ``r`` around the draws' median, error
+``e`` of the measured ``P``. Where ``r < margin · e`` the left-out point is outside the ball
+or near its edge, evidence that the band does not hold between its neighbours: the
+interval ``(ω_{k−1}, ω_{k+1})`` is *not established*.
+
+It is a cheap leave-one-out: the parameter draws and the hyperparameters are those of the
+full posterior (conditioned on ``ω_k`` too), which pulls the band toward the left-out point;
+the ``margin`` (default :data:`hapid.defaults.HOLDOUT_MARGIN`) makes up for that. The check
+is of the model-error kinds that condition on residuals (``gp``, ``gp_corr``); the first and
+last measured frequencies are not checked (nothing to interpolate between). How the margin
+was chosen and what the check caught on devices that chose nothing: docs/conventions.md,
+"Where in frequency".
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+
+import numpy as np
+
+from .. import _config  # noqa: F401  (float64)
+from .._constants import TWO_PI
+from .._plain import jsonable
+from ..defaults import HOLDOUT_MARGIN
+from ..samples import PosteriorSamples
+from ._model_error import GP, model_error_for
+from ._predictive import predictive_plants
+
+INFLATE = 1e10
+"""The left-out frequency's FRF variance is raised by ``INFLATE × (a_H + a_M)²`` (the data's
+RMS element sizes there): ~10¹⁰ times the model error's own variance, so its weight in the
+GP conditional is ~10⁻¹⁰."""
+
+
+class HoldoutStatus(enum.StrEnum):
+    """Verdict of a :class:`HoldoutCheck`."""
+
+    ESTABLISHED = "established"
+    NOT_ESTABLISHED = "not established"
+
+
+@dataclasses.dataclass(frozen=True)
+class HoldoutCheck:
+    """The leave-one-frequency-out check (module docstring).
+
+    - ``freq_hz (K,)``: the measured frequencies left out in turn (Hz);
+    - ``radius (K,)``: the ``level`` ball's radius of the draws at each (Frobenius norm of
+      ``P``, dimensionless, measurement noise included);
+    - ``error (K,)``: ``‖P̂ − P̃‖_F``, the measured ``P`` against the draws' median;
+    - ``measured_hz (Nf,)``: every measured frequency of the fit (Hz);
+    - ``level``: the credible level of the ball; ``margin``: a left-out point holds when
+      ``radius ≥ margin · error``.
+    """
+
+    freq_hz: np.ndarray
+    radius: np.ndarray
+    error: np.ndarray
+    measured_hz: np.ndarray
+    level: float
+    margin: float = HOLDOUT_MARGIN
+
+    @property
+    def held(self) -> np.ndarray:
+        """``(K,)`` bool: the measured ``P`` inside the ball with the margin
+        (``radius ≥ margin · error``)."""
+        return self.radius >= self.margin * self.error
+
+    @property
+    def ratio(self) -> np.ndarray:
+        """``(K,)`` radius ÷ error (below 1: outside)."""
+        return self.radius / np.maximum(self.error, 1e-300)
+
+    @property
+    def missed_hz(self) -> np.ndarray:
+        """The left-out frequencies whose measured ``P`` did not hold (Hz)."""
+        return self.freq_hz[~self.held]
+
+    @property
+    def not_established_hz(self) -> list[tuple[float, float]]:
+        """The intervals ``(f_{k−1}, f_{k+1})`` (Hz) around each missed frequency ``f_k``,
+        overlapping ones merged, ascending."""
+        f = self.measured_hz
+        out: list[list[float]] = []
+        for fk in self.missed_hz:
+            k = int(np.argmin(np.abs(f - fk)))
+            lo, hi = float(f[k - 1]), float(f[k + 1])
+            if out and lo <= out[-1][1]:
+                out[-1][1] = max(out[-1][1], hi)
+            else:
+                out.append([lo, hi])
+        return [(a, b) for a, b in out]
+
+    @property
+    def status(self) -> HoldoutStatus:
+        if self.held.all():
+            return HoldoutStatus.ESTABLISHED
+        return HoldoutStatus.NOT_ESTABLISHED
+
+    @property
+    def ok(self) -> bool:
+        """Every left-out measured ``P`` inside its ball."""
+        return self.status is HoldoutStatus.ESTABLISHED
+
+    def covers(self, freq_hz) -> np.ndarray:
+        """``(N,)`` bool: the frequencies ``freq_hz`` (Hz) outside every not-established
+        interval (open intervals: the measured end points themselves are data)."""
+        f = np.asarray(freq_hz, dtype=float)
+        bad = np.zeros(f.shape, bool)
+        for lo, hi in self.not_established_hz:
+            bad |= (f > lo) & (f < hi)
+        return ~bad
+
+    def message(self) -> str:
+        """One line for the CLI: the verdict first, then the evidence and the remedy."""
+        k, m = self.freq_hz.size, int((~self.held).sum())
+        pct = f"{100 * self.level:.0f} %"
+        span = f"{self.freq_hz[0]:.4g}–{self.freq_hz[-1]:.4g} Hz" if k else "none"
+        if self.ok:
+            return (f"check: band established between the measured frequencies: each of the "
+                    f"{k} interior ones ({span}), left out in turn, fell well inside its {pct} "
+                    f"band predicted from the rest (radius ≥ {self.margin:g} × error)")  # fmt: skip
+        gaps = ", ".join(f"{lo:.4g}–{hi:.4g} Hz" for lo, hi in self.not_established_hz)
+        miss = ", ".join(f"{f:.4g}" for f in self.missed_hz)
+        mids = ", ".join(f"{np.sqrt(a * b):.3g}"
+                         for lo, hi in self.not_established_hz
+                         for a, b in _pairs(self.measured_hz, lo, hi))  # fmt: skip
+        return (f"check: band NOT ESTABLISHED at {gaps}: left out in turn, the measured P at "
+                f"{miss} Hz was not well inside its {pct} band predicted from the other "
+                f"frequencies (radius < {self.margin:g} × error; {k - m} of {k} interior ones "
+                "were): there the band is an interpolation the data do not support, not a "
+                f"bound. To establish it, measure more frequencies there (e.g. {mids} Hz) and "
+                "rerun hapid posterior")  # fmt: skip
+
+    def summary(self) -> dict:
+        """Strict-JSON summary: status, ok, level, the left-out frequencies with their ratio
+        and verdict, and the not-established intervals (Hz)."""
+        return jsonable({"status": self.status, "ok": self.ok, "level": self.level,
+                         "margin": self.margin, "freq_hz": self.freq_hz, "ratio": self.ratio, "held": self.held,
+                         "not_established_hz": [list(p) for p in self.not_established_hz]})  # fmt: skip
+
+
+def _pairs(f, lo, hi):
+    """Consecutive measured frequencies ``(a, b)`` within ``[lo, hi]``."""
+    inside = f[(f >= lo) & (f <= hi)]
+    return zip(inside[:-1], inside[1:], strict=True)
+
+
+def holdout_check(ps: PosteriorSamples, *, max_samples: int = 200, seed: int = 0,
+                  level: float = 0.9, margin: float = HOLDOUT_MARGIN) -> HoldoutCheck:  # fmt: skip
+    """Leave each interior measured frequency out in turn and check the ``params`` band of
+    ``P`` there against the measured ``P`` (module docstring). ``ps``: posterior samples of a
+    GP model error (``gp`` or ``gp_corr``) that carry their fit data; at most
+    ``max_samples`` draws per frequency (``seed``).
+
+    Raises ``ValueError`` for samples without fit data, a model error that does not
+    condition on the residuals (``none``, ``white``), fewer than three measured frequencies or
+    a ``level`` outside (0, 1) or a ``margin`` below 1.
+    """
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"holdout_check: level must be in (0, 1), got {level}")
+    if not margin >= 1.0:
+        raise ValueError(f"holdout_check: margin must be ≥ 1, got {margin}")
+    d = ps.predictive
+    if d is None:
+        raise ValueError("holdout_check: these samples carry no fit data (rerun hapid posterior)")
+    if not isinstance(model_error_for(ps), GP):
+        raise ValueError(f"holdout_check: the {ps.error_kind!r} model error does not condition "
+                         "on the fit residuals; the check needs gp or gp_corr samples")  # fmt: skip
+    om = np.asarray(d["omega"], dtype=float)
+    if om.size < 3:
+        raise ValueError(f"holdout_check: needs at least 3 measured frequencies, got {om.size}")
+    ZH, ZT = np.asarray(d["Z_H"]), np.asarray(d["Z_T"])
+    vH, vT = np.asarray(d["var_H"]), np.asarray(d["var_T"])
+    big = INFLATE * (np.asarray(d["a_H"]) + np.asarray(d["a_M"])) ** 2
+    rho = float(d["noise_corr"])
+    rng = np.random.default_rng(seed)
+    radius, error = [], []
+    for k in range(1, om.size - 1):
+        vH2, vT2 = vH.copy(), vT.copy()
+        vH2[k] += big[k]
+        vT2[k] += big[k]
+        ps_k = dataclasses.replace(ps, predictive={**d, "var_H": vH2, "var_T": vT2})
+        pp = predictive_plants(ps_k, om[k : k + 1], max_samples=max_samples, seed=seed + k)
+        z1, z2 = _circular(rng, pp.Z_H.shape), _circular(rng, pp.Z_H.shape)
+        zh = pp.Z_H + np.sqrt(vH[k]) * z1  # the measurement of ω_k: its own noise
+        zt = pp.Z_T + np.sqrt(vT[k]) * (rho * z1 + np.sqrt(1.0 - rho**2) * z2)
+        P = np.swapaxes(np.linalg.solve(np.swapaxes(zt, -1, -2), np.swapaxes(zh, -1, -2)), -1, -2)
+        med = np.median(P.real, 0) + 1j * np.median(P.imag, 0)  # (1, n, n)
+        dist = np.linalg.norm(P - med[None], axis=(-2, -1))[:, 0]
+        radius.append(float(np.quantile(dist, level)))
+        error.append(float(np.linalg.norm(ZH[k] @ np.linalg.inv(ZT[k]) - med[0])))
+    f = om / TWO_PI
+    return HoldoutCheck(f[1:-1], np.asarray(radius), np.asarray(error), f, float(level),
+                        float(margin))  # fmt: skip
+
+
+def _circular(rng, shape):
+    """Circular complex standard normals (unit variance) of ``shape``."""
+    return (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)) * np.sqrt(0.5)
