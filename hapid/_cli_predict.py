@@ -44,10 +44,28 @@ def cmd_predict(a):
         how = f"--draws params: parameter draws + model error {d.model_error}"
     print(f"{d.P.shape[0]} predictive draws of P ({how}) on {len(f)} frequencies "
           f"{f[0]:.4g}–{f[-1]:.4g} Hz → {out}: {', '.join(d.arrays)}")  # fmt: skip
+    print(check_line(ps, d.draws, a))
     print(PREDICT_CALIBRATION_NOTE[d.draws])
     warning = rods_warning(d.draws, ps.n)
     if warning:
         print(warning)
+
+
+def check_line(ps, draws: str, a) -> str:
+    """The leave-one-frequency-out check's line (:func:`hapid.uncertainty.holdout_check`) for
+    ``params`` draws with model error, or why it was not run."""
+    from .uncertainty import GP, holdout_check, model_error_for
+
+    if draws != "params":
+        return "check: not run (the leave-one-frequency-out check is of --draws params)"
+    if a.no_check:
+        return "check: not run (--no-check): where between the measured frequencies the band holds is not known"
+    if a.no_model_error:
+        return "check: not run (--no-model-error: parameter uncertainty only, not a band of the true P)"
+    if not isinstance(model_error_for(ps), GP):
+        return (f"check: not run (the {ps.error_kind!r} model error does not condition on the "
+                "fit residuals; hapid posterior's default gp_corr does)")  # fmt: skip
+    return holdout_check(ps, max_samples=min(a.max_samples, 200), seed=a.seed).message()
 
 
 HELD_OUT = "cu5_soft, cu5 --delay 2, tripod3 --rod-compliance 3, hexapod6 --delay 2, quad4"
@@ -175,6 +193,10 @@ def register(sub):
                     "samples file stores (2-3x wider than the goal, short on 2-3-sample delays)")  # fmt: skip
     pr.add_argument("--no-model-error", action="store_true",
                     help="parameter uncertainty only (params draws)")  # fmt: skip
+    pr.add_argument("--no-check", action="store_true",
+                    help="skip the leave-one-frequency-out check of the params band (each "
+                    "interior measured frequency predicted from the others: where between them "
+                    "the band is not established; ~0.2 s per frequency)")  # fmt: skip
     pr.add_argument("--seed", type=int, default=0, help="seed of the subset and the error draws")
     pr.add_argument("--out", required=True,
                     help="output .npz: freq_hz (N,) and P (S, N, n, n); params draws also Z_H, "

@@ -38,13 +38,6 @@ draws), ``auto`` (``loop_gp`` when the measured FRF is known). ``hapid predict``
 ``params`` (its default: the band measured calibrated on 3–5 rods; on 6 too narrow at 16–40 Hz
 and too wide below) and ``loop_gp``."""
 
-HOLDOUT_MARGIN = 1.2
-"""Margin of the leave-one-frequency-out check of ``hapid predict``'s band
-(:func:`hapid.uncertainty.holdout_check`): a left-out measured ``P`` holds when the 90 % ball's
-radius is at least this many times its error. Chosen on the first three held-out families as
-the smallest of 1.0, 1.1, 1.2, 1.3 that left every run's band covering ≥ 85 % outside the
-flagged intervals; judged on the fourth (docs/conventions.md, "Where in frequency")."""
-
 NLS_MAX_STEPS = 2000
 """Step limit of the NLS and ML fits (``hapid fit``, the fit ``hapid posterior`` centres on, the
 scenes, ``hapid.fit.fit_nls``/``fit_ml``/``fit_impedance``). A fit that converges stops early, so

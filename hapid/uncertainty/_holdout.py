@@ -10,17 +10,20 @@ inflated far above everything else, so the GP conditions on the other frequencie
 ``P`` is drawn at ``ω_k`` with the measurement noise of ``ω_k`` added, and the measured
 ``P̂(ω_k) = Ẑ_H Ẑ_T⁻¹`` is compared with the band's ``level`` ball (the same ball as
 :func:`~hapid.uncertainty.band_calibration`): radius ``r`` around the draws' median, error
-``e`` of the measured ``P``. Where ``r < margin · e`` the left-out point is outside the ball
-or near its edge, evidence that the band does not hold between its neighbours: the
-interval ``(ω_{k−1}, ω_{k+1})`` is *not established*.
+``e`` of the measured ``P``. Where ``e > r`` the left-out measurement is outside the band's
+own ``level`` ball, evidence that the band does not hold between its neighbours: the
+interval ``(ω_{k−1}, ω_{k+1})`` is *not established*. The rule has no tuned constant: the
+ball is the band's own.
 
-It is a cheap leave-one-out: the parameter draws and the hyperparameters are those of the
-full posterior (conditioned on ``ω_k`` too), which pulls the band toward the left-out point;
-the ``margin`` (default :data:`hapid.defaults.HOLDOUT_MARGIN`) makes up for that. The check
-is of the model-error kinds that condition on residuals (``gp``, ``gp_corr``); the first and
-last measured frequencies are not checked (nothing to interpolate between). How the margin
-was chosen and what the check caught on devices that chose nothing: docs/conventions.md,
-"Where in frequency".
+What it cannot see: a misfit that peaks between two measured frequencies and is small at
+both (the band can miss there while every left-out point holds), and the frequencies below
+the second and above the next-to-last measured one. It is a cheap leave-one-out: the
+parameter draws and the hyperparameters are those of the full posterior (conditioned on
+``ω_k`` too), so it checks the interpolation, not the fit. Under an exactly calibrated band
+each left-out point falls outside with probability ``1 − level``, so a long list of checked
+frequencies can flag one by chance. The check is of the model-error kinds that condition
+on residuals (``gp``, ``gp_corr``). What it found on devices that chose nothing:
+docs/conventions.md, "Where in frequency".
 """
 
 from __future__ import annotations
@@ -33,7 +36,6 @@ import numpy as np
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
 from .._plain import jsonable
-from ..defaults import HOLDOUT_MARGIN
 from ..samples import PosteriorSamples
 from ._model_error import GP, model_error_for
 from ._predictive import predictive_plants
@@ -60,8 +62,7 @@ class HoldoutCheck:
       ``P``, dimensionless, measurement noise included);
     - ``error (K,)``: ``‖P̂ − P̃‖_F``, the measured ``P`` against the draws' median;
     - ``measured_hz (Nf,)``: every measured frequency of the fit (Hz);
-    - ``level``: the credible level of the ball; ``margin``: a left-out point holds when
-      ``radius ≥ margin · error``.
+    - ``level``: the credible level of the ball.
     """
 
     freq_hz: np.ndarray
@@ -69,13 +70,11 @@ class HoldoutCheck:
     error: np.ndarray
     measured_hz: np.ndarray
     level: float
-    margin: float = HOLDOUT_MARGIN
 
     @property
     def held(self) -> np.ndarray:
-        """``(K,)`` bool: the measured ``P`` inside the ball with the margin
-        (``radius ≥ margin · error``)."""
-        return self.radius >= self.margin * self.error
+        """``(K,)`` bool: the measured ``P`` inside the ball (``error ≤ radius``)."""
+        return self.error <= self.radius
 
     @property
     def ratio(self) -> np.ndarray:
@@ -129,25 +128,25 @@ class HoldoutCheck:
         span = f"{self.freq_hz[0]:.4g}–{self.freq_hz[-1]:.4g} Hz" if k else "none"
         if self.ok:
             return (f"check: band established between the measured frequencies: each of the "
-                    f"{k} interior ones ({span}), left out in turn, fell well inside its {pct} "
-                    f"band predicted from the rest (radius ≥ {self.margin:g} × error)")  # fmt: skip
+                    f"{k} interior ones ({span}), left out in turn, fell inside its {pct} band "
+                    "predicted from the rest (a misfit that peaks between two measured "
+                    "frequencies and is small at both is not seen: docs/conventions.md)")  # fmt: skip
         gaps = ", ".join(f"{lo:.4g}–{hi:.4g} Hz" for lo, hi in self.not_established_hz)
         miss = ", ".join(f"{f:.4g}" for f in self.missed_hz)
         mids = ", ".join(f"{np.sqrt(a * b):.3g}"
                          for lo, hi in self.not_established_hz
                          for a, b in _pairs(self.measured_hz, lo, hi))  # fmt: skip
         return (f"check: band NOT ESTABLISHED at {gaps}: left out in turn, the measured P at "
-                f"{miss} Hz was not well inside its {pct} band predicted from the other "
-                f"frequencies (radius < {self.margin:g} × error; {k - m} of {k} interior ones "
-                "were): there the band is an interpolation the data do not support, not a "
-                f"bound. To establish it, measure more frequencies there (e.g. {mids} Hz) and "
-                "rerun hapid posterior")  # fmt: skip
+                f"{miss} Hz fell outside its {pct} band predicted from the other frequencies "
+                f"({k - m} of {k} interior ones inside): there the band is an interpolation the "
+                "data contradict, not a bound. To establish it, measure more frequencies there "
+                f"(e.g. {mids} Hz) and rerun hapid posterior")  # fmt: skip
 
     def summary(self) -> dict:
         """Strict-JSON summary: status, ok, level, the left-out frequencies with their ratio
         and verdict, and the not-established intervals (Hz)."""
         return jsonable({"status": self.status, "ok": self.ok, "level": self.level,
-                         "margin": self.margin, "freq_hz": self.freq_hz, "ratio": self.ratio, "held": self.held,
+                         "freq_hz": self.freq_hz, "ratio": self.ratio, "held": self.held,
                          "not_established_hz": [list(p) for p in self.not_established_hz]})  # fmt: skip
 
 
@@ -158,7 +157,7 @@ def _pairs(f, lo, hi):
 
 
 def holdout_check(ps: PosteriorSamples, *, max_samples: int = 200, seed: int = 0,
-                  level: float = 0.9, margin: float = HOLDOUT_MARGIN) -> HoldoutCheck:  # fmt: skip
+                  level: float = 0.9) -> HoldoutCheck:  # fmt: skip
     """Leave each interior measured frequency out in turn and check the ``params`` band of
     ``P`` there against the measured ``P`` (module docstring). ``ps``: posterior samples of a
     GP model error (``gp`` or ``gp_corr``) that carry their fit data; at most
@@ -166,12 +165,10 @@ def holdout_check(ps: PosteriorSamples, *, max_samples: int = 200, seed: int = 0
 
     Raises ``ValueError`` for samples without fit data, a model error that does not
     condition on the residuals (``none``, ``white``), fewer than three measured frequencies or
-    a ``level`` outside (0, 1) or a ``margin`` below 1.
+    a ``level`` outside (0, 1).
     """
     if not 0.0 < level < 1.0:
         raise ValueError(f"holdout_check: level must be in (0, 1), got {level}")
-    if not margin >= 1.0:
-        raise ValueError(f"holdout_check: margin must be ≥ 1, got {margin}")
     d = ps.predictive
     if d is None:
         raise ValueError("holdout_check: these samples carry no fit data (rerun hapid posterior)")
@@ -202,8 +199,7 @@ def holdout_check(ps: PosteriorSamples, *, max_samples: int = 200, seed: int = 0
         radius.append(float(np.quantile(dist, level)))
         error.append(float(np.linalg.norm(ZH[k] @ np.linalg.inv(ZT[k]) - med[0])))
     f = om / TWO_PI
-    return HoldoutCheck(f[1:-1], np.asarray(radius), np.asarray(error), f, float(level),
-                        float(margin))  # fmt: skip
+    return HoldoutCheck(f[1:-1], np.asarray(radius), np.asarray(error), f, float(level))
 
 
 def _circular(rng, shape):

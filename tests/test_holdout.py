@@ -1,0 +1,120 @@
+"""The leave-one-frequency-out check of the params band (hapid.uncertainty.holdout_check,
+``hapid predict``; issue 29): left-out = removed, a local feature the band cannot see is
+found and named, a right model class is established, and the CLI prints the verdict."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from helpers_fit import random_truth, synthetic_frf
+
+from hapid.cli import main
+from hapid.fit import fit_nls
+from hapid.io import save_samples
+from hapid.uncertainty import (
+    GPCorr,
+    HoldoutStatus,
+    White,
+    holdout_check,
+    make_log_posterior,
+    posterior_laplace_samples,
+    predictive_plants,
+)
+from hapid.uncertainty._holdout import INFLATE
+
+FREQ_HZ = np.array([1.0, 2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0])
+H10 = np.array(
+    [np.log(0.05), np.log(0.02), np.log(0.4), np.log(0.8), 0.5, -0.3, 0.7, -0.4, 0.6, -0.5]
+)  # fmt: skip  (fixed gp_corr hyperparameters: no mode search)
+
+
+@pytest.fixture(scope="module")
+def samples():
+    """gp_corr Laplace samples of a strictly second-order 2-rod truth (model class right)."""
+    frf = synthetic_frf(random_truth(2, seed=5), freq_hz=FREQ_HZ, rel_noise=1e-3, seed=6)
+    nls = fit_nls(frf, weight="noise", f_max_hz=None).raise_if_failed()
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, reference=nls,
+                              model_error=GPCorr(hyper=tuple(H10)))  # fmt: skip
+    return frf, nls, posterior_laplace_samples(post, 200, nls, key=0)
+
+
+def _bumped(ps, k, rel):
+    """``ps`` with the measured Z_H at fit frequency ``k`` changed by ``rel·‖Z_H‖`` (a local
+    feature between the neighbours that the posterior's θ never saw)."""
+    d = ps.predictive
+    ZH = np.array(d["Z_H"])
+    ZT = np.array(d["Z_T"])
+    bump = rel * np.linalg.norm(ZH[k]) / ZH.shape[-1] * (1 + 1j)
+    ZH[k] += bump  # the hand changes, the mechanism not: Z_T = Z_H + Z_M moves with it
+    ZT[k] += bump
+    return dataclasses.replace(ps, predictive={**d, "Z_H": ZH, "Z_T": ZT})
+
+
+def test_left_out_frequency_equals_removed_frequency(samples):
+    """The inflated variance of the left-out frequency gives the same predictive distribution
+    at it as deleting it from the fit data: same draw mean (within 4 standard errors) and
+    spread (within 10 %) of the model-error term, for one θ."""
+    _, _, ps = samples
+    one = dataclasses.replace(ps, samples=np.repeat(ps.samples[:1], 1500, axis=0),
+                              log_prob=np.repeat(ps.log_prob[:1], 1500))  # fmt: skip
+    d, k = one.predictive, 7  # 20 Hz
+    big = INFLATE * (np.asarray(d["a_H"][k]) + np.asarray(d["a_M"][k])) ** 2
+    vH, vT = np.array(d["var_H"]), np.array(d["var_T"])
+    vH[k] += big
+    vT[k] += big
+    inflated = dataclasses.replace(one, predictive={**d, "var_H": vH, "var_T": vT})
+    keep = np.arange(len(FREQ_HZ)) != k
+    per_freq = ("omega", "Z_H", "Z_T", "var_H", "var_T", "a_H", "a_M")
+    removed = dataclasses.replace(
+        one, predictive={**d, **{key: np.asarray(d[key])[keep] for key in per_freq}}
+    )
+    om = np.asarray(d["omega"])[k : k + 1]
+    a = predictive_plants(inflated, om, max_samples=None, seed=1).Z_H[:, 0]
+    b = predictive_plants(removed, om, max_samples=None, seed=2).Z_H[:, 0]
+    full = predictive_plants(one, om, max_samples=None, seed=3).Z_H[:, 0]
+    se = np.std(a, axis=0) / np.sqrt(a.shape[0])
+    assert np.all(np.abs(a.mean(0) - b.mean(0)) < 4 * np.sqrt(2) * se + 1e-12)
+    ratio = np.std(a, axis=0) / np.std(b, axis=0)
+    assert np.all(np.abs(ratio - 1) < 0.1), ratio
+    # and it is not the full conditional (which sits on the measurement: noise-sized spread)
+    assert np.all(np.std(full, axis=0) < 0.2 * np.std(a, axis=0))
+
+
+def test_check_establishes_a_right_model_and_names_a_local_feature(samples):
+    _, _, ps = samples
+    c = holdout_check(ps, max_samples=200, seed=0)
+    assert np.allclose(c.freq_hz, FREQ_HZ[1:-1])  # interior frequencies only
+    assert c.status is HoldoutStatus.ESTABLISHED and c.ok and c.not_established_hz == []
+    assert np.all(c.covers(np.geomspace(1, 40, 50)))
+    # a 5 % feature at 20 Hz: found there, and (the GP carries it to its neighbours'
+    # predictions) around it; the low frequencies far from it stay established
+    bad = holdout_check(_bumped(ps, 7, 0.05), max_samples=200, seed=0)
+    assert bad.status is HoldoutStatus.NOT_ESTABLISHED and 20.0 in bad.missed_hz
+    assert list(bad.covers([2.5, 17.5, 22.5])) == [True, False, False]
+    lo, hi = bad.not_established_hz[-1]
+    assert lo <= 15.0 and hi >= 25.0 and np.all(bad.held[bad.freq_hz < 5])
+    assert f"NOT ESTABLISHED at {bad.not_established_hz[0][0]:g}" in bad.message()
+    assert "17.3, 22.4" in bad.message()  # the gaps' geometric midpoints as the remedy
+    js = bad.summary()
+    assert js["status"] == "not established" and [lo, hi] in js["not_established_hz"]
+
+
+def test_check_refuses_what_it_cannot_check(samples):
+    frf, nls, ps = samples
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, reference=nls, model_error=White())
+    pw = posterior_laplace_samples(post, 20, nls, key=0)
+    with pytest.raises(ValueError, match="'white' model error does not condition"):
+        holdout_check(pw)
+    with pytest.raises(ValueError, match="level must be in"):
+        holdout_check(ps, level=1.0)
+
+
+def test_predict_prints_the_verdict(samples, tmp_path, capsys):
+    _, _, ps = samples
+    s = save_samples(tmp_path / "s.npz", _bumped(ps, 7, 0.05))
+    args = ["predict", "--samples", str(s), "--n-freq", "5", "--max-samples", "50"]
+    assert main([*args, "--out", str(tmp_path / "d.npz")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1].startswith("check: band NOT ESTABLISHED at ") and " 20, " in lines[1]
+    assert main([*args, "--no-check", "--out", str(tmp_path / "e.npz")]) == 0
+    assert capsys.readouterr().out.splitlines()[1].startswith("check: not run (--no-check)")
