@@ -150,7 +150,9 @@ def gp_corr_errors(ps: PosteriorSamples, idx, models, omega, rng, element: bool 
         a_all = tuple(a[None] * wi for a, wi in zip(a_all, w, strict=True))
     consts = (u, *(jnp.asarray(a) for a in a_all), sdH, sdT, jnp.asarray(var_H),
               jnp.asarray(var_T), jnp.asarray(rho_n))  # fmt: skip
-    parts = _batched(_gp_corr_chunk, hyper, y_all, rng, consts)
+    shared = bool(np.all(hyper == hyper[:1]))  # hyperparameters fixed (the default)
+    run = _gp_corr_chunk_shared if shared else _gp_corr_chunk
+    parts = _batched(run, hyper, y_all, rng, consts)
     cplx = lambda o: np.moveaxis(o, 1, 2).reshape(S_, N, n, n)  # noqa: E731  (S, E, N) → (S, N, n, n)
     return (cplx(np.concatenate([np.asarray(p[0]) for p in parts])),
             cplx(np.concatenate([np.asarray(p[1]) for p in parts])))  # fmt: skip
@@ -210,18 +212,15 @@ def _circ(key, shape):
     return (z[0] + 1j * z[1]) * np.sqrt(0.5)
 
 
-def _gp_corr_one(h, y, key, u, aH, aM, sdH, sdT, var_H, var_T, rho_n):
-    """One draw of :func:`gp_corr_errors`: ``h`` the hyperparameters, ``y (E, 2Nf)`` the
-    residuals ``[r_H, r_T]``, ``u (Nf + N,)`` log-frequency of fit ∪ new frequencies,
-    ``aH, aM`` ``(Nf + N,)`` or ``(E, Nf + N)`` amplitudes, ``sdH, sdT (E, Nf)`` and
-    ``var_H, var_T (Nf, n, n)`` the FRF's std and variance, ``rho_n`` its H–T correlation;
-    returns ``e_H, e_M (E, N)``. The data are arguments, not constants, so one compiled
-    program serves every data set of these shapes (:func:`loo_plants`)."""
-    E, Nf = y.shape[0], y.shape[1] // 2
+def _gp_corr_setup(h, E, Nf, u, aH, aM, sdH, sdT, var_H, var_T, rho_n):
+    """What every draw of :func:`gp_corr_errors` with hyperparameters ``h`` shares: the
+    error sizes ``g`` (two ``(M, E)``), the unit correlations ``R`` and their Cholesky
+    factors ``Lr`` (two ``(M, M)``), the residual covariance's Cholesky factor ``Lc (E, 2Nf,
+    2Nf)`` and ``ρ``. ``u (M,)`` is log-frequency of fit ∪ new frequencies (``M = Nf + N``),
+    ``aH, aM`` ``(M,)`` or ``(E, M)`` amplitudes, ``sdH, sdT (E, Nf)`` and ``var_H, var_T
+    (Nf, n, n)`` the FRF's std and variance, ``rho_n`` its H–T correlation."""
     M = u.shape[0]
     tau, ell, beta, kap = split_hyper(h)
-    rho = hm_correlation(h)
-    r2 = jnp.abs(rho) ** 2
     a_all = (aH, aM)
     C = gp_corr_covariance(u[:Nf], aH[..., :Nf], aM[..., :Nf], var_H, var_T, rho_n, h)
     # the amplitude slope is learned on the fit band: held constant beyond it
@@ -231,21 +230,31 @@ def _gp_corr_one(h, y, key, u, aH, aM, sdH, sdT, var_H, var_T, rho_n):
         ).T
         for i in range(2)
     ]  # fmt: skip  (M, E) error sizes
-    k = jax.random.split(key, 4)
-    R, f = [], []
-    for i in range(2):  # unit-variance latent draws (relative jitter: see gp_errors)
+    R, Lr = [], []
+    for i in range(2):  # unit-variance latent correlations (relative jitter: see gp_errors)
         wi = corr_warp(u, kap[i])
         R.append(KERNELS[GP_CORR_KERNEL](wi, wi, ell[i]))
-        Lr = jnp.linalg.cholesky(R[i] + 1e-9 * jnp.eye(M))
-        f.append(Lr @ _circ(k[i], (M, E)))  # (M, E)
+        Lr.append(jnp.linalg.cholesky(R[i] + 1e-9 * jnp.eye(M)))
+    return g, R, Lr, jnp.linalg.cholesky(C), hm_correlation(h)
+
+
+def _gp_corr_draw(setup, y, key, sdH, sdT, rho_n, solve):
+    """One draw of :func:`gp_corr_errors` given :func:`_gp_corr_setup`'s ``setup``: ``y (E,
+    2Nf)`` the residuals ``[r_H, r_T]``, ``solve(r)`` ``C⁻¹ r`` for ``r (E, 2Nf)``; returns
+    ``e_H, e_M (E, N)``."""
+    g, R, Lr, _, rho = setup
+    E, Nf = y.shape[0], y.shape[1] // 2
+    M = R[0].shape[0]
+    r2 = jnp.abs(rho) ** 2
+    k = jax.random.split(key, 4)
+    f = [Lr[i] @ _circ(k[i], (M, E)) for i in range(2)]  # (M, E) unit-variance latents
     eH = g[0] * f[0]
     eM = g[1] * (rho * f[0] + jnp.sqrt(1.0 - r2) * f[1])
     z1, z2 = _circ(k[2], (E, Nf)), _circ(k[3], (E, Nf))
     nH = sdH * z1
     nT = sdT * (rho_n * z1 + jnp.sqrt(1.0 - rho_n**2) * z2)
     sim = jnp.concatenate([eH[:Nf].T + nH, (eH[:Nf] + eM[:Nf]).T + nT], -1)  # (E, 2Nf)
-    Lc = jnp.linalg.cholesky(C)
-    alpha = jax.scipy.linalg.cho_solve((Lc, True), (y - sim)[..., None])[..., 0]
+    alpha = solve(y - sim)
     aH_, aT_ = alpha[:, :Nf], alpha[:, Nf:]  # (E, Nf)
     # Cov(e_X(*), [r_H; r_T]) C⁻¹ (r − r̃) through the unit correlations k₁, k₂
     # (gp_corr_blocks: K_HH = g_H g_Hᵀ k₁, K_HM = ρ̄ g_H g_Mᵀ k₁, K_MH = ρ g_M g_Hᵀ k₁,
@@ -260,9 +269,35 @@ def _gp_corr_one(h, y, key, u, aH, aM, sdH, sdT, var_H, var_T, rho_n):
 
 
 def gp_corr_chunk(hyper, y, keys, consts):
-    """:func:`_gp_corr_one` vmapped over the draws ``hyper (B, H)``, ``y (B, E, 2Nf)``,
-    ``keys (B, 2)``; ``consts`` the shared data (its arguments after ``key``)."""
-    return jax.vmap(lambda h, yy, kk: _gp_corr_one(h, yy, kk, *consts))(hyper, y, keys)
+    """Draws of :func:`gp_corr_errors` for ``hyper (B, H)``, ``y (B, E, 2Nf)``, ``keys (B,
+    2)``; ``consts = (u, aH, aM, sdH, sdT, var_H, var_T, rho_n)`` the shared data
+    (:func:`_gp_corr_setup`). The data are arguments, not constants, so one compiled program
+    serves every data set of these shapes (:func:`~hapid.uncertainty.holdout_check`)."""
+    E, Nf = y.shape[1], y.shape[2] // 2
+    sdH, sdT, rho_n = consts[3], consts[4], consts[7]
+
+    def one(h, yy, kk):
+        setup = _gp_corr_setup(h, E, Nf, *consts)
+        solve = lambda r: jax.scipy.linalg.cho_solve((setup[3], True), r[..., None])[..., 0]  # noqa: E731
+        return _gp_corr_draw(setup, yy, kk, sdH, sdT, rho_n, solve)
+
+    return jax.vmap(one)(hyper, y, keys)
 
 
+def gp_corr_chunk_shared(hyper, y, keys, consts):
+    """:func:`gp_corr_chunk` when every draw has the hyperparameters ``hyper[0]`` (the
+    marginal mode or the MAP, the default): the covariance and its factors once per chunk,
+    not once per draw, and ``C⁻¹`` as a matrix: each draw's solve is then a matrix product
+    (XLA:CPU runs a batch of small triangular solves one matrix at a time)."""
+    E, Nf = y.shape[1], y.shape[2] // 2
+    setup = _gp_corr_setup(hyper[0], E, Nf, *consts)
+    Lc = setup[3]
+    eye = jnp.broadcast_to(jnp.eye(Lc.shape[-1], dtype=Lc.dtype), Lc.shape)
+    Cinv = jax.scipy.linalg.cho_solve((Lc, True), eye)  # (E, 2Nf, 2Nf)
+    solve = lambda r: jnp.einsum("eij,ej->ei", Cinv, r)  # noqa: E731
+    sdH, sdT, rho_n = consts[3], consts[4], consts[7]
+    return jax.vmap(lambda yy, kk: _gp_corr_draw(setup, yy, kk, sdH, sdT, rho_n, solve))(y, keys)
+
+
+_gp_corr_chunk_shared = cached_jit(gp_corr_chunk_shared)
 _gp_corr_chunk = cached_jit(gp_corr_chunk)
