@@ -94,7 +94,8 @@ def test_check_establishes_a_right_model_and_names_a_local_feature(samples):
     lo, hi = bad.not_established_hz[-1]
     assert lo <= 15.0 and hi >= 25.0 and np.all(bad.held[bad.freq_hz < 5])
     assert f"NOT ESTABLISHED at {bad.not_established_hz[0][0]:g}" in bad.message()
-    assert "17.3, 22.4" in bad.message()  # the gaps' geometric midpoints as the remedy
+    # the remedy: the gaps' geometric midpoints (17.3, 22.4 Hz) on the measured 1 Hz grid
+    assert 17.0 in bad.suggested_hz and 22.0 in bad.suggested_hz and "17, 22" in bad.message()
     js = bad.summary()
     assert js["status"] == "not established" and [lo, hi] in js["not_established_hz"]
 
@@ -118,3 +119,16 @@ def test_predict_prints_the_verdict(samples, tmp_path, capsys):
     assert lines[1].startswith("check: band NOT ESTABLISHED at ") and " 20, " in lines[1]
     assert main([*args, "--no-check", "--out", str(tmp_path / "e.npz")]) == 0
     assert capsys.readouterr().out.splitlines()[1].startswith("check: not run (--no-check)")
+
+
+def test_suggestions_sit_on_the_measured_grid():
+    from hapid.uncertainty._holdout import HoldoutCheck, _grid_step
+
+    assert _grid_step([0.5, 1.25, 3.0]) == 0.25 and _grid_step([1.0, 2.0, 15.0]) == 1.0
+    assert _grid_step([1.0, np.pi]) == 0.0  # no grid coarser than 1 mHz
+    f = np.array([0.5, 0.75, 1.0, 2.0, 3.0])  # a 0.25 Hz grid; 2 Hz missed
+    c = HoldoutCheck(f[1:-1], np.array([1.0, 1.0, 1.0]), np.array([0.5, 0.5, 2.0]), f, 0.9)
+    assert c.not_established_hz == [(1.0, 3.0)]
+    # geometric midpoints 1.414 and 2.449 rounded to the 0.25 Hz grid
+    assert c.suggested_hz == [1.5, 2.5]
+    assert list(c.covers([1.0, 1.5, 2.9, 3.0])) == [True, False, False, True]

@@ -133,21 +133,45 @@ class HoldoutCheck:
                     "frequencies and is small at both is not seen: docs/conventions.md)")  # fmt: skip
         gaps = ", ".join(f"{lo:.4g}–{hi:.4g} Hz" for lo, hi in self.not_established_hz)
         miss = ", ".join(f"{f:.4g}" for f in self.missed_hz)
-        mids = ", ".join(f"{np.sqrt(a * b):.3g}"
-                         for lo, hi in self.not_established_hz
-                         for a, b in _pairs(self.measured_hz, lo, hi))  # fmt: skip
+        mids = ", ".join(f"{f:.4g}" for f in self.suggested_hz)
         return (f"check: band NOT ESTABLISHED at {gaps}: left out in turn, the measured P at "
                 f"{miss} Hz fell outside its {pct} band predicted from the other frequencies "
                 f"({k - m} of {k} interior ones inside): there the band is an interpolation the "
                 "data contradict, not a bound. To establish it, measure more frequencies there "
                 f"(e.g. {mids} Hz) and rerun hapid posterior")  # fmt: skip
 
+    @property
+    def suggested_hz(self) -> list[float]:
+        """Frequencies to measure (Hz): the geometric midpoint of each pair of consecutive
+        measured frequencies in a not-established interval, rounded to the measured
+        frequencies' own grid (their greatest common step, to 1 mHz) when that keeps it
+        strictly between the pair."""
+        step = _grid_step(self.measured_hz)
+        out = []
+        for lo, hi in self.not_established_hz:
+            for a, b in _pairs(self.measured_hz, lo, hi):
+                m = float(np.sqrt(a * b))
+                if step > 0 and a < round(m / step) * step < b:
+                    m = round(m / step) * step
+                out.append(m)
+        return out
+
     def summary(self) -> dict:
         """Strict-JSON summary: status, ok, level, the left-out frequencies with their ratio
         and verdict, and the not-established intervals (Hz)."""
         return jsonable({"status": self.status, "ok": self.ok, "level": self.level,
                          "freq_hz": self.freq_hz, "ratio": self.ratio, "held": self.held,
-                         "not_established_hz": [list(p) for p in self.not_established_hz]})  # fmt: skip
+                         "not_established_hz": [list(p) for p in self.not_established_hz],
+                         "suggested_hz": self.suggested_hz})  # fmt: skip
+
+
+def _grid_step(f) -> float:
+    """The greatest common step (Hz, to 1 mHz) of the frequencies ``f``; 0 when there is
+    none coarser than 1 mHz."""
+    milli = np.round(np.asarray(f, dtype=float) * 1000.0).astype(np.int64)
+    if np.any(np.abs(milli / 1000.0 - np.asarray(f)) > 1e-6):
+        return 0.0
+    return float(np.gcd.reduce(milli)) / 1000.0
 
 
 def _pairs(f, lo, hi):
