@@ -76,7 +76,7 @@ def run(spec: str, seed: int, draws: int, rounds: int) -> list[dict]:
         _, ps = posterior(dev, proto, draws, seed)
         chk = holdout_check(ps, max_samples=draws, seed=seed)
         runs.append((proto, ps, chk))
-        if chk.ok:
+        if chk.ok or not chk.suggested_hz:  # established, or no grid point left to add
             break
         proto = Protocol(seed=seed, force_noise=5e-3, pattern=proto.pattern,
                          freq_hz=tuple(sorted(set(proto.freq_hz) | set(chk.suggested_hz))))  # fmt: skip

@@ -132,3 +132,6 @@ def test_suggestions_sit_on_the_measured_grid():
     # geometric midpoints 1.414 and 2.449 rounded to the 0.25 Hz grid
     assert c.suggested_hz == [1.5, 2.5]
     assert list(c.covers([1.0, 1.5, 2.9, 3.0])) == [True, False, False, True]
+    g = np.array([19.0, 20.0, 21.0, 22.0])  # 21 Hz missed, its neighbours adjacent on 1 Hz
+    c = HoldoutCheck(g[1:-1], np.array([1.0, 1.0]), np.array([0.5, 2.0]), g, 0.9)
+    assert c.suggested_hz == [] and "on a finer frequency grid" in c.message()

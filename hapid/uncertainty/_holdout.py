@@ -134,26 +134,30 @@ class HoldoutCheck:
         gaps = ", ".join(f"{lo:.4g}–{hi:.4g} Hz" for lo, hi in self.not_established_hz)
         miss = ", ".join(f"{f:.4g}" for f in self.missed_hz)
         mids = ", ".join(f"{f:.4g}" for f in self.suggested_hz)
+        more = (f"measure more frequencies there (e.g. {mids} Hz)" if mids else
+                "measure there on a finer frequency grid (a longer period: the measured "
+                "frequencies are adjacent on theirs)")  # fmt: skip
         return (f"check: band NOT ESTABLISHED at {gaps}: left out in turn, the measured P at "
                 f"{miss} Hz fell outside its {pct} band predicted from the other frequencies "
                 f"({k - m} of {k} interior ones inside): there the band is an interpolation the "
-                "data contradict, not a bound. To establish it, measure more frequencies there "
-                f"(e.g. {mids} Hz) and rerun hapid posterior")  # fmt: skip
+                f"data contradict, not a bound. To establish it, {more} and rerun hapid "
+                "posterior")  # fmt: skip
 
     @property
     def suggested_hz(self) -> list[float]:
         """Frequencies to measure (Hz): the geometric midpoint of each pair of consecutive
         measured frequencies in a not-established interval, rounded to the measured
-        frequencies' own grid (their greatest common step, to 1 mHz) when that keeps it
-        strictly between the pair."""
+        frequencies' own grid (their greatest common step, to 1 mHz). A pair with no grid
+        point between them gives none (there a finer grid, a longer period, is needed)."""
         step = _grid_step(self.measured_hz)
         out = []
         for lo, hi in self.not_established_hz:
             for a, b in _pairs(self.measured_hz, lo, hi):
                 m = float(np.sqrt(a * b))
-                if step > 0 and a < round(m / step) * step < b:
+                if step > 0:
                     m = round(m / step) * step
-                out.append(m)
+                if a < m < b:
+                    out.append(m)
         return out
 
     def summary(self) -> dict:
