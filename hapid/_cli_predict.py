@@ -54,7 +54,7 @@ def cmd_predict(a):
 def check_line(ps, draws: str, a) -> str:
     """The leave-one-frequency-out check's line (:func:`hapid.uncertainty.holdout_check`) for
     ``params`` draws with model error, or why it was not run."""
-    from .uncertainty import GP, holdout_check, model_error_for
+    from .uncertainty import GP, holdout_check, model_error_for  # local: CLI start-up
 
     if draws != "params":
         return "check: not run (the leave-one-frequency-out check is of --draws params)"

@@ -96,6 +96,10 @@ def test_whole_results_table_matches_the_readme(tmp_path):
         assert m["pm_deg"] == pytest.approx(pm, abs=1.0 if tuned else 0.6), col
         pk, pk_hz = _pair(t["peak of σ̄(T)"][col])
         assert m["t_peak_db"] == pytest.approx(pk, abs=0.1 if tuned else 0.06), col
-        assert m["t_peak_hz"] == pytest.approx(pk_hz, abs=0.1 if tuned else 0.06), col
+        # the tuned loop's σ̄(T) has two near-equal maxima (4.30 dB at 17.3 Hz, 4.40 dB at
+        # 25.3 Hz, README history) and a flat top at 25 Hz: with its value held to 0.1 dB
+        # above, the location moves by a few tenths of a hertz with the BLAS (25.06 Hz on
+        # 2026-12-07); a jump to the other maximum still fails
+        assert m["t_peak_hz"] == pytest.approx(pk_hz, abs=0.5 if tuned else 0.06), col
     siso = _num(re.findall(NUM, t["SISO iso-bandwidth (6 dB / 30° gain)"][1])[0])
     assert s.siso["design rule"]["iso_bandwidth_hz"] == pytest.approx(siso, abs=0.006)
