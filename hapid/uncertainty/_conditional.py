@@ -163,7 +163,7 @@ def _gp_one(h, y, key, u, aH, aM, sdH, lamT, cT, var_H, var_T, rho):
     residuals (re, im), ``u (Nf + N,)`` log-frequency of fit ∪ new frequencies, ``aH, aM
     (Nf + N,)`` amplitudes, ``sdH, lamT, cT (E, Nf)`` the measurement-noise factors per re/im
     part, ``var_H, var_T (Nf, n, n)`` the FRF's variance, ``rho`` its H–T correlation;
-    returns ``g_H, g_M (E, 2, N)``. The data are arguments (see :func:`_gp_corr_one`)."""
+    returns ``g_H, g_M (E, 2, N)``. The data are arguments (see :func:`gp_corr_chunk`)."""
     E, Nf = y.shape[0], y.shape[1] // 2
     N = u.shape[0] - Nf
     a_j = (aH, aM)

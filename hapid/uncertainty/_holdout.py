@@ -36,9 +36,10 @@ import numpy as np
 from .. import _config  # noqa: F401  (float64)
 from .._constants import TWO_PI
 from .._plain import jsonable
+from ..impedance import plant
 from ..samples import PosteriorSamples
 from ._model_error import GP, model_error_for
-from ._predictive import predictive_plants
+from ._predictive import credible_ball, predictive_plants
 
 INFLATE = 1e10
 """The left-out frequency's FRF variance is raised by ``INFLATE × (a_H + a_M)²`` (the data's
@@ -206,7 +207,7 @@ def holdout_check(ps: PosteriorSamples, *, max_samples: int = 200, seed: int = 0
     om = np.asarray(d["omega"], dtype=float)
     if om.size < 3:
         raise ValueError(f"holdout_check: needs at least 3 measured frequencies, got {om.size}")
-    ZH, ZT = np.asarray(d["Z_H"]), np.asarray(d["Z_T"])
+    P_meas = np.asarray(plant(np.asarray(d["Z_H"]), np.asarray(d["Z_T"])))  # (Nf, n, n)
     vH, vT = np.asarray(d["var_H"]), np.asarray(d["var_T"])
     big = INFLATE * (np.asarray(d["a_H"]) + np.asarray(d["a_M"])) ** 2
     rho = float(d["noise_corr"])
@@ -221,11 +222,9 @@ def holdout_check(ps: PosteriorSamples, *, max_samples: int = 200, seed: int = 0
         z1, z2 = _circular(rng, pp.Z_H.shape), _circular(rng, pp.Z_H.shape)
         zh = pp.Z_H + np.sqrt(vH[k]) * z1  # the measurement of ω_k: its own noise
         zt = pp.Z_T + np.sqrt(vT[k]) * (rho * z1 + np.sqrt(1.0 - rho**2) * z2)
-        P = np.swapaxes(np.linalg.solve(np.swapaxes(zt, -1, -2), np.swapaxes(zh, -1, -2)), -1, -2)
-        med = np.median(P.real, 0) + 1j * np.median(P.imag, 0)  # (1, n, n)
-        dist = np.linalg.norm(P - med[None], axis=(-2, -1))[:, 0]
-        radius.append(float(np.quantile(dist, level)))
-        error.append(float(np.linalg.norm(ZH[k] @ np.linalg.inv(ZT[k]) - med[0])))
+        med, _, r = credible_ball(np.asarray(plant(zh, zt)), level)  # (1, n, n), (1,)
+        radius.append(float(r[0]))
+        error.append(float(np.linalg.norm(P_meas[k] - med[0])))
     f = om / TWO_PI
     return HoldoutCheck(f[1:-1], np.asarray(radius), np.asarray(error), f, float(level))
 

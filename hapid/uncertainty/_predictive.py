@@ -315,6 +315,17 @@ class BandCalibration:
                          "goal": self.goal, **self.figures()})  # fmt: skip
 
 
+def credible_ball(draws, level: float):
+    """The ``level`` credible ball of draws ``(S, N, n, n)`` (complex) per frequency:
+    ``(median (N, n, n), distances (S, N), radius (N,))`` — the elementwise re/im median, each
+    draw's Frobenius distance from it and their ``level`` quantile (the ball of
+    :func:`band_calibration` and :func:`~hapid.uncertainty.holdout_check`)."""
+    X = np.asarray(draws)
+    med = np.median(X.real, 0) + 1j * np.median(X.imag, 0)
+    d = np.linalg.norm(X - med[None], axis=(-2, -1))
+    return med, d, np.quantile(d, level, axis=0)
+
+
 def band_calibration(draws, truth, level: float = 0.9, n_reference: int = 20,
                      goal: float | None = None) -> BandCalibration:  # fmt: skip
     """How well predictive draws ``(S, N, n, n)`` (complex) describe a true response
@@ -353,9 +364,7 @@ def band_calibration(draws, truth, level: float = 0.9, n_reference: int = 20,
         raise ValueError(
             f"band_calibration: draws (S, N, n, n) and truth (N, n, n), got {X.shape}, {T.shape}"
         )
-    med = np.median(X.real, 0) + 1j * np.median(X.imag, 0)
-    d = np.linalg.norm(X - med[None], axis=(-2, -1))  # (S, N)
-    r = np.quantile(d, level, axis=0)
+    med, d, r = credible_ball(X, level)
     e = np.linalg.norm(T - med, axis=(-2, -1))
     tiny = 1e-300
     ref = d[: max(1, min(n_reference, X.shape[0]))]  # draws standing in for the truth
