@@ -36,36 +36,61 @@ def cmd_predict(a):
                            "(write it with hapid posterior, or use --draws params)")  # fmt: skip
     d = plant_draws(ps, TWO_PI * f, draws=a.draws, max_samples=a.max_samples, seed=a.seed,
                     include_error=not a.no_model_error)  # fmt: skip
-    out = io.save_draws(a.out, f, d.arrays)
+    check, line = run_check(ps, d.draws, a)
+    extra = {"established": check.covers(f)} if check is not None else {}
+    out = io.save_draws(a.out, f, d.arrays | extra)
     if d.draws == "loop_gp":
         lo, hi = d.info["measured_hz"]
         how = f"--draws loop_gp: the loop conditioned on the measured FRF {lo:.4g}–{hi:.4g} Hz"
     else:
         how = f"--draws params: parameter draws + model error {d.model_error}"
     print(f"{d.P.shape[0]} predictive draws of P ({how}) on {len(f)} frequencies "
-          f"{f[0]:.4g}–{f[-1]:.4g} Hz → {out}: {', '.join(d.arrays)}")  # fmt: skip
-    print(check_line(ps, d.draws, a))
+          f"{f[0]:.4g}–{f[-1]:.4g} Hz → {out}: {', '.join(d.arrays | extra)}")  # fmt: skip
+    print(line)
     print(PREDICT_CALIBRATION_NOTE[d.draws])
     warning = rods_warning(d.draws, ps.n)
     if warning:
         print(warning)
+    if a.plot:
+        from . import plot  # local: CLI start-up (matplotlib)
+
+        fig, _ = plot.predictive_band(f, d.P, measured=measured_plant(ps), check=check,
+                                      title=f"hapid predict: {a.samples}")  # fmt: skip
+        plot.save(fig, a.plot)
+        print(f"figure → {a.plot}")
 
 
-def check_line(ps, draws: str, a) -> str:
-    """The leave-one-frequency-out check's line (:func:`hapid.uncertainty.holdout_check`) for
-    ``params`` draws with model error, or why it was not run."""
+def measured_plant(ps):
+    """``(freq_hz (K,), P (K, n, n))`` of the measured FRF a samples file stores (its fit data,
+    else its whole measured FRF), or None."""
+    from .impedance import plant  # local: CLI start-up
+
+    d = ps.predictive if ps.predictive is not None else ps.measured
+    if d is None:
+        return None
+    return np.asarray(d["omega"]) / TWO_PI, np.asarray(plant(np.asarray(d["Z_H"]),
+                                                             np.asarray(d["Z_T"])))  # fmt: skip
+
+
+def run_check(ps, draws: str, a):
+    """``(check, line)``: the leave-one-frequency-out check
+    (:func:`hapid.uncertainty.holdout_check`) of ``params`` draws with model error and its
+    line, or ``None`` and why it was not run."""
     from .uncertainty import GP, holdout_check, model_error_for  # local: CLI start-up
 
     if draws != "params":
-        return "check: not run (the leave-one-frequency-out check is of --draws params)"
+        return None, "check: not run (the leave-one-frequency-out check is of --draws params)"
     if a.no_check:
-        return "check: not run (--no-check): where between the measured frequencies the band holds is not known"
+        return None, ("check: not run (--no-check): where between the measured frequencies the "
+                      "band holds is not known")  # fmt: skip
     if a.no_model_error:
-        return "check: not run (--no-model-error: parameter uncertainty only, not a band of the true P)"
+        return None, ("check: not run (--no-model-error: parameter uncertainty only, not a band "
+                      "of the true P)")  # fmt: skip
     if not isinstance(model_error_for(ps), GP):
-        return (f"check: not run (the {ps.error_kind!r} model error does not condition on the "
-                "fit residuals; hapid posterior's default gp_corr does)")  # fmt: skip
-    return holdout_check(ps, max_samples=min(a.max_samples, 200), seed=a.seed).message()
+        return None, (f"check: not run (the {ps.error_kind!r} model error does not condition on "
+                      "the fit residuals; hapid posterior's default gp_corr does)")  # fmt: skip
+    check = holdout_check(ps, max_samples=min(a.max_samples, 200), seed=a.seed)
+    return check, check.message()
 
 
 HELD_OUT = "cu5_soft, cu5 --delay 2, tripod3 --rod-compliance 3, hexapod6 --delay 2, quad4"
@@ -203,10 +228,13 @@ def register(sub):
                     help="skip the leave-one-frequency-out check of the params band (each "
                     "interior measured frequency predicted from the others: where between them "
                     "the band is not established; ~0.2 s per frequency)")  # fmt: skip
+    pr.add_argument("--plot", help="also write a figure: the band of σ(P) with the measured P, "
+                    "and the check's evidence, not-established intervals shaded")  # fmt: skip
     pr.add_argument("--seed", type=int, default=0, help="seed of the subset and the error draws")
     pr.add_argument("--out", required=True,
                     help="output .npz: freq_hz (N,) and P (S, N, n, n); params draws also Z_H, "
-                    "Z_T (S, N, n, n)")  # fmt: skip
+                    "Z_T (S, N, n, n), and established (N,) bool where the check ran (False "
+                    "inside an interval it leaves not established)")  # fmt: skip
     pr.set_defaults(func=cmd_predict)
 
     pl = sub.add_parser("plant", help="write a simulated device's true plant as an FRF file",

@@ -251,6 +251,58 @@ def pphat(
     return fig, axes
 
 
+def predictive_band(f, P, *, measured=None, check=None, level: float = 0.9, title: str = ""):
+    """The ``level`` band of plant draws ``P (S, N, n, n)`` on ``f (N,)`` Hz (``hapid predict
+    --plot``): left, each singular value's central band over the draws (shaded) and median
+    (line), the measured ``P`` as dots (``measured = (f_m (K,) Hz, P_m (K, n, n))``); right,
+    the leave-one-frequency-out check (``check``, a
+    :class:`~hapid.uncertainty.HoldoutCheck`): at each left-out measured frequency the
+    measured ``P``'s distance from the band's centre over the band's radius, above 1 =
+    outside. The intervals the check leaves not established are shaded red in both."""
+    f = np.asarray(f)
+    sv = np.linalg.svd(np.asarray(P), compute_uv=False)  # (S, N, n)
+    lo_q, hi_q = (1 - level) / 2, 1 - (1 - level) / 2
+    lo, med, hi = (20 * np.log10(np.quantile(sv, q, axis=0)) for q in (lo_q, 0.5, hi_q))
+    k = 2 if check is not None else 1
+    fig, axes = plt.subplots(1, k, figsize=(6.4 * k, 4.4), squeeze=False)
+    ax = axes[0][0]
+    n = sv.shape[-1]
+    for i, c in enumerate(_sv_colors(n)):
+        ax.fill_between(f, lo[:, i], hi[:, i], color=c, alpha=0.3, lw=0)
+        ax.semilogx(f, med[:, i], color=c, lw=1.0, label=f"σ_{i + 1}(P)" if n <= 6 else None)
+    if measured is not None:
+        fm, Pm = (np.asarray(x) for x in measured)
+        keep = (fm >= f.min()) & (fm <= f.max())
+        svm = 20 * np.log10(np.linalg.svd(Pm[keep], compute_uv=False))
+        ax.semilogx(fm[keep], svm, "k.", ms=4)
+        ax.plot([], [], "k.", label="measured P")
+    ax.set_ylabel(f"singular values of P (dB), {100 * level:.0f} % band")
+    ax.set_title(f"{sv.shape[0]} draws of P", fontsize=9)
+    if check is not None:
+        bx = axes[0][1]
+        ratio = np.asarray(check.error) / np.maximum(np.asarray(check.radius), 1e-300)
+        held = np.asarray(check.held)
+        bx.semilogx(check.freq_hz[held], ratio[held], "o", color="C0", ms=5, label="inside")
+        bx.semilogx(check.freq_hz[~held], ratio[~held], "x", color="C3", ms=7, mew=2,
+                    label="outside")  # fmt: skip
+        bx.axhline(1.0, color="k", lw=0.9, ls="--", label="band edge")
+        bx.set_yscale("log")
+        bx.set_xlim(ax.get_xlim())
+        bx.set_ylabel("left-out measured P: error ÷ band radius")
+        bx.set_title(f"check: {check.status}", fontsize=9)
+    for a in axes[0]:
+        for i, (a_hz, b_hz) in enumerate(check.not_established_hz if check is not None else []):
+            a.axvspan(a_hz, b_hz, color="C3", alpha=0.12, lw=0,
+                      label="not established" if i == 0 else None)  # fmt: skip
+        a.set_xlabel("frequency (Hz)")
+        a.grid(True, which="both", alpha=0.3)
+        a.legend(fontsize=7)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return fig, axes
+
+
 def loci(reports: dict, *, title: str = "", f_range=(0.1, 500.0)):
     """Characteristic loci (eigenvalues λ_i of P G, tracked over frequency): Nyquist plane
     (top; solid ω > 0, dotted its mirror image ω < 0) and Bode magnitude and phase (bottom) per

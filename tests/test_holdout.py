@@ -135,3 +135,25 @@ def test_suggestions_sit_on_the_measured_grid():
     g = np.array([19.0, 20.0, 21.0, 22.0])  # 21 Hz missed, its neighbours adjacent on 1 Hz
     c = HoldoutCheck(g[1:-1], np.array([1.0, 1.0]), np.array([0.5, 2.0]), g, 0.9)
     assert c.suggested_hz == [] and "on a finer frequency grid" in c.message()
+
+
+def test_predict_stores_where_the_band_is_established_and_draws_it(samples, tmp_path, capsys):
+    """The draws file's ``established (N,)`` is the check's own verdict on the grid (False in
+    the interval around the 5 % feature at 20 Hz, True far from it), ``--plot`` writes the
+    figure, and a bad figure name fails before anything is written."""
+    _, _, ps = samples
+    bumped = _bumped(ps, 7, 0.05)
+    s = save_samples(tmp_path / "s.npz", bumped)
+    out, fig = tmp_path / "d.npz", tmp_path / "band.png"
+    args = ["predict", "--samples", str(s), "--n-freq", "40", "--max-samples", "50"]
+    assert main([*args, "--out", str(out), "--plot", str(fig)]) == 0
+    assert "figure → " in capsys.readouterr().out
+    with np.load(out) as z:
+        f, est = z["freq_hz"], z["established"]
+    assert est.dtype == bool and est.shape == f.shape
+    want = holdout_check(bumped, max_samples=50, seed=0).covers(f)
+    assert np.array_equal(est, want) and not est[(f > 16) & (f < 24)].any() and est[f < 5].all()
+    assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    bad_out = tmp_path / "e.npz"
+    assert main([*args, "--out", str(bad_out), "--plot", str(tmp_path / "band.txt")]) == 2
+    assert "--plot" in capsys.readouterr().err and not bad_out.exists()

@@ -61,9 +61,11 @@ def save_frf(path, frf: FRF) -> Path:
 
 def save_draws(path, freq_hz, draws: dict) -> Path:
     """Write predictive plant draws (``hapid predict``): ``freq_hz (N,)`` and each of
-    ``draws`` (e.g. ``P``, ``Z_H``, ``Z_T``: ``(S, N, n, n)`` complex) to an ``.npz``."""
+    ``draws`` (e.g. ``P``, ``Z_H``, ``Z_T``: ``(S, N, n, n)`` complex; a boolean array, e.g.
+    ``established (N,)``, is kept boolean) to an ``.npz``."""
     arrays = {"freq_hz": np.asarray(freq_hz, dtype=np.float64)}
-    arrays |= {k: np.asarray(v, dtype=np.complex128) for k, v in draws.items()}
+    arrays |= {k: np.asarray(v, dtype=bool if np.asarray(v).dtype == bool else np.complex128)
+               for k, v in draws.items()}  # fmt: skip
     return _write_arrays(path, arrays)
 
 
