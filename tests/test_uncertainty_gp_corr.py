@@ -470,3 +470,31 @@ def test_gp_corr_marginal_likelihood_matches_dense_gaussian(case):
     h2 = H10.copy()
     h2[0] += 1.0
     assert abs(float(log_marginal_likelihood(post, h2)) - a) > 1.0
+
+
+def test_a_flipped_warp_switch_is_another_program_not_a_stale_one(case):
+    """The conditional draws read GP_CORR_WARP when their program is traced, and the program
+    is cached (in this process and on disk): after the switch is flipped the draws must be
+    those of the new warp — the same as with every cached program dropped — not the old
+    warp's."""
+    import hapid.uncertainty._gp as LK
+    from hapid._aot import clear_programs
+
+    _, frf, nls = case
+    post = make_log_posterior(frf, nls.scale, f_max_hz=None, reference=nls,
+                              model_error=GPCorr(hyper=tuple(H10)))  # fmt: skip
+    ps = posterior_laplace_samples(post, 20, nls, key=0)
+    om = 2 * np.pi * np.array([2.5, 12.5, 27.5])
+    draw = lambda: predictive_plants(ps, om, max_samples=None, seed=3).Z_H  # noqa: E731
+    asinh = draw()
+    old = LK.GP_CORR_WARP
+    try:
+        LK.GP_CORR_WARP = "boxcox"
+        flipped = draw()
+        clear_programs()
+        fresh = draw()
+    finally:
+        LK.GP_CORR_WARP = old
+    assert not np.allclose(flipped, asinh, rtol=1e-6)
+    assert np.allclose(flipped, fresh, rtol=1e-12, atol=0)
+    assert np.allclose(draw(), asinh, rtol=1e-12, atol=0)  # and back

@@ -20,14 +20,14 @@ from .. import _config  # noqa: F401  (float64)
 from .._aot import cached_jit
 from ..samples import PosteriorSamples
 from ._gp import (
-    GP_CORR_KERNEL,
-    KERNELS,
+    corr_kernel,
     corr_warp,
     gp_corr_covariance,
     gp_covariance,
     hm_correlation,
     kernel,
     split_hyper,
+    switches,
     warp,
 )
 from ._weights import element_weights, gp_amplitudes
@@ -51,13 +51,14 @@ def _fit_residuals(ps: PosteriorSamples, models):
 
 
 def _batched(run, hyper, y_all, rng, *consts):
-    """``run(hyper, y, keys, *consts)`` (a jitted, vmapped function of the draws) in batches
-    of :data:`_BATCH` draws, with keys split from one seed drawn from ``rng``; the per-batch
-    outputs (a pair)."""
+    """``run(hyper, y, keys, *consts, switches)`` (a jitted, vmapped function of the draws) in
+    batches of :data:`_BATCH` draws, with keys split from one seed drawn from ``rng``; the
+    per-batch outputs (a pair). ``switches``: :func:`~hapid.uncertainty._gp.switches`, static,
+    so a flipped kernel or warp switch is another program."""
     S_ = hyper.shape[0]
     keys = jax.random.split(jax.random.PRNGKey(int(rng.integers(2**31))), S_)
     return [run(jnp.asarray(hyper[i : i + _BATCH]), jnp.asarray(y_all[i : i + _BATCH]),
-                keys[i : i + _BATCH], *consts) for i in range(0, S_, _BATCH)]  # fmt: skip
+                keys[i : i + _BATCH], *consts, switches()) for i in range(0, S_, _BATCH)]  # fmt: skip
 
 
 def white_errors(ps: PosteriorSamples, idx, omega, rng, weight=None):
@@ -197,9 +198,11 @@ def _gp_one(h, y, key, u, aH, aM, sdH, lamT, cT, var_H, var_T, rho):
     return outH, outM
 
 
-def gp_chunk(hyper, y, keys, consts):
+def gp_chunk(hyper, y, keys, consts, switches_=None):
     """:func:`_gp_one` vmapped over the draws ``hyper (B, H)``, ``y (B, E, 2Nf, 2)``,
-    ``keys (B, 2)``; ``consts`` the shared data (its arguments after ``key``)."""
+    ``keys (B, 2)``; ``consts`` the shared data (its arguments after ``key``); ``switches_``
+    the GP switches at the call (:func:`~hapid.uncertainty._gp.switches`): not used here,
+    only part of the compiled program's key."""
     return jax.vmap(lambda h, yy, kk: _gp_one(h, yy, kk, *consts))(hyper, y, keys)
 
 
@@ -233,7 +236,7 @@ def _gp_corr_setup(h, E, Nf, u, aH, aM, sdH, sdT, var_H, var_T, rho_n):
     R, Lr = [], []
     for i in range(2):  # unit-variance latent correlations (relative jitter: see gp_errors)
         wi = corr_warp(u, kap[i])
-        R.append(KERNELS[GP_CORR_KERNEL](wi, wi, ell[i]))
+        R.append(corr_kernel(wi, wi, ell[i]))
         Lr.append(jnp.linalg.cholesky(R[i] + 1e-9 * jnp.eye(M)))
     return g, R, Lr, jnp.linalg.cholesky(C), hm_correlation(h)
 
@@ -268,11 +271,12 @@ def _gp_corr_draw(setup, y, key, sdH, sdT, rho_n, solve):
     return outH, outM
 
 
-def gp_corr_chunk(hyper, y, keys, consts):
+def gp_corr_chunk(hyper, y, keys, consts, switches_=None):
     """Draws of :func:`gp_corr_errors` for ``hyper (B, H)``, ``y (B, E, 2Nf)``, ``keys (B,
     2)``; ``consts = (u, aH, aM, sdH, sdT, var_H, var_T, rho_n)`` the shared data
     (:func:`_gp_corr_setup`). The data are arguments, not constants, so one compiled program
-    serves every data set of these shapes (:func:`~hapid.uncertainty.holdout_check`)."""
+    serves every data set of these shapes (:func:`~hapid.uncertainty.holdout_check`);
+    ``switches_`` only keys the program (:func:`gp_chunk`)."""
     E, Nf = y.shape[1], y.shape[2] // 2
     sdH, sdT, rho_n = consts[3], consts[4], consts[7]
 
@@ -284,11 +288,12 @@ def gp_corr_chunk(hyper, y, keys, consts):
     return jax.vmap(one)(hyper, y, keys)
 
 
-def gp_corr_chunk_shared(hyper, y, keys, consts):
+def gp_corr_chunk_shared(hyper, y, keys, consts, switches_=None):
     """:func:`gp_corr_chunk` when every draw has the hyperparameters ``hyper[0]`` (the
     marginal mode or the MAP, the default): the covariance and its factors once per chunk,
     not once per draw, and ``C⁻¹`` as a matrix: each draw's solve is then a matrix product
-    (XLA:CPU runs a batch of small triangular solves one matrix at a time)."""
+    (XLA:CPU runs a batch of small triangular solves one matrix at a time); ``switches_``
+    only keys the program (:func:`gp_chunk`)."""
     E, Nf = y.shape[1], y.shape[2] // 2
     setup = _gp_corr_setup(hyper[0], E, Nf, *consts)
     Lc = setup[3]

@@ -59,6 +59,19 @@ def kernel(x, y, ell):
     return KERNELS[GP_KERNEL](x, y, ell)
 
 
+def corr_kernel(x, y, ell):
+    """gp_corr's correlation in use (:data:`GP_CORR_KERNEL`)."""
+    return KERNELS[GP_CORR_KERNEL](x, y, ell)
+
+
+def switches() -> tuple[str, str, str]:
+    """The module's run-time switches ``(GP_KERNEL, GP_CORR_KERNEL, GP_CORR_WARP)`` as they
+    are now. A jitted program reads them when it is traced, so a program that uses them takes
+    this tuple as a static argument: a switch flipped later is then another program (another
+    key of :func:`hapid._aot.cached_jit`), not a stale one."""
+    return (GP_KERNEL, GP_CORR_KERNEL, GP_CORR_WARP)
+
+
 def warp(u, kappa):
     """Box–Cox warp of log-frequency ``u = log(ω/ω_ref)``: ``(e^{κu} − 1)/κ`` (``u`` at
     ``κ = 0``; ``ω/ω_ref − 1`` at ``κ = 1``). The GP is stationary in the warped coordinate:
@@ -160,10 +173,9 @@ def gp_corr_blocks(u, b_H, b_M, hyper):
     ``K_MM = τ_M² b_M b_Mᵀ ⊙ (|ρ|² k₁ + (1 − |ρ|²) k₂)``; ``ρ = 0`` is the independent gp."""
     tau, ell, _, kappa = split_hyper(hyper)
     rho = hm_correlation(hyper)
-    kern = KERNELS[GP_CORR_KERNEL]
     w1, w2 = corr_warp(u, kappa[0]), corr_warp(u, kappa[1])
-    k1 = kern(w1, w1, ell[0])
-    k2 = kern(w2, w2, ell[1])
+    k1 = corr_kernel(w1, w1, ell[0])
+    k2 = corr_kernel(w2, w2, ell[1])
     r2 = jnp.abs(rho) ** 2
     outer = lambda a, b: a[..., :, None] * b[..., None, :]  # noqa: E731
     KHH = tau[0] ** 2 * outer(b_H, b_H) * k1
