@@ -98,16 +98,15 @@ HELD_OUT = "cu5_soft, cu5 --delay 2, tripod3 --rod-compliance 3, hexapod6 --dela
 PREDICT_CALIBRATION_NOTE = {
     "params": (
         "note: the 90 % band of these draws (gp_corr model error) was measured against the true "
-        "P at held-out frequencies in 1–40 Hz on 20 devices in four families not used to "
+        "P at held-out frequencies in 1–40 Hz on 26 devices in five families not used to "
         "choose the method (goal: coverage ≥ 85 %, width/error ≤ 3), from emcee and Laplace "
-        "samples: on 3–5 rods it met the goal in every run (45 runs, 14 devices: coverage "
-        "97–100 %, width/error 2.1–2.8; at 16–40 Hz alone 92–100 % in 39 Laplace runs); on "
-        "6-rod hexapods (24 Laplace runs) it was too narrow at 16–40 Hz (coverage 36–100 %, "
-        "under 85 % in 20 of 24 runs) and up to 4.6× its error below 16 Hz (2.6–4.6). The "
-        "check line above flagged none of the 43 Laplace runs whose band held, and 15 of those 20. "
-        "The draws "
-        "are of the sampled plant the "
-        "experiment measures (hapid plant): against the continuous-time P they covered "
+        "samples: on 3–5 rods it met the goal in every run (54 runs, 17 devices: coverage "
+        "97–100 %, width/error 2.1–2.8; at 16–40 Hz alone 92–100 % in 48 Laplace runs); on "
+        "6-rod hexapods (33 Laplace runs) it was too narrow at 16–40 Hz (coverage 36–100 %, "
+        "under 85 % in 29 of 33 runs) and up to 4.6× its error below 16 Hz (2.6–4.6). The "
+        "check line above flagged none of the 52 Laplace runs whose band held, and 24 of those "
+        "29. The draws are of the sampled plant the experiment measures (hapid plant): against "
+        "the continuous-time P they covered "
         "45–48 % (the hold's lag). Other model errors and frequencies above 40 Hz are not "
         "checked (docs/conventions.md)"
     ),
@@ -137,9 +136,9 @@ def rods_warning(draws: str, n: int) -> str | None:
         return None
     where = (
         f"on {RODS_UNCALIBRATED}-rod devices this band was measured too narrow at 16–40 Hz (it "
-        "held the true P at 36–100 % of those frequencies, under 85 % in 20 of 24 Laplace runs) "
+        "held the true P at 36–100 % of those frequencies, under 85 % in 29 of 33 Laplace runs) "
         "and too wide below 16 Hz (width/error up to 4.6, 2.6–4.6 against the goal ≤ 3). The "
-        "check line found 15 of those 20 runs; it saw nothing in 5 hexapods with a 2-sample "
+        "check line found 24 of those 29 runs; it saw nothing in 5 hexapods with a 2-sample "
         "delay (coverage 64–84 % at 16–40 Hz). So even where the check says established, do "
         "not read this band as a bound above 16 Hz; below, read it as conservative"
     )
