@@ -228,6 +228,23 @@ def _loop_gp_rows(name, frf, nls, om, tr, draws, seed, quantities, split_hz=None
             for band, c, k in split_figures(pd.P, tr[q], om / TWO_PI, split_hz)]  # fmt: skip
 
 
+def fit(frf, weight: str = "relative"):
+    """The NLS fit of the calibration (≤ 40 Hz, ``weight``), with more Levenberg–Marquardt
+    steps when the default 500 do not converge (hexapod6 with a 2-sample delay)."""
+    nls = fit_nls(frf, weight=weight, f_max_hz=40.0)
+    if not nls.ok:
+        nls = fit_nls(frf, weight=weight, f_max_hz=40.0, max_steps=5000)
+    return nls.raise_if_failed()
+
+
+def log_posterior(frf, nls, model_error):
+    """The posterior of the calibration (≤ 40 Hz, the NLS fit as reference, parameters at a
+    PD boundary held fixed) with ``model_error``."""
+    fixed = boundary_fixed(nls) if nls.boundary else None
+    return make_log_posterior(frf, nls.scale, f_max_hz=40.0, model_error=model_error,
+                              reference=nls, fixed=fixed)  # fmt: skip
+
+
 def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", draws=400, seed=0,
               quantities=("P", "Z_H", "Z_T"), split_hz=None, holdout=False):  # fmt: skip
     dev = device(name)
@@ -244,10 +261,7 @@ def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", dra
     weight = "relative" if not isinstance(dev, SecondOrderDevice) else "noise"
     if weight == "noise" and np.any(np.asarray(frf.Z_T_std) <= 0):  # force noise only: Z_T exact
         weight = "relative"
-    nls = fit_nls(frf, weight=weight, f_max_hz=40.0)
-    if not nls.ok:  # hexapod6_d2: LM needs more than the default 500 steps
-        nls = fit_nls(frf, weight=weight, f_max_hz=40.0, max_steps=5000)
-    nls = nls.raise_if_failed()
+    nls = fit(frf, weight)
     om = held_out_grid(np.asarray(frf.omega) / TWO_PI)
     tr = truth(dev, om, exact)
     rows = []
@@ -255,14 +269,11 @@ def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", dra
         if kind == "loop_gp":
             rows += _loop_gp_rows(name, frf, nls, om, tr, draws, seed, quantities, split_hz)
             continue
-        fixed = boundary_fixed(nls) if nls.boundary else None
         base, _, mode = kind.partition("@")  # e.g. "gp_corr@map": the hyperparameters' fixing
         me = model_error_from("gp_corr" if base == "gp_corr_el" else base, gp_hyper=mode or None,
                               error_scale="element" if base == "gp_corr_el" else None)  # fmt: skip
         t0 = time.perf_counter()
-        post = make_log_posterior(
-            frf, nls.scale, f_max_hz=40.0, model_error=me, reference=nls, fixed=fixed,
-        )  # fmt: skip
+        post = log_posterior(frf, nls, me)
         t_build = time.perf_counter() - t0
         ms = _eval_ms(post, initial_point(post, nls))
         t0 = time.perf_counter()

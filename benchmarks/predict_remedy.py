@@ -24,15 +24,12 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-from calibrate_predictive import TWO_PI, device, split_figures, truth
+from calibrate_predictive import TWO_PI, device, fit, log_posterior, split_figures, truth
 from calibrate_robust import split_specs
 
 from hapid.experiment import Protocol, estimate_frf, periodic_run
-from hapid.fit import fit_nls
 from hapid.uncertainty import (
-    boundary_fixed,
     holdout_check,
-    make_log_posterior,
     model_error_from,
     posterior_laplace_samples,
     predictive_plants,
@@ -47,13 +44,8 @@ seed (the second, third and fourth families)."""
 def posterior(dev, proto, draws: int, seed: int):
     """``(frf, gp_corr Laplace samples)`` of ``dev`` measured with ``proto``."""
     frf = estimate_frf(periodic_run(dev, proto))
-    nls = fit_nls(frf, weight="relative", f_max_hz=40.0)
-    if not nls.ok:  # hexapod6 with a 2-sample delay: LM needs more than the default steps
-        nls = fit_nls(frf, weight="relative", f_max_hz=40.0, max_steps=5000)
-    nls = nls.raise_if_failed()
-    fixed = boundary_fixed(nls) if nls.boundary else None
-    post = make_log_posterior(frf, nls.scale, f_max_hz=40.0, model_error=model_error_from("gp_corr"),
-                              reference=nls, fixed=fixed)  # fmt: skip
+    nls = fit(frf)
+    post = log_posterior(frf, nls, model_error_from("gp_corr"))
     return frf, posterior_laplace_samples(post, draws, nls, key=seed)
 
 
