@@ -28,6 +28,7 @@ DATA = {
             "impedance_h1",
             "loci",
             "pphat",
+            "predictive_band",
             "robust_histograms",
             "sigma_T_minus_I",
             "singular_values",
