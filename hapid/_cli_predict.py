@@ -47,10 +47,13 @@ def cmd_predict(a):
     print(f"{d.P.shape[0]} predictive draws of P ({how}) on {len(f)} frequencies "
           f"{f[0]:.4g}–{f[-1]:.4g} Hz → {out}: {', '.join(d.arrays | extra)}")  # fmt: skip
     print(line)
-    print(PREDICT_CALIBRATION_NOTE[d.draws])
-    warning = rods_warning(d.draws, ps.n)
-    if warning:
-        print(warning)
+    if a.no_model_error:
+        print(NO_MODEL_ERROR_NOTE)
+    else:
+        print(PREDICT_CALIBRATION_NOTE[d.draws])
+        warning = rods_warning(d.draws, ps.n)
+        if warning:
+            print(warning)
     if a.plot:
         from . import plot  # local: CLI start-up (matplotlib)
 
@@ -122,6 +125,13 @@ PREDICT_CALIBRATION_NOTE = {
 }
 """What ``hapid predict`` prints after the draws, per family: where their band was measured
 (benchmarks/calibrate_predictive.py and calibrate_predict_cli.py, docs/conventions.md)."""
+
+NO_MODEL_ERROR_NOTE = (
+    "note: --no-model-error: these draws carry the parameter uncertainty only, so their band is "
+    "narrower than the misfit of a second-order model and was not measured against the true P "
+    "(the calibrated band is the default, with the model error)"
+)
+"""What ``hapid predict --no-model-error`` prints instead of the calibration note."""
 
 RODS_UNCALIBRATED = 6
 """The rods of the measured devices on which the ``params`` band was not calibrated (figures

@@ -55,3 +55,15 @@ def test_rods_warning_only_for_parameter_draws():
     assert rods_warning("loop_gp", 6) is None
     assert rods_warning("params", RODS_UNCALIBRATED - 1) is None
     assert rods_warning("params", RODS_UNCALIBRATED).startswith("WARNING")
+
+
+def test_parameter_only_draws_do_not_claim_the_model_error_calibration(tmp_path, capsys):
+    """``--no-model-error`` draws are not the calibrated band: predict says so instead of
+    printing the gp_corr calibration note or the 6-rod warning about that band."""
+    s = _samples(tmp_path, 6)
+    out = tmp_path / "d.npz"
+    argv = ["predict", "--samples", str(s), "--n-freq", "5", "--out", str(out)]
+    assert main([*argv, "--no-model-error"]) == 0
+    text = capsys.readouterr().out
+    assert "parameter uncertainty only" in text and "was not measured against the true P" in text
+    assert "gp_corr model error) was measured" not in text and "WARNING" not in text
