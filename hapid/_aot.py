@@ -16,7 +16,8 @@ Contract of ``cached_jit(fn)(*args)``:
   dtype or static value is a different key (a miss: traced and stored anew), never a stale
   program. A module global that ``fn`` reads when traced (a run-time switch) is *not* in the
   key: pass its value as a static argument (the GP conditionals take
-  :func:`hapid.uncertainty._gp.switches`), or a flipped switch reuses the old program.
+  :func:`hapid.uncertainty._gp.switches`), or a flipped switch reuses the old program, in
+  this process and from disk in later ones.
 * Falls back silently to ``eqx.filter_jit(fn)`` when the cache is off (``HAPID_JAX_CACHE=""``),
   a static leaf has no stable ``repr`` (an object address), export fails (an unsupported
   primitive, e.g. a host callback), or the folder is unwritable (then the exported program

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from . import io
@@ -37,8 +39,11 @@ def cmd_predict(a):
     d = plant_draws(ps, TWO_PI * f, draws=a.draws, max_samples=a.max_samples, seed=a.seed,
                     include_error=not a.no_model_error)  # fmt: skip
     check, line = run_check(ps, d.draws, a)
-    extra = {"established": check.covers(f)} if check is not None else {}
+    extra = {"established": check.covers(f) & check.seen(f)} if check is not None else {}
+    figure = _figure(a, f, d, ps, check) if a.plot else None  # drawn before anything is written
     out = io.save_draws(a.out, f, d.arrays | extra)
+    if figure is not None:
+        io.save_bytes(a.plot, figure)
     if d.draws == "loop_gp":
         lo, hi = d.info["measured_hz"]
         how = f"--draws loop_gp: the loop conditioned on the measured FRF {lo:.4g}–{hi:.4g} Hz"
@@ -50,25 +55,39 @@ def cmd_predict(a):
     if a.no_model_error:
         print(NO_MODEL_ERROR_NOTE)
     else:
+        if d.draws == "params" and d.model_error != "gp_corr":
+            print(f"note: these draws use the {d.model_error!r} model error; the calibration below "
+                  "was measured for gp_corr (hapid posterior's default), not for it")  # fmt: skip
         print(PREDICT_CALIBRATION_NOTE[d.draws])
         warning = rods_warning(d.draws, ps.n)
         if warning:
             print(warning)
-    if a.plot:
-        from . import plot  # local: CLI start-up (matplotlib)
-
-        fig, _ = plot.predictive_band(f, d.P, measured=measured_plant(ps), check=check,
-                                      title=f"hapid predict: {a.samples}")  # fmt: skip
-        plot.save(fig, a.plot)
+    if figure is not None:
         print(f"figure → {a.plot}")
 
 
-def measured_plant(ps):
-    """``(freq_hz (K,), P (K, n, n))`` of the measured FRF a samples file stores (its fit data,
-    else its whole measured FRF), or None."""
+def _figure(a, f, d, ps, check) -> bytes:
+    """``hapid predict --plot``'s figure as bytes in the format of its file name."""
+    from . import plot  # local: CLI start-up (matplotlib)
+
+    fig, _ = plot.predictive_band(f, d.P, measured=measured_plant(ps, d.draws), check=check,
+                                  title=f"hapid predict: {a.samples}")  # fmt: skip
+    try:
+        return plot.to_bytes(fig, Path(a.plot).suffix.lstrip(".").lower(), dpi=130)
+    finally:
+        plot.close(fig)
+
+
+def measured_plant(ps, draws: str = "params"):
+    """``(freq_hz (K,), P (K, n, n))`` of the measured FRF a samples file stores — what the
+    ``draws`` are conditioned on: the fit data for ``params``, the whole measured FRF for
+    ``loop_gp`` (each falling back on the other) — or None."""
     from .impedance import plant  # local: CLI start-up
 
-    d = ps.predictive if ps.predictive is not None else ps.measured
+    first, second = (
+        (ps.measured, ps.predictive) if draws == "loop_gp" else (ps.predictive, ps.measured)
+    )
+    d = first if first is not None else second
     if d is None:
         return None
     return np.asarray(d["omega"]) / TWO_PI, np.asarray(plant(np.asarray(d["Z_H"]),
@@ -92,7 +111,10 @@ def run_check(ps, draws: str, a):
     if not isinstance(model_error_for(ps), GP):
         return None, (f"check: not run (the {ps.error_kind!r} model error does not condition on "
                       "the fit residuals; hapid posterior's default gp_corr does)")  # fmt: skip
-    check = holdout_check(ps, max_samples=min(a.max_samples, 200), seed=a.seed)
+    try:
+        check = holdout_check(ps, max_samples=min(a.max_samples, 200), seed=a.seed)
+    except ValueError as e:  # e.g. fewer than 3 measured frequencies: nothing to leave out
+        return None, f"check: not run ({str(e).removeprefix('holdout_check: ')})"
     return check, check.message()
 
 
@@ -127,8 +149,8 @@ PREDICT_CALIBRATION_NOTE = {
 (benchmarks/calibrate_predictive.py and calibrate_predict_cli.py, docs/conventions.md)."""
 
 NO_MODEL_ERROR_NOTE = (
-    "note: --no-model-error: these draws carry the parameter uncertainty only, so their band is "
-    "narrower than the misfit of a second-order model and was not measured against the true P "
+    "note: --no-model-error: these draws carry the parameter uncertainty only, so their band may "
+    "be narrower than the misfit of a second-order model and was not measured against the true P "
     "(the calibrated band is the default, with the model error)"
 )
 """What ``hapid predict --no-model-error`` prints instead of the calibration note."""
@@ -243,7 +265,8 @@ def register(sub):
     pr.add_argument("--out", required=True,
                     help="output .npz: freq_hz (N,) and P (S, N, n, n); params draws also Z_H, "
                     "Z_T (S, N, n, n), and established (N,) bool where the check ran (False "
-                    "inside an interval it leaves not established)")  # fmt: skip
+                    "inside an interval it leaves not established and outside the measured "
+                    "frequencies it can judge)")  # fmt: skip
     pr.set_defaults(func=cmd_predict)
 
     pl = sub.add_parser("plant", help="write a simulated device's true plant as an FRF file",

@@ -151,9 +151,33 @@ def test_predict_stores_where_the_band_is_established_and_draws_it(samples, tmp_
     with np.load(out) as z:
         f, est = z["freq_hz"], z["established"]
     assert est.dtype == bool and est.shape == f.shape
-    want = holdout_check(bumped, max_samples=50, seed=0).covers(f)
-    assert np.array_equal(est, want) and not est[(f > 16) & (f < 24)].any() and est[f < 5].all()
+    check = holdout_check(bumped, max_samples=50, seed=0)
+    assert np.array_equal(est, check.covers(f) & check.seen(f))
+    assert not est[(f > 16) & (f < 24)].any() and est[f < 5].all()
     assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # beyond the measured frequencies (40 Hz) nothing was judged: not established
+    assert main([*args, "--f-max-hz", "60", "--out", str(out)]) == 0
+    with np.load(out) as z:
+        f, est = z["freq_hz"], z["established"]
+    assert not est[f > 40.0 + 1e-9].any() and est[f < 5].all()
     bad_out = tmp_path / "e.npz"
     assert main([*args, "--out", str(bad_out), "--plot", str(tmp_path / "band.txt")]) == 2
     assert "--plot" in capsys.readouterr().err and not bad_out.exists()
+
+
+def test_predict_says_why_the_check_did_not_run_on_two_frequencies(samples, tmp_path, capsys):
+    """Fit data of two frequencies leave nothing to leave out: predict writes its draws and
+    says why there is no check, instead of failing."""
+    _, _, ps = samples
+    d = ps.predictive
+    keep = slice(3, 5)
+    per_freq = ("omega", "Z_H", "Z_T", "var_H", "var_T", "a_H", "a_M")
+    two = dataclasses.replace(ps, predictive={**d, **{k: np.asarray(d[k])[keep] for k in per_freq}})
+    s = save_samples(tmp_path / "s.npz", two)
+    out = tmp_path / "d.npz"
+    assert main(["predict", "--samples", str(s), "--n-freq", "4", "--max-samples", "20",
+                 "--out", str(out)]) == 0  # fmt: skip
+    text = capsys.readouterr().out
+    assert "check: not run (needs at least 3 measured frequencies, got 2)" in text
+    with np.load(out) as z:
+        assert "established" not in z.files and z["P"].shape == (20, 4, 2, 2)

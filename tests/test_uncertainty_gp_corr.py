@@ -472,25 +472,29 @@ def test_gp_corr_marginal_likelihood_matches_dense_gaussian(case):
     assert abs(float(log_marginal_likelihood(post, h2)) - a) > 1.0
 
 
-def test_a_flipped_warp_switch_is_another_program_not_a_stale_one(case):
-    """The conditional draws read GP_CORR_WARP when their program is traced, and the program
-    is cached (in this process and on disk): after the switch is flipped the draws must be
-    those of another program (the old code returned the asinh draws again), and flipping it
-    back gives the asinh draws exactly."""
+@pytest.mark.parametrize(
+    "name, value", [("GP_CORR_WARP", "boxcox"), ("GP_CORR_KERNEL", "matern32")]
+)
+def test_a_flipped_switch_is_another_program_not_a_stale_one(case, name, value, monkeypatch):
+    """The conditional draws read the switch when their program is traced, and the program is
+    cached (in this process and on disk for later ones). Flipped, flipped back and flipped
+    again, each setting must give its own draws: the second flip the same as the first, the
+    setting in between different (the old code returned the first traced setting's draws
+    throughout, and _conditional had copied GP_CORR_KERNEL at import)."""
     import hapid.uncertainty._gp as LK
 
     _, frf, nls = case
     post = make_log_posterior(frf, nls.scale, f_max_hz=None, reference=nls,
                               model_error=GPCorr(hyper=tuple(H10)))  # fmt: skip
-    ps = posterior_laplace_samples(post, 20, nls, key=0)
+    ps = posterior_laplace_samples(post, 8, nls, key=0)
     om = 2 * np.pi * np.array([2.5, 12.5, 27.5])
-    draw = lambda: predictive_plants(ps, om, max_samples=None, seed=3).Z_H  # noqa: E731
-    asinh = draw()
-    old = LK.GP_CORR_WARP
-    try:
-        LK.GP_CORR_WARP = "boxcox"
-        flipped = draw()
-    finally:
-        LK.GP_CORR_WARP = old
-    assert np.all(np.isfinite(flipped)) and not np.allclose(flipped, asinh, rtol=1e-6)
-    assert np.allclose(draw(), asinh, rtol=1e-12, atol=0)  # and back
+    draws = lambda: predictive_plants(ps, om, max_samples=None, seed=3).Z_H  # noqa: E731
+
+    old = getattr(LK, name)
+    monkeypatch.setattr(LK, name, value)
+    z_b = draws()
+    monkeypatch.setattr(LK, name, old)
+    z_a = draws()
+    monkeypatch.setattr(LK, name, value)
+    assert np.allclose(draws(), z_b, rtol=1e-12, atol=0)
+    assert np.all(np.isfinite(z_b)) and not np.allclose(z_a, z_b, rtol=1e-6)

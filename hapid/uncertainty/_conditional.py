@@ -198,7 +198,7 @@ def _gp_one(h, y, key, u, aH, aM, sdH, lamT, cT, var_H, var_T, rho):
     return outH, outM
 
 
-def gp_chunk(hyper, y, keys, consts, switches_=None):
+def gp_chunk(hyper, y, keys, consts, switches_):
     """:func:`_gp_one` vmapped over the draws ``hyper (B, H)``, ``y (B, E, 2Nf, 2)``,
     ``keys (B, 2)``; ``consts`` the shared data (its arguments after ``key``); ``switches_``
     the GP switches at the call (:func:`~hapid.uncertainty._gp.switches`): not used here,
@@ -271,7 +271,7 @@ def _gp_corr_draw(setup, y, key, sdH, sdT, rho_n, solve):
     return outH, outM
 
 
-def gp_corr_chunk(hyper, y, keys, consts, switches_=None):
+def gp_corr_chunk(hyper, y, keys, consts, switches_):
     """Draws of :func:`gp_corr_errors` for ``hyper (B, H)``, ``y (B, E, 2Nf)``, ``keys (B,
     2)``; ``consts = (u, aH, aM, sdH, sdT, var_H, var_T, rho_n)`` the shared data
     (:func:`_gp_corr_setup`). The data are arguments, not constants, so one compiled program
@@ -288,7 +288,7 @@ def gp_corr_chunk(hyper, y, keys, consts, switches_=None):
     return jax.vmap(one)(hyper, y, keys)
 
 
-def gp_corr_chunk_shared(hyper, y, keys, consts, switches_=None):
+def gp_corr_chunk_shared(hyper, y, keys, consts, switches_):
     """:func:`gp_corr_chunk` when every draw has the hyperparameters ``hyper[0]`` (the
     marginal mode or the MAP, the default): the covariance and its factors once per chunk,
     not once per draw, and ``C⁻¹`` as a matrix: each draw's solve is then a matrix product

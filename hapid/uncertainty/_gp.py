@@ -64,11 +64,19 @@ def corr_kernel(x, y, ell):
     return KERNELS[GP_CORR_KERNEL](x, y, ell)
 
 
+SWITCHES = ("GP_KERNEL", "GP_CORR_KERNEL", "GP_CORR_WARP")
+"""The module's run-time switches: names of the settings above that a jitted program reads
+when it is traced. The GP conditionals, whose compiled programs :func:`hapid._aot.cached_jit`
+stores on disk for later processes, take :func:`switches` as a static argument, so they are
+keyed by it. Every other jitted program that reaches these settings (the likelihood, its
+quadratic form, the marginal mode) is an ordinary ``jit``: after assigning a switch in a
+process that has already run them, call :func:`hapid.clear_programs`, or they keep the old
+setting (as any ``jax.jit`` keeps the globals it was traced with)."""
+
+
 def switches() -> tuple[str, str, str]:
-    """The module's run-time switches ``(GP_KERNEL, GP_CORR_KERNEL, GP_CORR_WARP)`` as they
-    are now. A jitted program reads them when it is traced, so a program that uses them takes
-    this tuple as a static argument: a switch flipped later is then another program (another
-    key of :func:`hapid._aot.cached_jit`), not a stale one."""
+    """The values of :data:`SWITCHES` as they are now (a static argument of the cached GP
+    conditionals: part of their key)."""
     return (GP_KERNEL, GP_CORR_KERNEL, GP_CORR_WARP)
 
 

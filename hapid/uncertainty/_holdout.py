@@ -16,8 +16,8 @@ interval ``(ω_{k−1}, ω_{k+1})`` is *not established*. The rule has no tuned 
 ball is the band's own.
 
 What it cannot see: a misfit that peaks between two measured frequencies and is small at
-both (the band can miss there while every left-out point holds), and the frequencies below
-the second and above the next-to-last measured one. It is a cheap leave-one-out: the
+both (the band can miss there while every left-out point holds), and the frequencies outside
+the measured ones (:meth:`HoldoutCheck.seen`). It is a cheap leave-one-out: the
 parameter draws and the hyperparameters are those of the full posterior (conditioned on
 ``ω_k`` too), so it checks the interpolation, not the fit. Under an exactly calibrated band
 each left-out point falls outside with probability ``1 − level``, so a long list of checked
@@ -121,6 +121,13 @@ class HoldoutCheck:
         for lo, hi in self.not_established_hz:
             bad |= (f > lo) & (f < hi)
         return ~bad
+
+    def seen(self, freq_hz) -> np.ndarray:
+        """``(N,)`` bool: the frequencies ``freq_hz`` (Hz) the check can judge, those within
+        the measured ones (``measured_hz[0] ≤ f ≤ measured_hz[-1]``): outside them the band is
+        an extrapolation no left-out frequency tests."""
+        f = np.asarray(freq_hz, dtype=float)
+        return (f >= self.measured_hz[0]) & (f <= self.measured_hz[-1])
 
     def message(self) -> str:
         """One line for the CLI: the verdict first, then the evidence and the remedy."""
