@@ -65,7 +65,7 @@ def corr_kernel(x, y, ell):
 
 
 SWITCHES = ("GP_KERNEL", "GP_CORR_KERNEL", "GP_CORR_WARP")
-"""The module's run-time switches: names of the settings above that a jitted program reads
+"""The module's run-time switches: names of its settings that a jitted program reads
 when it is traced. The GP conditionals, whose compiled programs :func:`hapid._aot.cached_jit`
 stores on disk for later processes, take :func:`switches` as a static argument, so they are
 keyed by it. Every other jitted program that reaches these settings (the likelihood, its
