@@ -58,11 +58,16 @@ def held_out(freq_hz, gap_hz: float = 0.2) -> np.ndarray:
     return TWO_PI * f[keep]
 
 
-def run(spec: str, seed: int, draws: int, rounds: int) -> list[dict]:
+def run(spec: str, seed: int, draws: int, rounds: int, extra_hz=()) -> list[dict]:
     """One row per measurement round: the check, the frequencies it suggests, and the band's
-    figures (``split_figures``) at the held-out frequencies common to every round."""
+    figures (``split_figures``) at the held-out frequencies of that round (:func:`held_out`).
+    ``extra_hz``: frequencies (Hz, on the 1 Hz grid) measured from the first round on, besides
+    the protocol's own."""
     dev = device(spec)
     proto = Protocol(seed=seed, force_noise=5e-3, pattern="paper" if dev.n >= 3 else "hadamard")
+    if extra_hz:
+        proto = Protocol(seed=seed, force_noise=5e-3, pattern=proto.pattern,
+                         freq_hz=tuple(sorted(set(proto.freq_hz) | set(extra_hz))))  # fmt: skip
     runs = []
     for _ in range(rounds + 1):
         _, ps = posterior(dev, proto, draws, seed)
@@ -103,13 +108,17 @@ def main(argv=None):
     ap.add_argument("--draws", type=int, default=200)
     ap.add_argument("--rounds", type=int, default=3,
                     help="at most this many re-measurements with the suggested frequencies")  # fmt: skip
+    ap.add_argument("--extra-hz", default="",
+                    help="comma-separated frequencies (Hz, 1 Hz grid) measured from the start, "
+                         "e.g. a denser grid above 10 Hz; rounds then follow the check as before")  # fmt: skip
     a = ap.parse_args(argv)
+    extra = tuple(float(x) for x in a.extra_hz.split(",") if x)
     print("| device | seed | round | measured frequencies | check (not established, Hz) | "
           "suggested (Hz) | all | ≥16 Hz; rel. error / rel. radius | est. ≥16 Hz |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|")
     for spec in split_specs(a.devices):
         for seed in (int(s) for s in a.seeds.split(",")):
-            for r in run(spec, seed, a.draws, a.rounds):
+            for r in run(spec, seed, a.draws, a.rounds, extra):
                 chk, f = r["check"], r["figs"]
                 sug = ", ".join(f"{x:g}" for x in chk.suggested_hz) or "–"
                 print(f"| {spec} | {seed} | {r['round']} | {r['n_freq']} | {_gaps(chk)} | {sug} | "
