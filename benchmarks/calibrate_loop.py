@@ -76,7 +76,6 @@ def setup(name: str, how: str = "calibrate", seed: int = 0):
     the paper scene's stages (what robust_table.py tunes on)."""
     from hapid.device import SecondOrderDevice
     from hapid.experiment import Protocol, estimate_frf, periodic_run
-    from hapid.fit import fit_nls
 
     if how == "scene":
         from hapid import scene
@@ -92,10 +91,7 @@ def setup(name: str, how: str = "calibrate", seed: int = 0):
                                      pattern="hadamard" if dev.n < 3 else "paper"))  # fmt: skip
     frf = estimate_frf(run)
     weight = "noise" if so and np.all(np.asarray(frf.Z_T_std) > 0) else "relative"
-    nls = fit_nls(frf, weight=weight, f_max_hz=40.0)
-    if not nls.ok:
-        nls = fit_nls(frf, weight=weight, f_max_hz=40.0, max_steps=5000)
-    return dev, frf, nls.raise_if_failed()
+    return dev, frf, cp.fit(frf, weight)
 
 
 def loop_grid(freq_hz, n: int = 300, f_lo: float = 0.1, f_hi: float = 100.0, exclude=True):

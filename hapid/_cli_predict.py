@@ -39,7 +39,7 @@ def cmd_predict(a):
     d = plant_draws(ps, TWO_PI * f, draws=a.draws, max_samples=a.max_samples, seed=a.seed,
                     include_error=not a.no_model_error)  # fmt: skip
     check, line = run_check(ps, d.draws, a)
-    extra = {"established": check.covers(f) & check.seen(f)} if check is not None else {}
+    extra = {"established": check.covers(f)} if check is not None else {}
     figure = _figure(a, f, d, ps, check) if a.plot else None  # drawn before anything is written
     out = io.save_draws(a.out, f, d.arrays | extra)
     if figure is not None:

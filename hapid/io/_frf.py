@@ -64,8 +64,9 @@ def save_draws(path, freq_hz, draws: dict) -> Path:
     ``draws`` (e.g. ``P``, ``Z_H``, ``Z_T``: ``(S, N, n, n)`` complex; a boolean array, e.g.
     ``established (N,)``, is kept boolean) to an ``.npz``."""
     arrays = {"freq_hz": np.asarray(freq_hz, dtype=np.float64)}
-    arrays |= {k: np.asarray(v, dtype=bool if np.asarray(v).dtype == bool else np.complex128)
-               for k, v in draws.items()}  # fmt: skip
+    for k, v in draws.items():
+        v = np.asarray(v)
+        arrays[k] = v if v.dtype == bool else np.asarray(v, dtype=np.complex128)
     return _write_arrays(path, arrays)
 
 

@@ -17,7 +17,7 @@ ball is the band's own.
 
 What it cannot see: a misfit that peaks between two measured frequencies and is small at
 both (the band can miss there while every left-out point holds), and the frequencies outside
-the measured ones (:meth:`HoldoutCheck.seen`). It is a cheap leave-one-out: the
+the measured ones (:meth:`HoldoutCheck.covers`). It is a cheap leave-one-out: the
 parameter draws and the hyperparameters are those of the full posterior (conditioned on
 ``ω_k`` too), so it checks the interpolation, not the fit. Under an exactly calibrated band
 each left-out point falls outside with probability ``1 − level``, so a long list of checked
@@ -114,20 +114,16 @@ class HoldoutCheck:
         return self.status is HoldoutStatus.ESTABLISHED
 
     def covers(self, freq_hz) -> np.ndarray:
-        """``(N,)`` bool: the frequencies ``freq_hz`` (Hz) outside every not-established
-        interval (open intervals: the measured end points themselves are data)."""
+        """``(N,)`` bool: the frequencies ``freq_hz`` (Hz) where the check establishes the
+        band: within the measured frequencies (``measured_hz[0] ≤ f ≤ measured_hz[-1]``;
+        outside them the band is an extrapolation no left-out frequency tests) and outside
+        every not-established interval (open intervals: the measured end points themselves
+        are data)."""
         f = np.asarray(freq_hz, dtype=float)
-        bad = np.zeros(f.shape, bool)
+        ok = (f >= self.measured_hz[0]) & (f <= self.measured_hz[-1])
         for lo, hi in self.not_established_hz:
-            bad |= (f > lo) & (f < hi)
-        return ~bad
-
-    def seen(self, freq_hz) -> np.ndarray:
-        """``(N,)`` bool: the frequencies ``freq_hz`` (Hz) the check can judge, those within
-        the measured ones (``measured_hz[0] ≤ f ≤ measured_hz[-1]``): outside them the band is
-        an extrapolation no left-out frequency tests."""
-        f = np.asarray(freq_hz, dtype=float)
-        return (f >= self.measured_hz[0]) & (f <= self.measured_hz[-1])
+            ok &= ~((f > lo) & (f < hi))
+        return ok
 
     def message(self) -> str:
         """One line for the CLI: the verdict first, then the evidence and the remedy."""
