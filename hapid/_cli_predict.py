@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -111,6 +112,10 @@ def run_check(ps, draws: str, a):
     if not isinstance(model_error_for(ps), GP):
         return None, (f"check: not run (the {ps.error_kind!r} model error does not condition on "
                       "the fit residuals; hapid posterior's default gp_corr does)")  # fmt: skip
+    k = np.shape(ps.predictive["omega"])[0] - 2 if ps.predictive is not None else 0
+    if k > 0:  # the check's expected time: 0.2-0.3 s per left-out frequency (docs/conventions.md)
+        print(f"predict: checking the band, {k} measured frequencies left out in turn "
+              f"(~{0.3 * k:.0f} s expected; --no-check skips it)", file=sys.stderr, flush=True)  # fmt: skip
     try:
         check = holdout_check(ps, max_samples=min(a.max_samples, 200), seed=a.seed)
     except ValueError as e:  # e.g. fewer than 3 measured frequencies: nothing to leave out

@@ -115,8 +115,10 @@ def test_predict_prints_the_verdict(samples, tmp_path, capsys):
     s = save_samples(tmp_path / "s.npz", _bumped(ps, 7, 0.05))
     args = ["predict", "--samples", str(s), "--n-freq", "5", "--max-samples", "50"]
     assert main([*args, "--out", str(tmp_path / "d.npz")]) == 0
-    lines = capsys.readouterr().out.splitlines()
+    cap = capsys.readouterr()
+    lines = cap.out.splitlines()
     assert lines[1].startswith("check: band NOT ESTABLISHED at ") and " 20, " in lines[1]
+    assert "10 measured frequencies left out in turn" in cap.err  # progress: 12 fit frequencies
     assert main([*args, "--no-check", "--out", str(tmp_path / "e.npz")]) == 0
     assert capsys.readouterr().out.splitlines()[1].startswith("check: not run (--no-check)")
 
