@@ -251,14 +251,17 @@ def pphat(
     return fig, axes
 
 
-def predictive_band(f, P, *, measured=None, check=None, level: float = 0.9, title: str = ""):
+def predictive_band(f, P, *, measured=None, check=None, uncalibrated=(), level: float = 0.9,
+                    title: str = ""):  # fmt: skip
     """The ``level`` band of plant draws ``P (S, N, n, n)`` on ``f (N,)`` Hz (``hapid predict
     --plot``): left, each singular value's central band over the draws (shaded) and median
     (line), the measured ``P`` as dots (``measured = (f_m (K,) Hz, P_m (K, n, n))``); right,
     the leave-one-frequency-out check (``check``, a
     :class:`~hapid.uncertainty.HoldoutCheck`): at each left-out measured frequency the
     measured ``P``'s distance from the band's centre over the band's radius, above 1 =
-    outside. The intervals the check leaves not established are shaded red in both."""
+    outside. The intervals the check leaves not established are shaded red in both, the
+    intervals ``uncalibrated`` (``[(lo, hi)]`` Hz: where the measured record says the band is
+    not calibrated) hatched grey."""
     f = np.asarray(f)
     sv = np.linalg.svd(np.asarray(P), compute_uv=False)  # (S, N, n)
     lo_q, hi_q = (1 - level) / 2, 1 - (1 - level) / 2
@@ -294,6 +297,9 @@ def predictive_band(f, P, *, measured=None, check=None, level: float = 0.9, titl
         for i, (a_hz, b_hz) in enumerate(check.not_established_hz if check is not None else []):
             a.axvspan(a_hz, b_hz, color="C3", alpha=0.12, lw=0,
                       label="not established" if i == 0 else None)  # fmt: skip
+        for i, (a_hz, b_hz) in enumerate(uncalibrated):
+            a.axvspan(a_hz, b_hz, facecolor="none", edgecolor="0.65", hatch="//", lw=0,
+                      label="not calibrated (measured record)" if i == 0 else None)  # fmt: skip
         a.set_xlabel("frequency (Hz)")
         a.grid(True, which="both", alpha=0.3)
         a.legend(fontsize=7)

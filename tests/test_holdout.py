@@ -183,3 +183,33 @@ def test_predict_says_why_the_check_did_not_run_on_two_frequencies(samples, tmp_
     assert "check: not run (needs at least 3 measured frequencies, got 2)" in text
     with np.load(out) as z:
         assert "established" not in z.files and z["P"].shape == (20, 4, 2, 2)
+
+
+def test_established_on_an_uncalibrated_model_size_follows_the_record(samples, tmp_path,
+                                                                       monkeypatch, capsys):  # fmt: skip
+    """Where the measured record says the band of a model this size is not calibrated (here
+    the record's rod count lowered to this 2-rod model), the file's ``established`` is False
+    at and above ``UNCALIBRATED_FROM_HZ`` whatever the check says, the check's own verdict
+    below it; the warning says so and the figure hatches that range."""
+    from hapid import _cli_predict
+
+    _, _, ps = samples
+    s = save_samples(tmp_path / "s.npz", ps)  # unbumped: the check establishes everything
+    args = ["predict", "--samples", str(s), "--n-freq", "40", "--max-samples", "50"]
+    monkeypatch.setattr(_cli_predict, "RODS_UNCALIBRATED", 2)
+    out = tmp_path / "d.npz"
+    assert main([*args, "--out", str(out), "--plot", str(tmp_path / "b.png")]) == 0
+    warned = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("WARNING")]
+    assert len(warned) == 1 and "'established' is False at and above 16 Hz" in warned[0]
+    with np.load(out) as z:
+        f, est = z["freq_hz"], z["established"]
+    check = holdout_check(ps, max_samples=50, seed=0)
+    assert check.covers(f)[f >= _cli_predict.UNCALIBRATED_FROM_HZ].all()  # the check: yes
+    assert not est[f >= _cli_predict.UNCALIBRATED_FROM_HZ].any()  # the record: no
+    low = f < _cli_predict.UNCALIBRATED_FROM_HZ
+    assert low.any() and np.array_equal(est[low], check.covers(f)[low])
+    monkeypatch.setattr(_cli_predict, "RODS_UNCALIBRATED", 3)  # 2 rods: calibrated again
+    assert main([*args, "--out", str(out)]) == 0
+    with np.load(out) as z:
+        assert np.array_equal(z["established"], check.covers(z["freq_hz"]))
+    assert list(_cli_predict.record_established("loop_gp", 9, [1.0, 30.0])) == [True, True]
