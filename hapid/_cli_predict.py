@@ -42,6 +42,10 @@ def cmd_predict(a):
     check, line = run_check(ps, d.draws, a)
     record = record_established(d.draws, ps.n, f)
     extra = {"established": check.covers(f) & record} if check is not None else {}
+    if check is not None and not record.all():  # the check's verdict is not the last word
+        line += (f"; on a model of {ps.n} rods the draws file's 'established' is False at and "
+                 f"above {UNCALIBRATED_FROM_HZ:g} Hz regardless (the measured record: WARNING "
+                 "below)")  # fmt: skip
     figure = _figure(a, f, d, ps, check) if a.plot else None  # drawn before anything is written
     out = io.save_draws(a.out, f, d.arrays | extra)
     if figure is not None:

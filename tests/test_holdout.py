@@ -199,8 +199,10 @@ def test_established_on_an_uncalibrated_model_size_follows_the_record(samples, t
     monkeypatch.setattr(_cli_predict, "RODS_UNCALIBRATED", 2)
     out = tmp_path / "d.npz"
     assert main([*args, "--out", str(out), "--plot", str(tmp_path / "b.png")]) == 0
-    warned = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("WARNING")]
+    lines = capsys.readouterr().out.splitlines()
+    warned = [ln for ln in lines if ln.startswith("WARNING")]
     assert len(warned) == 1 and "'established' is False at and above 16 Hz" in warned[0]
+    assert lines[1].startswith("check: band established") and "16 Hz regardless" in lines[1]
     with np.load(out) as z:
         f, est = z["freq_hz"], z["established"]
     check = holdout_check(ps, max_samples=50, seed=0)
