@@ -433,12 +433,19 @@ def run_sweep(cfg: dict, vary: dict[str, list], *, chunk: int = 64, progress: bo
 
 def run_single(cfg: dict, keys, params, estimator: str = ESTIMATOR_DEFAULT) -> SweepPoint:
     """One configuration, unbatched, through the same stages as :func:`run_sweep` (``cfg``
-    with the options ``keys`` set to ``params``); returns a :class:`SweepPoint`."""
+    with the options ``keys`` set to ``params``); returns a :class:`SweepPoint`. The same
+    program as one row of the sweep: static options set in the config, traced ones passed
+    as arguments (so ``protocol.seed`` selects the noise draw and keeps the config's
+    multisine phases, as in the sweep)."""
     c = copy.deepcopy(cfg)
-    for k, v in zip(keys, params, strict=True):
-        _set(c, k, int(v) if k in _STATIC_INT else float(v))
-    fn = jax.jit(point_fn(c, (), estimator))
-    cols = _columns({k: np.asarray(v) for k, v in fn(jnp.zeros(0)).items()})
+    kinds = [classify(k, cfg, estimator) for k in keys]
+    traced = tuple(k for k, kind in zip(keys, kinds, strict=True) if kind == "traced")
+    x = [float(v) for v, kind in zip(params, kinds, strict=True) if kind == "traced"]
+    for k, v, kind in zip(keys, params, kinds, strict=True):
+        if kind == "static":  # as run_sweep: static values set in the config, the rest traced
+            _set(c, k, int(v) if k in _STATIC_INT else float(v))
+    fn = jax.jit(point_fn(c, traced, estimator))
+    cols = _columns({k: np.asarray(v) for k, v in fn(jnp.asarray(x, dtype=float)).items()})
     return SweepPoint(tuple(keys), np.asarray(params, dtype=float), _scalars(cols))
 
 

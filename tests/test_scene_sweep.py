@@ -58,9 +58,14 @@ def test_sweep_of_256_configurations_matches_single_runs():
     res = sweep.run_sweep(cfg, vary, chunk=256, progress=False)
     keys, rows, batched = res.keys, res.params, res.metrics
     assert rows.shape == (256, 4)
-    singles = [sweep.run_single(cfg, keys, r) for r in rows]
+    # each single run builds and loads its own program (5-50 s): 16 of the 256, chosen so
+    # that every value of every option is among them
+    pick = np.random.default_rng(3).choice(256, 16, replace=False)
+    for j, values in enumerate(vary.values()):
+        assert set(rows[pick, j]) == set(values)
+    singles = [sweep.run_single(cfg, keys, r) for r in rows[pick]]
     for m in sweep.METRICS:
-        b = np.asarray(batched[m], float)
+        b = np.asarray(batched[m], float)[pick]
         s = np.asarray([x.metrics[m] for x in singles], float)
         np.testing.assert_allclose(b, s, rtol=1e-7, atol=1e-9, equal_nan=True, err_msg=m)
     # physically sensible: more gain, wider isotropic bandwidth while stable
