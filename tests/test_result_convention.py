@@ -189,6 +189,7 @@ def test_scene_run(tmp_path):
     assert again.summary()["cached"] == ["device"] and "device" in again.results
 
 
+@pytest.mark.slow  # CI budget: five fits of one run (~13 s cold); fit_estimators is also in tests/test_fit_ml.py
 def test_estimator_fits():
     """``fit_estimators`` on a 2-rod second-order device's periodic run: every iterative fit
     converges; a one-step NLS fit in its place makes the whole ``max_steps``."""
@@ -451,6 +452,7 @@ def test_robust_result(tmp_path, frf):
     assert assert_convention(bad, Verdict, ok) is Verdict.FAILED
 
 
+@pytest.mark.slow  # CI budget: two validations with time-domain steps (~20 s cold); validate is also in tests/test_tune.py
 def test_validation_and_step_response():
     """``validate`` on a 2-rod device's true plant and in the time domain: the paper g meets
     6 dB / 30° (GM 16 dB, PM 60°), ten times its gain is unstable."""
