@@ -172,9 +172,9 @@ RODS_UNCALIBRATED = 6
 in docs/conventions.md, "Posterior"); no device with more rods was measured."""
 
 UNCALIBRATED_FROM_HZ = 16.0
-"""Where on models of :data:`RODS_UNCALIBRATED` or more rods the ``params`` band was measured
-too narrow: at and above this frequency (Hz; 33 Laplace runs on 6-rod hexapods, under 85 % in
-29 of them at 16–40 Hz, 0.99–1.00 below; docs/conventions.md, "Where in frequency")."""
+"""The frequency (Hz) at and above which the ``params`` band of a model of
+:data:`RODS_UNCALIBRATED` or more rods was measured too narrow (figures in
+docs/conventions.md, "Where in frequency")."""
 
 
 def uncalibrated_from_hz(draws: str, n: int) -> float | None:
@@ -201,7 +201,7 @@ def rods_warning(draws: str, n: int) -> str | None:
     """The line ``hapid predict`` prints when the samples' model (``n`` rods) is of a size
     where the ``draws`` band was measured not calibrated (``params``: ``n ≥``
     :data:`RODS_UNCALIBRATED`), else ``None``."""
-    if draws != "params" or n < RODS_UNCALIBRATED:
+    if uncalibrated_from_hz(draws, n) is None:
         return None
     where = (
         f"on {RODS_UNCALIBRATED}-rod devices this band was measured too narrow at 16–40 Hz (it "
@@ -305,8 +305,9 @@ def register(sub):
                     help="output .npz: freq_hz (N,) and P (S, N, n, n); params draws also Z_H, "
                     "Z_T (S, N, n, n), and established (N,) bool where the check ran (False "
                     "inside an interval it leaves not established, outside the measured "
-                    "frequencies it can judge, and on a model of 6 or more rods at and above "
-                    "16 Hz, where the band was measured not calibrated)")  # fmt: skip
+                    f"frequencies it can judge, and on a model of {RODS_UNCALIBRATED} or more "
+                    f"rods at and above {UNCALIBRATED_FROM_HZ:g} Hz, where the band was "
+                    "measured not calibrated)")  # fmt: skip
     pr.set_defaults(func=cmd_predict)
 
     pl = sub.add_parser("plant", help="write a simulated device's true plant as an FRF file",

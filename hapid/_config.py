@@ -16,15 +16,14 @@ _FLAG = "--xla_cpu_enable_concurrency_optimized_scheduler=false"
 if _FLAG.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _FLAG).strip()
 
-# The scheduler flag does not remove every case: a batched sweep (`hapid sweep`, 16-256
+# The scheduler flag does not remove every case: a batched sweep (`hapid sweep`, 256
 # configurations of the paper scene) still hung on 2 cores, two XLA worker threads each in a
 # batched LAPACK kernel (LU ∥ triangular solve, triangular solve ∥ eig) waiting in
 # `jax::ParallelBatchMap` for work that only the other, equally blocked, worker could run.
 # The hang needs every thread of XLA's pool blocked at once, and that pool has one thread
 # per core; a pool two threads larger than the cores (at least 4: PJRT_NPROC, read when the
-# CPU backend starts) leaves workers free. Measured on 2 cores: the sweep that hung every
-# time finishes in 18 s, and a posterior + predictive run is 0-6 % slower
-# (benchmarks/README.md, "XLA's thread pool"). A PJRT_NPROC or NPROC the user set is kept.
+# CPU backend starts) leaves workers free. A PJRT_NPROC or NPROC the user set is kept.
+# Measured (hang gone, cost elsewhere): benchmarks/README.md, "XLA's thread pool".
 if "PJRT_NPROC" not in os.environ and "NPROC" not in os.environ:
     os.environ["PJRT_NPROC"] = str(max(4, (os.cpu_count() or 1) + 2))
 
