@@ -55,6 +55,12 @@ coverage). Devices:
   ``tripod3:delay=1:move=0,0,0.01``, ``quad4:delay=2:compliance=2``,
   ``cu5:compliance=2:move=0.01,0,0``, ``hexapod6:compliance=2:move=0,0,0.01``,
   ``hexapod6:delay=2:move=0.01,0,0``, ``hexapod6:delay=3:compliance=2``; seeds 0, 1, 2;
+- the **seventh held-out family** (``--family seventh``; written 2026-12-07 before any run
+  of it, after the sixth and the first three judged the recalibration, to judge the gap
+  shape added to its added term then (``hapid.uncertainty._recalibrate.gap_shape``):
+  ``tripod3:compliance=3:move=0.01,0,0``, ``quad4:delay=1:move=0,0,0.01``,
+  ``cu5:delay=3:compliance=2``, ``hexapod6:delay=2:compliance=3``,
+  ``hexapod6:compliance=2:move=0,0.01,0``, ``hexapod6:delay=3:move=0.01,0,0``; seeds 0, 1, 2;
 - ``second_order`` — a strictly second-order n = 2 device. Its *measured* response is the
   sampled one (ZOH): Z_T carries a half-sample lag (~ωT/2) the continuous model lacks, and
   with force noise only the FRF's ``Z_T_std`` is 0 while the encoder quantization (2 µm)
@@ -139,6 +145,9 @@ FAMILIES = {
     "sixth": ["tripod3:delay=1:move=0,0,0.01", "quad4:delay=2:compliance=2",
               "cu5:compliance=2:move=0.01,0,0", "hexapod6:compliance=2:move=0,0,0.01",
               "hexapod6:delay=2:move=0.01,0,0", "hexapod6:delay=3:compliance=2"],
+    "seventh": ["tripod3:compliance=3:move=0.01,0,0", "quad4:delay=1:move=0,0,0.01",
+                "cu5:delay=3:compliance=2", "hexapod6:delay=2:compliance=3",
+                "hexapod6:compliance=2:move=0,0.01,0", "hexapod6:delay=3:move=0.01,0,0"],
 }  # fmt: skip
 """The held-out families of the module docstring (each written down before any run of it)."""
 

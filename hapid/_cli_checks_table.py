@@ -176,7 +176,7 @@ PER_COMMAND: dict[str, dict] = {
     "paper": {"out": _Out("an output folder"), "scene": _In("a scene TOML", (".toml",))},
     "predict": {"samples": _In("a posterior-samples file", (".npz",)), "out": _Out("a draws file", (".npz",)),
                 "f_min_hz": gt(0, " Hz"), "n_freq": int_between(2, N_FREQ_DRAWS_MAX), "no_model_error": FLAG,
-                "no_check": FLAG, "plot": _Out("a figure file", FIG_EXT)},
+                "no_check": FLAG, "no_recalibrate": FLAG, "plot": _Out("a figure file", FIG_EXT)},
     "plant": {"out": _Out("an FRF file", (".npz",)), "n_freq": int_between(2, N_FREQ_DRAWS_MAX),
               "f_min_hz": gt(0, " Hz")},
     "run": {"scene": _In("a scene TOML", (".toml",)), "out": _Out("an output folder")},

@@ -27,7 +27,9 @@ def _grid(a):
 
 
 def cmd_predict(a):
-    from .uncertainty import plant_draws  # local: CLI start-up (hapid.uncertainty, ~0.7 s)
+    import dataclasses
+
+    from .uncertainty import plant_draws, recalibration  # local: CLI start-up (~0.7 s)
 
     if a.draws == "loop_gp" and a.no_model_error:
         raise CommandError("--no-model-error applies to --draws params (loop draws are of the "
@@ -40,13 +42,21 @@ def cmd_predict(a):
     d = plant_draws(ps, TWO_PI * f, draws=a.draws, max_samples=a.max_samples, seed=a.seed,
                     include_error=not a.no_model_error)  # fmt: skip
     check, line = run_check(ps, d.draws, a)
-    record = record_established(d.draws, ps.n, f)
-    extra = {"established": check.covers(f) & record} if check is not None else {}
-    if check is not None and not record.all():  # the check's verdict is not the last word
-        line += (f"; on a model of {ps.n} rods the draws file's 'established' is False at and "
-                 f"above {UNCALIBRATED_FROM_HZ:g} Hz regardless (the measured record: WARNING "
-                 "below)")  # fmt: skip
-    figure = _figure(a, f, d, ps, check) if a.plot else None  # drawn before anything is written
+    raw = None
+    if check is not None and not a.no_recalibrate:
+        rc = recalibration(check, f)
+        raw, d = d.P, dataclasses.replace(d, P=rc.apply(d.P, seed=a.seed))
+        line += "\n" + recalibration_line(rc)
+    recalibrated = raw is not None
+    extra = {}
+    if check is not None:
+        record = record_established(d.draws, ps.n, f, recalibrated)
+        extra = {"established": (check.within(f) if recalibrated else check.covers(f)) & record}
+        if not record.all():  # the check's verdict is not the last word
+            line += (f"; on a model of {ps.n} rods the draws file's 'established' is False at "
+                     f"and above {UNCALIBRATED_FROM_HZ:g} Hz regardless (the measured record: "
+                     "WARNING below)")  # fmt: skip
+    figure = _figure(a, f, d, ps, check, raw) if a.plot else None  # drawn before writing
     out = io.save_draws(a.out, f, d.arrays | extra)
     if figure is not None:
         io.save_bytes(a.plot, figure)
@@ -55,6 +65,7 @@ def cmd_predict(a):
         how = f"--draws loop_gp: the loop conditioned on the measured FRF {lo:.4g}–{hi:.4g} Hz"
     else:
         how = f"--draws params: parameter draws + model error {d.model_error}"
+        how += ", recalibrated" if recalibrated else ""
     print(f"{d.P.shape[0]} predictive draws of P ({how}) on {len(f)} frequencies "
           f"{f[0]:.4g}–{f[-1]:.4g} Hz → {out}: {', '.join(d.arrays | extra)}")  # fmt: skip
     print(line)
@@ -64,22 +75,39 @@ def cmd_predict(a):
         if d.draws == "params" and d.model_error != "gp_corr":
             print(f"note: these draws use the {d.model_error!r} model error; the calibration below "
                   "was measured for gp_corr (hapid posterior's default), not for it")  # fmt: skip
-        print(PREDICT_CALIBRATION_NOTE[d.draws])
-        warning = rods_warning(d.draws, ps.n)
+        kind = d.draws if d.draws != "params" or recalibrated else "params_raw"
+        print(PREDICT_CALIBRATION_NOTE[kind])
+        warning = rods_warning(d.draws, ps.n, recalibrated)
         if warning:
             print(warning)
     if figure is not None:
         print(f"figure → {a.plot}")
 
 
-def _figure(a, f, d, ps, check) -> bytes:
-    """``hapid predict --plot``'s figure as bytes in the format of its file name."""
+def recalibration_line(rc) -> str:
+    """The line ``hapid predict`` prints for a recalibrated band
+    (:class:`hapid.uncertainty.Recalibration`): what changed, by how much, and what the file
+    holds."""
+    sm = rc.summary()
+    return (f"recalibrated on those left-out errors (hapid.uncertainty.recalibration): the band's "
+            f"spread along P's leading singular direction ×{sm['shrink_lead'][0]:.2f}–"
+            f"{sm['shrink_lead'][1]:.2f} and over the rest ×{sm['shrink_rest'][0]:.2f}–"
+            f"{sm['shrink_rest'][1]:.2f}, plus the left-out error the band did not carry (added "
+            f"std up to {np.sqrt(sm['add_lead_max']):.3g} and {np.sqrt(sm['add_rest_max']):.3g}, "
+            "|P| units). The file's P is the recalibrated band, its Z_H, Z_T the model's draws "
+            "(--no-recalibrate: the band as drawn)")  # fmt: skip
+
+
+def _figure(a, f, d, ps, check, raw=None) -> bytes:
+    """``hapid predict --plot``'s figure as bytes in the format of its file name; ``raw``: the
+    draws before recalibration, drawn as outlines."""
     from . import plot  # local: CLI start-up (matplotlib)
 
-    lo = uncalibrated_from_hz(d.draws, ps.n)
+    lo = uncalibrated_from_hz(d.draws, ps.n, raw is not None)
     spans = [] if lo is None or lo >= f[-1] else [(max(lo, f[0]), f[-1])]
     fig, _ = plot.predictive_band(f, d.P, measured=measured_plant(ps, d.draws), check=check,
-                                  uncalibrated=spans, title=f"hapid predict: {a.samples}")  # fmt: skip
+                                  uncalibrated=spans, raw=raw,
+                                  title=f"hapid predict: {a.samples}")  # fmt: skip
     try:
         return plot.to_bytes(fig, Path(a.plot).suffix.lstrip(".").lower(), dpi=130)
     finally:
@@ -168,50 +196,54 @@ NO_MODEL_ERROR_NOTE = (
 """What ``hapid predict --no-model-error`` prints instead of the calibration note."""
 
 RODS_UNCALIBRATED = 6
-"""The rods of the measured devices on which the ``params`` band was not calibrated (figures
-in docs/conventions.md, "Posterior"); no device with more rods was measured."""
+"""The rods of the measured devices on which the ``params`` band *as drawn* (not
+recalibrated) was not calibrated (figures in docs/conventions.md, "Posterior"); no device
+with more rods was measured."""
 
 UNCALIBRATED_FROM_HZ = 16.0
-"""The frequency (Hz) at and above which the ``params`` band of a model of
+"""The frequency (Hz) at and above which the ``params`` band as drawn of a model of
 :data:`RODS_UNCALIBRATED` or more rods was measured too narrow (figures in
 docs/conventions.md, "Where in frequency")."""
 
 
-def uncalibrated_from_hz(draws: str, n: int) -> float | None:
+def uncalibrated_from_hz(draws: str, n: int, recalibrated: bool = False) -> float | None:
     """The frequency (Hz) from which the measured record says the ``draws`` band of an
-    ``n``-rod model is not calibrated (``params`` and ``n ≥`` :data:`RODS_UNCALIBRATED`:
-    :data:`UNCALIBRATED_FROM_HZ`), else ``None``."""
-    if draws != "params" or n < RODS_UNCALIBRATED:
+    ``n``-rod model is not calibrated (``params`` not recalibrated and ``n ≥``
+    :data:`RODS_UNCALIBRATED`: :data:`UNCALIBRATED_FROM_HZ`), else ``None``."""
+    if draws != "params" or recalibrated or n < RODS_UNCALIBRATED:
         return None
     return UNCALIBRATED_FROM_HZ
 
 
-def record_established(draws: str, n: int, freq_hz) -> np.ndarray:
+def record_established(draws: str, n: int, freq_hz, recalibrated: bool = False) -> np.ndarray:
     """``(N,)`` bool: False at the frequencies ``freq_hz`` (Hz) where the measured record says
     the ``draws`` band of an ``n``-rod model is not calibrated (:func:`uncalibrated_from_hz`),
     True elsewhere. ``hapid predict``'s ``established`` is this and the check's verdict: on a
-    6-rod model the check misses under-covered runs (5 of 29), so the record, not the check,
-    decides there."""
+    6-rod model the check misses under-covered runs of the band as drawn (5 of 29), so the
+    record, not the check, decides there."""
     f = np.asarray(freq_hz, dtype=float)
-    lo = uncalibrated_from_hz(draws, n)
+    lo = uncalibrated_from_hz(draws, n, recalibrated)
     return np.ones(f.shape, bool) if lo is None else f < lo
 
 
-def rods_warning(draws: str, n: int) -> str | None:
+def rods_warning(draws: str, n: int, recalibrated: bool = False) -> str | None:
     """The line ``hapid predict`` prints when the samples' model (``n`` rods) is of a size
-    where the ``draws`` band was measured not calibrated (``params``: ``n ≥``
+    where the ``draws`` band was measured not calibrated (``params`` as drawn: ``n ≥``
+    :data:`RODS_UNCALIBRATED`) or not measured at all (recalibrated, ``n >``
     :data:`RODS_UNCALIBRATED`), else ``None``."""
-    if uncalibrated_from_hz(draws, n) is None:
+    if draws == "params" and recalibrated and n > RODS_UNCALIBRATED:
+        return (f"note: this model has {n} rods: the recalibrated band was measured on 3–"
+                f"{RODS_UNCALIBRATED} rods only (docs/conventions.md)")  # fmt: skip
+    if uncalibrated_from_hz(draws, n, recalibrated) is None:
         return None
     where = (
-        f"on {RODS_UNCALIBRATED}-rod devices this band was measured too narrow at 16–40 Hz (it "
-        "held the true P at 36–100 % of those frequencies, under 85 % in 29 of 33 Laplace runs) "
-        "and too wide below 16 Hz (width/error up to 4.6, 2.6–4.6 against the goal ≤ 3). The "
-        "check line found 24 of those 29 runs; it saw nothing in 5 hexapods with a 2-sample "
-        "delay (coverage 64–84 % at 16–40 Hz). So the draws file's 'established' is False at "
-        f"and above {UNCALIBRATED_FROM_HZ:g} Hz whatever the check says: there the band is not "
-        "a bound; below, read it as conservative. Measured every 1–2 Hz above 10 Hz, the error "
-        "there fell tenfold (to 0.1–0.3 % of ‖P‖), but the band held in only 7 of 17 runs"
+        f"on {RODS_UNCALIBRATED}-rod devices this band as drawn was measured too narrow at 16–40 "
+        "Hz (it held the true P at 36–100 % of those frequencies, under 85 % in 29 of 33 "
+        "Laplace runs) and too wide below 16 Hz (width/error up to 4.6, 2.6–4.6 against the "
+        "goal ≤ 3). So the draws file's 'established' is False at and above "
+        f"{UNCALIBRATED_FROM_HZ:g} Hz whatever the check says: there the band is not a bound; "
+        "below, read it as conservative. The recalibrated band (the default where the check "
+        "runs; not --no-recalibrate) was calibrated on these devices"
     )
     if n > RODS_UNCALIBRATED:
         where += f"; no device with more than {RODS_UNCALIBRATED} rods was measured"
@@ -298,6 +330,11 @@ def register(sub):
                     help="skip the leave-one-frequency-out check of the params band (each "
                     "interior measured frequency predicted from the others: where between them "
                     "the band is not established; ~0.2 s per frequency)")  # fmt: skip
+    pr.add_argument("--no-recalibrate", action="store_true",
+                    help="keep the params band as drawn: by default, where the check runs, the "
+                    "band is recalibrated on the check's left-out errors (its spread along P's "
+                    "leading singular direction and over the rest shrunk where they were small, "
+                    "their excess added where large: hapid.uncertainty.recalibration)")  # fmt: skip
     pr.add_argument("--plot", help="also write a figure: the band of σ(P) with the measured P, "
                     "and the check's evidence, not-established intervals shaded")  # fmt: skip
     pr.add_argument("--seed", type=int, default=0, help="seed of the subset and the error draws")

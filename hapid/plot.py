@@ -251,8 +251,8 @@ def pphat(
     return fig, axes
 
 
-def predictive_band(f, P, *, measured=None, check=None, uncalibrated=(), level: float = 0.9,
-                    title: str = ""):  # fmt: skip
+def predictive_band(f, P, *, measured=None, check=None, uncalibrated=(), raw=None,
+                    level: float = 0.9, title: str = ""):  # fmt: skip
     """The ``level`` band of plant draws ``P (S, N, n, n)`` on ``f (N,)`` Hz (``hapid predict
     --plot``): left, each singular value's central band over the draws (shaded) and median
     (line), the measured ``P`` as dots (``measured = (f_m (K,) Hz, P_m (K, n, n))``); right,
@@ -261,7 +261,9 @@ def predictive_band(f, P, *, measured=None, check=None, uncalibrated=(), level: 
     measured ``P``'s distance from the band's centre over the band's radius, above 1 =
     outside. The intervals the check leaves not established are shaded red in both, the
     intervals ``uncalibrated`` (``[(lo, hi)]`` Hz: where the measured record says the band is
-    not calibrated) hatched grey."""
+    not calibrated) hatched grey. With ``raw`` (draws ``(S', N, n, n)`` before
+    :func:`~hapid.uncertainty.recalibration`) its band's edges are drawn as thin dashed lines
+    and the check's intervals are not shaded (the recalibrated band carries those errors)."""
     f = np.asarray(f)
     sv = np.linalg.svd(np.asarray(P), compute_uv=False)  # (S, N, n)
     lo_q, hi_q = (1 - level) / 2, 1 - (1 - level) / 2
@@ -273,7 +275,13 @@ def predictive_band(f, P, *, measured=None, check=None, uncalibrated=(), level: 
     for i, c in enumerate(_sv_colors(n)):
         ax.fill_between(f, lo[:, i], hi[:, i], color=c, alpha=0.3, lw=0)
         ax.semilogx(f, med[:, i], color=c, lw=1.0, label=f"σ_{i + 1}(P)" if n <= 6 else None)
-    if measured is not None:
+    if raw is not None:
+        sv_raw = np.linalg.svd(np.asarray(raw), compute_uv=False)
+        for q in (lo_q, hi_q):
+            edge = 20 * np.log10(np.quantile(sv_raw, q, axis=0))
+            for i, c in enumerate(_sv_colors(n)):
+                ax.semilogx(f, edge[:, i], color=c, lw=0.6, ls="--")
+        ax.plot([], [], color="0.4", lw=0.6, ls="--", label="band as drawn")
         fm, Pm = (np.asarray(x) for x in measured)
         keep = (fm >= f.min()) & (fm <= f.max())
         svm = 20 * np.log10(np.linalg.svd(Pm[keep], compute_uv=False))
@@ -292,9 +300,14 @@ def predictive_band(f, P, *, measured=None, check=None, uncalibrated=(), level: 
         bx.set_yscale("log")
         bx.set_xlim(ax.get_xlim())
         bx.set_ylabel("left-out measured P: error ÷ band radius")
-        bx.set_title(f"check: {check.status}", fontsize=9)
+        bx.set_title(
+            f"check of the band as drawn: {check.status}"
+            + ("; the errors it recalibrates on" if raw is not None else ""),
+            fontsize=9,
+        )
     for a in axes[0]:
-        for i, (a_hz, b_hz) in enumerate(check.not_established_hz if check is not None else []):
+        shaded = check.not_established_hz if check is not None and raw is None else []
+        for i, (a_hz, b_hz) in enumerate(shaded):
             a.axvspan(a_hz, b_hz, color="C3", alpha=0.12, lw=0,
                       label="not established" if i == 0 else None)  # fmt: skip
         for i, (a_hz, b_hz) in enumerate(uncalibrated):

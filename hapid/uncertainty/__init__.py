@@ -14,7 +14,9 @@
 - :func:`predictive_plants` — draws of the true Z_H, Z_T, P on any grid *including* the
   model-error term (GP conditional on the fit residuals); :func:`band_calibration`;
   :func:`holdout_check` (→ :class:`HoldoutCheck`) — where between the measured frequencies
-  that band is not established (each one left out in turn and predicted from the rest).
+  that band is not established (each one left out in turn and predicted from the rest);
+  :func:`recalibration` (→ :class:`Recalibration`) — that band recalibrated on the check's
+  left-out errors, split by direction (:func:`direction_split`).
 - :func:`robust_check`, :func:`device_plants` → :class:`RobustReport` — P(stable), margin
   and bandwidth quantiles of a fixed controller over posterior samples or device variants.
 - :func:`fit_loop_gp`, :func:`loop_gp_plants` — draws of the loop ``Q = P P̂⁻¹`` conditioned
@@ -45,6 +47,7 @@ from ._draws import ParamDraws as ParamDraws
 from ._draws import draws_from as draws_from
 from ._holdout import HoldoutCheck as HoldoutCheck
 from ._holdout import HoldoutStatus as HoldoutStatus
+from ._holdout import direction_split as direction_split
 from ._holdout import holdout_check as holdout_check
 from ._hyper import fix_hyperparameters as fix_hyperparameters
 from ._laplace import LaplacePosterior as LaplacePosterior
@@ -94,6 +97,8 @@ from ._predictive import band_calibration as band_calibration
 from ._predictive import credible_bands as credible_bands
 from ._predictive import predictive_plants as predictive_plants
 from ._predictive import predictive_samples as predictive_samples
+from ._recalibrate import Recalibration as Recalibration
+from ._recalibrate import recalibration as recalibration
 from ._robust import DevicePlants as DevicePlants
 from ._robust import RobustReport as RobustReport
 from ._robust import device_plants as device_plants

@@ -63,7 +63,12 @@ class HoldoutCheck:
       ``P``, dimensionless, measurement noise included);
     - ``error (K,)``: ``‖P̂ − P̃‖_F``, the measured ``P`` against the draws' median;
     - ``measured_hz (Nf,)``: every measured frequency of the fit (Hz);
-    - ``level``: the credible level of the ball.
+    - ``level``: the credible level of the ball;
+    - ``lead (K, 2)``, ``rest (K, 2)``: the left-out error and the draws' spread split by
+      direction (:func:`~hapid.uncertainty.direction_split`): ``[:, 0]`` the squared error,
+      ``[:, 1]`` the draws' variance (both dimensionless), along the leading singular pair of
+      the draws' median (``lead``) and over the other ``n² − 1`` entries of that basis
+      (``rest``). :func:`~hapid.uncertainty.recalibration` reads them.
     """
 
     freq_hz: np.ndarray
@@ -71,6 +76,8 @@ class HoldoutCheck:
     error: np.ndarray
     measured_hz: np.ndarray
     level: float
+    lead: np.ndarray
+    rest: np.ndarray
 
     @property
     def held(self) -> np.ndarray:
@@ -113,6 +120,13 @@ class HoldoutCheck:
         """Every left-out measured ``P`` inside its ball."""
         return self.status is HoldoutStatus.ESTABLISHED
 
+    def within(self, freq_hz) -> np.ndarray:
+        """``(N,)`` bool: the frequencies ``freq_hz`` (Hz) within the measured ones
+        (``measured_hz[0] ≤ f ≤ measured_hz[-1]``), the range the left-out frequencies test;
+        outside it the band is an extrapolation."""
+        f = np.asarray(freq_hz, dtype=float)
+        return (f >= self.measured_hz[0]) & (f <= self.measured_hz[-1])
+
     def covers(self, freq_hz) -> np.ndarray:
         """``(N,)`` bool: the frequencies ``freq_hz`` (Hz) where the check establishes the
         band: within the measured frequencies (``measured_hz[0] ≤ f ≤ measured_hz[-1]``;
@@ -120,7 +134,7 @@ class HoldoutCheck:
         every not-established interval (open intervals: the measured end points themselves
         are data)."""
         f = np.asarray(freq_hz, dtype=float)
-        ok = (f >= self.measured_hz[0]) & (f <= self.measured_hz[-1])
+        ok = self.within(f)
         for lo, hi in self.not_established_hz:
             ok &= ~((f > lo) & (f < hi))
         return ok
@@ -215,7 +229,7 @@ def holdout_check(ps: PosteriorSamples, *, max_samples: int = 200, seed: int = 0
     big = INFLATE * (np.asarray(d["a_H"]) + np.asarray(d["a_M"])) ** 2
     rho = float(d["noise_corr"])
     rng = np.random.default_rng(seed)
-    radius, error = [], []
+    radius, error, split = [], [], []
     for k in range(1, om.size - 1):
         vH2, vT2 = vH.copy(), vT.copy()
         vH2[k] += big[k]
@@ -225,11 +239,36 @@ def holdout_check(ps: PosteriorSamples, *, max_samples: int = 200, seed: int = 0
         z1, z2 = _circular(rng, pp.Z_H.shape), _circular(rng, pp.Z_H.shape)
         zh = pp.Z_H + np.sqrt(vH[k]) * z1  # the measurement of ω_k: its own noise
         zt = pp.Z_T + np.sqrt(vT[k]) * (rho * z1 + np.sqrt(1.0 - rho**2) * z2)
-        med, _, r = credible_ball(np.asarray(plant(zh, zt)), level)  # (1, n, n), (1,)
+        draws = np.asarray(plant(zh, zt))  # (S, 1, n, n)
+        med, _, r = credible_ball(draws, level)  # (1, n, n), (1,)
         radius.append(float(r[0]))
         error.append(float(np.linalg.norm(P_meas[k] - med[0])))
+        split.append(direction_split(draws, P_meas[k : k + 1], med)[:, 0])  # (2, 2)
     f = om / TWO_PI
-    return HoldoutCheck(f[1:-1], np.asarray(radius), np.asarray(error), f, float(level))
+    sp = np.asarray(split)  # (K, 2 parts, 2)
+    return HoldoutCheck(f[1:-1], np.asarray(radius), np.asarray(error), f, float(level),
+                        lead=sp[:, 0], rest=sp[:, 1])  # fmt: skip
+
+
+def direction_split(draws, truth, median=None) -> np.ndarray:
+    """``(2, N, 2)``: the error of ``truth (N, n, n)`` from the draws' median and the spread of
+    the ``draws (S, N, n, n)`` (complex), split by direction in the singular basis of the
+    median ``M = U Σ Vᴴ`` (elementwise re/im median unless ``median (N, n, n)`` is given):
+    with ``E = Uᴴ (truth − M) V`` and ``X_s = Uᴴ (draws_s − M) V``, row 0 is the leading
+    entry (``[|E₁₁|², mean_s |X_s,₁₁|²]``), row 1 the other ``n² − 1`` entries (``[‖E‖² −
+    |E₁₁|², mean_s (‖X_s‖² − |X_s,₁₁|²)]``). The plant's misfit concentrates in the leading
+    direction (docs/conventions.md, "Where the 6-rod miss lies"); an error model the same
+    size in every entry spreads its variance over all ``n²``."""
+    X = np.asarray(draws)
+    M = credible_ball(X, 0.5)[0] if median is None else np.asarray(median)
+    U, _, Vh = np.linalg.svd(M)
+    Uh, V = U.conj().swapaxes(-1, -2), Vh.conj().swapaxes(-1, -2)
+    E = Uh @ (np.asarray(truth) - M) @ V  # (N, n, n)
+    D = Uh[None] @ (X - M[None]) @ V[None]  # (S, N, n, n)
+    e1, et = np.abs(E[..., 0, 0]) ** 2, np.sum(np.abs(E) ** 2, axis=(-2, -1))
+    v1 = np.mean(np.abs(D[..., 0, 0]) ** 2, axis=0)
+    vt = np.mean(np.sum(np.abs(D) ** 2, axis=(-2, -1)), axis=0)
+    return np.stack([np.stack([e1, v1], -1), np.stack([et - e1, vt - v1], -1)])
 
 
 def _circular(rng, shape):
