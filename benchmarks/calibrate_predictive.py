@@ -92,6 +92,8 @@ Held-out family (both constructions):
 Spread over noise realizations: ``--seeds 0,1,2,3,4,5`` (one row per seed; the seed sets the
 experiment's noise, the Laplace/emcee draws and the predictive draws). Where in frequency:
 ``--split-hz 16`` adds rows for the held-out frequencies below 16 Hz and at or above it.
+``--recalibrate`` adds rows (``KIND recal.``) for the P band recalibrated on that check's
+left-out errors (:func:`hapid.uncertainty.recalibration`, ``hapid predict``'s default).
 ``--holdout`` runs ``hapid predict``'s leave-one-frequency-out check and adds rows for the
 held-out frequencies it leaves established (``est.``, and ``est. ≥16 Hz`` with ``--split-hz``)
 and those it flags (``flagged``); a comment line per run names the flagged intervals.
@@ -125,6 +127,7 @@ from hapid.uncertainty import (
     plant_draws,
     posterior_laplace_samples,
     predictive_plants,
+    recalibration,
     sample_posterior,
 )
 
@@ -266,7 +269,8 @@ def log_posterior(frf, nls, model_error):
 
 
 def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", draws=400, seed=0,
-              quantities=("P", "Z_H", "Z_T"), split_hz=None, holdout=False):  # fmt: skip
+              quantities=("P", "Z_H", "Z_T"), split_hz=None, holdout=False,
+              recalibrate=False):  # fmt: skip
     dev = device(name)
     noise = 5e-3 if not isinstance(dev, SecondOrderDevice) else 2e-2
     pattern = "hadamard" if dev.n < 3 else "paper"  # the paper's pattern is singular for n = 2
@@ -307,7 +311,15 @@ def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", dra
         t0 = time.perf_counter()
         pred = predictive_plants(ps, om, max_samples=draws, seed=seed)
         t_pred = time.perf_counter() - t0
-        check = holdout_check(ps, max_samples=draws, seed=seed) if holdout else None
+        check = holdout_check(ps, max_samples=draws, seed=seed) if holdout or recalibrate else None
+        if recalibrate and "P" in quantities:  # hapid predict's default band
+            recal = recalibration(check, om / TWO_PI).apply(pred.P, seed=seed)
+            for band, c, k in split_figures(recal, tr["P"], om / TWO_PI, split_hz):
+                rows.append({"device": name, "error model": f"{kind} recal.", "quantity": "P",
+                             "band": band, **c, "eval_ms": ms, "build_s": t_build,
+                             "posterior_s": t_post, "predict_s": t_pred, "n_held_out": k,
+                             "tau": np.nan, "steps_over_tau": np.nan})  # fmt: skip
+        check = check if holdout else None
         if check is not None:
             gaps = ", ".join(f"{a:g}–{b:g}" for a, b in check.not_established_hz) or "none"
             print(f"<!-- {name} seed {seed}: check {check.status}; not established (Hz): "
@@ -350,6 +362,10 @@ def main(argv=None):
                     help="also run hapid predict's leave-one-frequency-out check "
                          "(hapid.uncertainty.holdout_check) and give the band's figures where it "
                          "leaves the band established and where it flags it")  # fmt: skip
+    ap.add_argument("--recalibrate", action="store_true",
+                    help="also give the figures of the P band recalibrated on the check's "
+                         "left-out errors (hapid.uncertainty.recalibration; hapid predict's "
+                         "default): rows 'KIND recal.'")  # fmt: skip
     a = ap.parse_args(argv)
     print(f"posterior: {a.method}; 90 % predictive band; held-out frequencies in 1–40 Hz\n")
     print("| device | seed | model error | quantity | band | coverage | width / error | calibrated | "
@@ -363,7 +379,8 @@ def main(argv=None):
         for seed in seeds:
             for r in calibrate(name, kinds=a.kinds.split(","), method=a.method, draws=a.draws,
                                seed=seed, quantities=a.quantities.split(","),
-                               split_hz=a.split_hz, holdout=a.holdout):  # fmt: skip
+                               split_hz=a.split_hz, holdout=a.holdout,
+                               recalibrate=a.recalibrate):  # fmt: skip
                 print(f"| {r['device']} | {seed} | {r['error model']} | {r['quantity']} | "
                   f"{r['band']} | {r['coverage']:.3f} | "
                   f"{r['width_ratio']:.2f} | {r['width_ratio_calibrated']:.2f} | "

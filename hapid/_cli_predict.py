@@ -41,6 +41,11 @@ def cmd_predict(a):
                            "(write it with hapid posterior, or use --draws params)")  # fmt: skip
     d = plant_draws(ps, TWO_PI * f, draws=a.draws, max_samples=a.max_samples, seed=a.seed,
                     include_error=not a.no_model_error)  # fmt: skip
+    if not d.ok:
+        bad = int(np.sum(~np.all(np.isfinite(d.P), axis=(1, 2, 3))))
+        raise CommandError(f"{bad} of {d.P.shape[0]} draws of P are not finite on this grid (a "
+                           "singular Z_T in a draw?); nothing written: narrow the grid or check "
+                           "the samples (hapid posterior)")  # fmt: skip
     check, line = run_check(ps, d.draws, a)
     raw = None
     if check is not None and not a.no_recalibrate:

@@ -272,3 +272,25 @@ def test_predict_writes_the_recalibrated_band(samples, tmp_path, monkeypatch, ca
     r_raw = np.quantile(np.linalg.norm(raw - np.median(raw, 0), axis=(-2, -1)), 0.9, axis=0)
     r_new = np.quantile(np.linalg.norm(P - np.median(P, 0), axis=(-2, -1)), 0.9, axis=0)
     assert np.all(r_new[near] > 1.5 * r_raw[near])
+
+
+def test_predict_refuses_non_finite_draws(samples, tmp_path, monkeypatch, capsys):
+    """A draw of P that is not finite (a singular Z_T) is refused with a clear error and no
+    file, instead of a band whose median is NaN."""
+    import hapid.uncertainty as U
+
+    _, _, ps = samples
+    s = save_samples(tmp_path / "s.npz", ps)
+    real = U.plant_draws
+
+    def with_nan(*args, **kw):
+        d = real(*args, **kw)
+        P = d.P.copy()
+        P[3, 2] = np.nan
+        return dataclasses.replace(d, P=P)
+
+    monkeypatch.setattr(U, "plant_draws", with_nan)
+    out = tmp_path / "d.npz"
+    assert main(["predict", "--samples", str(s), "--n-freq", "5", "--max-samples", "20",
+                 "--out", str(out)]) == 2  # fmt: skip
+    assert "1 of 20 draws of P are not finite" in capsys.readouterr().err and not out.exists()

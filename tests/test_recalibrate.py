@@ -51,8 +51,14 @@ def test_recalibration_closed_form():
     f = np.array([1.5, 7.0, 15.0, 30.0])
     rc = recalibration(_check(lead, rest), f)
     c2 = R.EXCESS_FRACTION**2
-    # the added lead variance: the larger excess of the left-out frequencies around f
-    assert np.allclose(rc.add[:, 0], [0.0, c2 * 8 * v, c2 * 8 * v, c2 * 8 * v])
+    # the added lead variance: the larger excess of the left-out frequencies around f, times
+    # 4t(1 − t) of f's place t in its gap between measured frequencies (ln f)
+    meas = np.array([1.0, 2.0, 5.0, 10.0, 20.0, 40.0])
+    t = np.array([np.log(1.5), np.log(7 / 5) / np.log(2), np.log(1.5), np.log(1.5)])
+    t /= np.array([np.log(2.0), 1.0, np.log(2.0), np.log(2.0)])
+    assert np.allclose(R.gap_shape(f, meas), 4 * t * (1 - t))
+    assert np.allclose(R.gap_shape([2.0, 0.5, 50.0], meas), [0.0, 1.0, 1.0])  # ends; outside
+    assert np.allclose(rc.add[:, 0], np.array([0.0, 1.0, 1.0, 1.0]) * c2 * 8 * v * 4 * t * (1 - t))
     assert np.allclose(rc.add[:, 1], 0.0)
     assert np.allclose(rc.shrink[:, 0][f >= 7], 1.0)  # never widened by the shrink
     w = np.exp(-0.5 * ((np.log(f)[:, None] - np.log([2.0, 5.0, 10.0, 20.0])) / R.KERNEL_LN_F) ** 2)

@@ -80,6 +80,8 @@ class Recalibration:
         if X.ndim != 4 or X.shape[1] != self.freq_hz.size or X.shape[-1] != X.shape[-2]:
             raise ValueError(f"Recalibration.apply: draws (S, {self.freq_hz.size}, n, n), got "
                              f"{X.shape}")  # fmt: skip
+        if not np.all(np.isfinite(X)):
+            raise ValueError("Recalibration.apply: the draws hold non-finite values")
         n = X.shape[-1]
         M = credible_ball(X, 0.5)[0]
         U, _, Vh = np.linalg.svd(M)
@@ -108,14 +110,18 @@ class Recalibration:
 def recalibration(check: HoldoutCheck, freq_hz) -> Recalibration:
     """The :class:`Recalibration` of a band on ``freq_hz (N,)`` (Hz, positive) from a
     :class:`~hapid.uncertainty.HoldoutCheck` of the same samples (module docstring). Raises
-    ``ValueError`` for a check with no left-out frequency or a bad grid."""
+    ``ValueError`` for a check with no left-out frequency, a non-finite direction split or a
+    bad grid."""
     f = np.asarray(freq_hz, dtype=float)
     if f.ndim != 1 or f.size < 1 or not np.all(np.isfinite(f)) or np.any(f <= 0):
         raise ValueError("recalibration: freq_hz must be a 1-D array of positive frequencies (Hz)")
     fk = np.asarray(check.freq_hz, dtype=float)
     if fk.size < 1:
         raise ValueError("recalibration: the check left out no frequency (fewer than 3 measured)")
-    parts = (np.asarray(check.lead), np.asarray(check.rest))
+    parts = (np.asarray(check.lead, dtype=float), np.asarray(check.rest, dtype=float))
+    if any(p.shape != (fk.size, 2) or not np.all(np.isfinite(p)) for p in parts):
+        raise ValueError("recalibration: the check's direction split (lead, rest) must be finite "
+                         f"({fk.size}, 2) arrays")  # fmt: skip
     tiny = 1e-300
     shrink, add = [], []
     w = np.exp(-0.5 * ((np.log(f)[:, None] - np.log(fk)[None]) / KERNEL_LN_F) ** 2)  # (N, K)
