@@ -137,8 +137,14 @@ def test_predict_prints_the_verdict(samples, tmp_path, capsys):
     assert main([*args, "--out", str(tmp_path / "d.npz")]) == 0
     cap = capsys.readouterr()
     lines = cap.out.splitlines()
-    assert lines[1].startswith("check: band NOT ESTABLISHED at ") and " 20, " in lines[1]
+    assert lines[1].startswith("check of the band as drawn: left out in turn, the measured P "
+                               "at ") and " 20, " in lines[1]  # fmt: skip
+    assert "Measuring more frequencies there (e.g. " in lines[1]
+    assert lines[2].startswith("recalibrated on those left-out errors")
     assert "10 measured frequencies left out in turn" in cap.err  # progress: 12 fit frequencies
+    assert main([*args, "--no-recalibrate", "--out", str(tmp_path / "r.npz")]) == 0
+    line = capsys.readouterr().out.splitlines()[1]
+    assert line.startswith("check: band NOT ESTABLISHED at ") and " 20, " in line
     assert main([*args, "--no-check", "--out", str(tmp_path / "e.npz")]) == 0
     assert capsys.readouterr().out.splitlines()[1].startswith("check: not run (--no-check)")
 
@@ -163,14 +169,16 @@ def test_suggestions_sit_on_the_measured_grid():
 
 
 def test_predict_stores_where_the_band_is_established_and_draws_it(samples, tmp_path, capsys):
-    """The draws file's ``established (N,)`` is the check's own verdict on the grid (False in
-    the interval around the 5 % feature at 20 Hz, True far from it), ``--plot`` writes the
-    figure, and a bad figure name fails before anything is written."""
+    """The draws file's ``established (N,)`` of the band as drawn (``--no-recalibrate``) is
+    the check's own verdict on the grid (False in the interval around the 5 % feature at 20
+    Hz, True far from it), ``--plot`` writes the figure, and a bad figure name fails before
+    anything is written."""
     _, _, ps = samples
     bumped = _bumped(ps, 7, 0.05)
     s = save_samples(tmp_path / "s.npz", bumped)
     out, fig = tmp_path / "d.npz", tmp_path / "band.png"
-    args = ["predict", "--samples", str(s), "--n-freq", "40", "--max-samples", "50"]
+    args = ["predict", "--samples", str(s), "--n-freq", "40", "--max-samples", "50",
+            "--no-recalibrate"]  # fmt: skip
     assert main([*args, "--out", str(out), "--plot", str(fig)]) == 0
     assert "figure → " in capsys.readouterr().out
     with np.load(out) as z:
@@ -218,8 +226,16 @@ def test_established_on_an_uncalibrated_model_size_follows_the_record(samples, t
 
     _, _, ps = samples
     s = save_samples(tmp_path / "s.npz", ps)  # unbumped: the check establishes everything
-    args = ["predict", "--samples", str(s), "--n-freq", "40", "--max-samples", "50",
-            "--no-recalibrate"]  # fmt: skip  (the record is of the band as drawn)
+    args = [
+        "predict",
+        "--samples",
+        str(s),
+        "--n-freq",
+        "40",
+        "--max-samples",
+        "50",
+        "--no-recalibrate",
+    ]  # fmt: skip  (the record is of the band as drawn)
     monkeypatch.setattr(_cli_predict, "RODS_UNCALIBRATED", 2)
     out = tmp_path / "d.npz"
     assert main([*args, "--out", str(out), "--plot", str(tmp_path / "b.png")]) == 0
@@ -256,10 +272,11 @@ def test_predict_writes_the_recalibrated_band(samples, tmp_path, monkeypatch, ca
     args = ["predict", "--samples", str(s), "--n-freq", "30", "--max-samples", "80"]
     monkeypatch.setattr(_cli_predict, "RODS_UNCALIBRATED", 2)
     assert main([*args, "--out", str(tmp_path / "r.npz"), "--no-recalibrate"]) == 0
-    assert main([*args, "--out", str(tmp_path / "c.npz")]) == 0
+    assert main([*args, "--out", str(tmp_path / "c.npz"), "--plot", str(tmp_path / "b.png")]) == 0
+    assert (tmp_path / "b.png").read_bytes()[:4] == b"\x89PNG"
     text = capsys.readouterr().out
     assert "recalibrated on those left-out errors" in text and "recalibrated) on 30" in text
-    assert text.count("WARNING") == 1  # the band as drawn only
+    assert sum(ln.startswith("WARNING") for ln in text.splitlines()) == 1  # as drawn only
     with np.load(tmp_path / "r.npz") as r, np.load(tmp_path / "c.npz") as c:
         f, raw, P, est = r["freq_hz"], r["P"], c["P"], c["established"]
         assert np.array_equal(c["Z_H"], r["Z_H"])  # the model's draws, unchanged
