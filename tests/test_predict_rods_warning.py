@@ -55,6 +55,11 @@ def test_rods_warning_only_for_parameter_draws():
     assert rods_warning("loop_gp", 6) is None
     assert rods_warning("params", RODS_UNCALIBRATED - 1) is None
     assert rods_warning("params", RODS_UNCALIBRATED).startswith("WARNING")
+    # the recalibrated band was measured calibrated on 3-6 rods: no warning there, a note
+    # beyond (no larger device was measured)
+    assert rods_warning("params", RODS_UNCALIBRATED, recalibrated=True) is None
+    note = rods_warning("params", RODS_UNCALIBRATED + 1, recalibrated=True)
+    assert note.startswith("note: this model has 7 rods") and "3–6 rods only" in note
 
 
 def test_parameter_only_draws_do_not_claim_the_model_error_calibration(tmp_path, capsys):
