@@ -282,6 +282,7 @@ def predictive_band(f, P, *, measured=None, check=None, uncalibrated=(), raw=Non
             for i, c in enumerate(_sv_colors(n)):
                 ax.semilogx(f, edge[:, i], color=c, lw=0.6, ls="--")
         ax.plot([], [], color="0.4", lw=0.6, ls="--", label="band as drawn")
+    if measured is not None:
         fm, Pm = (np.asarray(x) for x in measured)
         keep = (fm >= f.min()) & (fm <= f.max())
         svm = 20 * np.log10(np.linalg.svd(Pm[keep], compute_uv=False))

@@ -45,8 +45,9 @@ def _check(lead, rest, f=(2.0, 5.0, 10.0, 20.0)):
 
 def test_recalibration_closed_form():
     v = 1e-4
-    # lead: 9× its variance at 10 and 20 Hz (excess 8v), calibrated below; rest: no error
-    lead = [[v, v], [v, v], [9 * v, v], [9 * v, v]]
+    # lead: 9× its variance at 10 Hz (excess 8v), 3× at 20 Hz (2v), calibrated below; rest: no
+    # error. 30 Hz lies beyond the last left-out frequency: its end value (2v), not the max
+    lead = [[v, v], [v, v], [9 * v, v], [3 * v, v]]
     rest = [[0.0, v], [0.0, v], [0.0, v], [0.0, v]]
     f = np.array([1.5, 7.0, 15.0, 30.0])
     rc = recalibration(_check(lead, rest), f)
@@ -58,7 +59,7 @@ def test_recalibration_closed_form():
     t /= np.array([np.log(2.0), 1.0, np.log(2.0), np.log(2.0)])
     assert np.allclose(R.gap_shape(f, meas), 4 * t * (1 - t))
     assert np.allclose(R.gap_shape([2.0, 0.5, 50.0], meas), [0.0, 1.0, 1.0])  # ends; outside
-    assert np.allclose(rc.add[:, 0], np.array([0.0, 1.0, 1.0, 1.0]) * c2 * 8 * v * 4 * t * (1 - t))
+    assert np.allclose(rc.add[:, 0], np.array([0.0, 8.0, 8.0, 2.0]) * c2 * v * 4 * t * (1 - t))
     assert np.allclose(rc.add[:, 1], 0.0)
     assert np.allclose(rc.shrink[:, 0][f >= 7], 1.0)  # never widened by the shrink
     w = np.exp(-0.5 * ((np.log(f)[:, None] - np.log([2.0, 5.0, 10.0, 20.0])) / R.KERNEL_LN_F) ** 2)
@@ -82,3 +83,19 @@ def test_recalibration_closed_form():
         rc.apply(X[:, :2])
     with pytest.raises(ValueError, match="positive"):
         recalibration(_check(lead, rest), [0.0, 1.0])
+
+
+def test_band_figure_draws_the_measured_plant_with_and_without_the_band_as_drawn():
+    from hapid import plot
+
+    rng = np.random.default_rng(3)
+    X = _draws(rng, 40, 6, 2, sd=0.05)
+    f = np.geomspace(1.0, 40.0, 6)
+    for raw in (None, X):
+        fig, axes = plot.predictive_band(f, X, measured=(f[::2], X[0, ::2]), raw=raw)
+        labels = [ln.get_label() for ln in axes[0][0].get_lines()]
+        assert "measured P" in labels and ("band as drawn" in labels) == (raw is not None)
+        plot.close(fig)
+    fig, axes = plot.predictive_band(f, X, raw=X)  # no measured plant
+    assert "measured P" not in [ln.get_label() for ln in axes[0][0].get_lines()]
+    plot.close(fig)

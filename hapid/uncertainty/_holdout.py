@@ -66,7 +66,8 @@ class HoldoutCheck:
     - ``level``: the credible level of the ball;
     - ``lead (K, 2)``, ``rest (K, 2)``: the left-out error and the draws' spread split by
       direction (:func:`~hapid.uncertainty.direction_split`): ``[:, 0]`` the squared error,
-      ``[:, 1]`` the draws' variance (both dimensionless), along the leading singular pair of
+      ``[:, 1]`` the draws' mean square about their median, measurement noise included (both
+      dimensionless), along the leading singular pair of
       the draws' median (``lead``) and over the other ``n² − 1`` entries of that basis
       (``rest``). :func:`~hapid.uncertainty.recalibration` reads them.
     """
