@@ -368,14 +368,16 @@ def register(sub):
     pr.add_argument("--no-check", action="store_true",
                     help="skip the leave-one-frequency-out check of the params band (each "
                     "interior measured frequency predicted from the others: where between them "
-                    "the band is not established; ~0.2 s per frequency)")  # fmt: skip
+                    "the band is not established; ~0.2 s per frequency) and with it the "
+                    "recalibration: the band as drawn")  # fmt: skip
     pr.add_argument("--no-recalibrate", action="store_true",
                     help="keep the params band as drawn: by default, where the check runs, the "
                     "band is recalibrated on the check's left-out errors (its spread along P's "
                     "leading singular direction and over the rest shrunk where they were small, "
                     "their excess added where large: hapid.uncertainty.recalibration)")  # fmt: skip
-    pr.add_argument("--plot", help="also write a figure: the band of σ(P) with the measured P, "
-                    "and the check's evidence, not-established intervals shaded")  # fmt: skip
+    pr.add_argument("--plot", help="also write a figure: the band of σ(P) with the measured P "
+                    "and the check's evidence; recalibrated, the band as drawn as dashed "
+                    "outlines; with --no-recalibrate the not-established intervals shaded")  # fmt: skip
     pr.add_argument("--seed", type=int, default=0, help="seed of the subset and the error draws")
     pr.add_argument("--out", required=True,
                     help="output .npz: freq_hz (N,) and P (S, N, n, n) (params: recalibrated); "
