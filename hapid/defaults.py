@@ -35,8 +35,9 @@ DRAWS = ("auto", "loop_gp", "params")
 """The draw families of ``--draws`` (``hapid robust``, ``hapid tune``, ``hapid predict``):
 ``loop_gp`` (the loop conditioned on the measured FRF), ``params`` (the posterior's parameter
 draws), ``auto`` (``loop_gp`` when the measured FRF is known). ``hapid predict`` offers
-``params`` (its default: the band measured calibrated on 3–5 rods; on 6 too narrow at 16–40 Hz
-and too wide below) and ``loop_gp``."""
+``params`` (its default: recalibrated on the leave-one-frequency-out check, the band measured
+calibrated on 3–6 rods; as drawn, ``--no-recalibrate``, too narrow at 16–40 Hz on 6 rods) and
+``loop_gp``."""
 
 NLS_MAX_STEPS = 2000
 """Step limit of the NLS and ML fits (``hapid fit``, the fit ``hapid posterior`` centres on, the
