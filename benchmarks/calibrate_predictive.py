@@ -270,9 +270,10 @@ def log_posterior(frf, nls, model_error):
 
 def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", draws=400, seed=0,
               quantities=("P", "Z_H", "Z_T"), split_hz=None, holdout=False,
-              recalibrate=False):  # fmt: skip
+              recalibrate=False, force_noise=None):  # fmt: skip
     dev = device(name)
     noise = 5e-3 if not isinstance(dev, SecondOrderDevice) else 2e-2
+    noise = noise if force_noise is None else float(force_noise)
     pattern = "hadamard" if dev.n < 3 else "paper"  # the paper's pattern is singular for n = 2
     exact = name == "second_order_exact"
     if exact:  # the model class exactly right and the FRF's std the whole data error
@@ -366,6 +367,9 @@ def main(argv=None):
                     help="also give the figures of the P band recalibrated on the check's "
                          "left-out errors (hapid.uncertainty.recalibration; hapid predict's "
                          "default): rows 'KIND recal.'")  # fmt: skip
+    ap.add_argument("--force-noise", type=float, default=None,
+                    help="the experiment's force-sensor noise std (N per sample; default 5e-3, "
+                         "2e-2 on the second-order devices)")  # fmt: skip
     a = ap.parse_args(argv)
     print(f"posterior: {a.method}; 90 % predictive band; held-out frequencies in 1–40 Hz\n")
     print("| device | seed | model error | quantity | band | coverage | width / error | calibrated | "
@@ -380,7 +384,7 @@ def main(argv=None):
             for r in calibrate(name, kinds=a.kinds.split(","), method=a.method, draws=a.draws,
                                seed=seed, quantities=a.quantities.split(","),
                                split_hz=a.split_hz, holdout=a.holdout,
-                               recalibrate=a.recalibrate):  # fmt: skip
+                               recalibrate=a.recalibrate, force_noise=a.force_noise):  # fmt: skip
                 print(f"| {r['device']} | {seed} | {r['error model']} | {r['quantity']} | "
                   f"{r['band']} | {r['coverage']:.3f} | "
                   f"{r['width_ratio']:.2f} | {r['width_ratio_calibrated']:.2f} | "
