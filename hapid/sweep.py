@@ -402,13 +402,7 @@ def run_sweep(cfg: dict, vary: dict[str, list], *, chunk: int = 64, progress: bo
     parts = []
     for svals, idx, s in mine:
         if svals not in fns:
-            c = copy.deepcopy(cfg)
-            for j, v in zip(scols, svals, strict=True):
-                _set(
-                    c,
-                    keys[j],
-                    int(v) if keys[j] in _STATIC_INT else float(v),
-                )
+            c = _with_options(cfg, [keys[j] for j in scols], svals)
             fns[svals] = jax.jit(jax.vmap(point_fn(c, traced, estimator)))
         sub = rows[np.ix_(idx, tcols)] if tcols else np.zeros((len(idx), 0))
         part = sub[s : s + chunk]
@@ -431,19 +425,26 @@ def run_sweep(cfg: dict, vary: dict[str, list], *, chunk: int = 64, progress: bo
     return SweepResult(keys, rows, _columns(out), estimator)
 
 
+def _with_options(cfg: dict, keys, values) -> dict:
+    """A copy of ``cfg`` with each option ``keys[j]`` set to ``values[j]`` (an int for the
+    integer options, else a float)."""
+    c = copy.deepcopy(cfg)
+    for k, v in zip(keys, values, strict=True):
+        _set(c, k, int(v) if k in _STATIC_INT else float(v))
+    return c
+
+
 def run_single(cfg: dict, keys, params, estimator: str = ESTIMATOR_DEFAULT) -> SweepPoint:
     """One configuration, unbatched, through the same stages as :func:`run_sweep` (``cfg``
     with the options ``keys`` set to ``params``); returns a :class:`SweepPoint`. The same
     program as one row of the sweep: static options set in the config, traced ones passed
     as arguments (so ``protocol.seed`` selects the noise draw and keeps the config's
     multisine phases, as in the sweep)."""
-    c = copy.deepcopy(cfg)
     kinds = [classify(k, cfg, estimator) for k in keys]
     traced = tuple(k for k, kind in zip(keys, kinds, strict=True) if kind == "traced")
     x = [float(v) for v, kind in zip(params, kinds, strict=True) if kind == "traced"]
-    for k, v, kind in zip(keys, params, kinds, strict=True):
-        if kind == "static":  # as run_sweep: static values set in the config, the rest traced
-            _set(c, k, int(v) if k in _STATIC_INT else float(v))
+    static = [(k, v) for k, v, kind in zip(keys, params, kinds, strict=True) if kind == "static"]
+    c = _with_options(cfg, [k for k, _ in static], [v for _, v in static])  # as run_sweep
     fn = jax.jit(point_fn(c, traced, estimator))
     cols = _columns({k: np.asarray(v) for k, v in fn(jnp.asarray(x, dtype=float)).items()})
     return SweepPoint(tuple(keys), np.asarray(params, dtype=float), _scalars(cols))
