@@ -313,23 +313,19 @@ def calibrate(name: str, kinds=("white", "gp", "gp_corr"), method="laplace", dra
         pred = predictive_plants(ps, om, max_samples=draws, seed=seed)
         t_pred = time.perf_counter() - t0
         check = holdout_check(ps, max_samples=draws, seed=seed) if holdout or recalibrate else None
-        if recalibrate and "P" in quantities:  # hapid predict's default band
-            recal = recalibration(check, om / TWO_PI).apply(pred.P, seed=seed)
-            for band, c, k in split_figures(recal, tr["P"], om / TWO_PI, split_hz):
-                rows.append({"device": name, "error model": f"{kind} recal.", "quantity": "P",
-                             "band": band, **c, "eval_ms": ms, "build_s": t_build,
-                             "posterior_s": t_post, "predict_s": t_pred, "n_held_out": k,
-                             "tau": np.nan, "steps_over_tau": np.nan})  # fmt: skip
-        check = check if holdout else None
-        if check is not None:
+        if holdout:
             gaps = ", ".join(f"{a:g}–{b:g}" for a, b in check.not_established_hz) or "none"
             print(f"<!-- {name} seed {seed}: check {check.status}; not established (Hz): "
                   f"{gaps}; ratio min {check.ratio.min():.2f} -->", flush=True)  # fmt: skip
+        # (label, quantity, draws, check for the est./flagged rows)
+        series = [(kind, q, getattr(pred, q), check if holdout else None) for q in quantities]
+        if recalibrate and "P" in quantities:  # hapid predict's default band
+            recal = recalibration(check, om / TWO_PI).apply(pred.P, seed=seed)
+            series.append((f"{kind} recal.", "P", recal, None))
         d = ps.diagnostics
-        for q in quantities:
-            for band, c, k in split_figures(getattr(pred, q), tr[q], om / TWO_PI, split_hz,
-                                            check):  # fmt: skip
-                rows.append({"device": name, "error model": kind, "quantity": q, "band": band,
+        for label, q, X, chk in series:
+            for band, c, k in split_figures(X, tr[q], om / TWO_PI, split_hz, chk):
+                rows.append({"device": name, "error model": label, "quantity": q, "band": band,
                              **c, "eval_ms": ms, "build_s": t_build, "posterior_s": t_post,
                              "predict_s": t_pred, "n_held_out": k,
                              "tau": d.get("tau_max", np.nan),

@@ -44,9 +44,7 @@ def cmd_predict(a):
     d = plant_draws(ps, TWO_PI * f, draws=a.draws, max_samples=a.max_samples, seed=a.seed,
                     include_error=not a.no_model_error)  # fmt: skip
     if not d.ok:
-        finite = [np.all(np.isfinite(x), axis=(1, 2, 3)) for x in d.arrays.values()]
-        bad = int(np.sum(~np.logical_and.reduce(finite)))
-        raise CommandError(f"{bad} of {d.P.shape[0]} draws ({', '.join(d.arrays)}) are not finite "
+        raise CommandError(f"{d.nonfinite_draws} of {d.P.shape[0]} draws ({', '.join(d.arrays)}) are not finite "
                            "on this grid (a singular Z_T in a draw?); nothing written: narrow the "
                            "grid or check the samples (hapid posterior)")  # fmt: skip
     check, line = run_check(ps, d.draws, a)
@@ -54,7 +52,7 @@ def cmd_predict(a):
     if check is not None and not a.no_recalibrate:
         rc = recalibration(check, f)
         raw, d = d.P, dataclasses.replace(d, P=rc.apply(d.P, seed=a.seed))
-        line = recalibrated_check_line(check) + "\n" + recalibration_line(rc)
+        line = check.evidence_message() + "\n" + recalibration_line(rc)
     recalibrated = raw is not None
     extra = {}
     if check is not None:
@@ -90,24 +88,6 @@ def cmd_predict(a):
             print(warning)
     if figure is not None:
         print(f"figure → {a.plot}")
-
-
-def recalibrated_check_line(check) -> str:
-    """The check's line when the band is recalibrated on it: its verdict is of the band as
-    drawn, which the file no longer holds, so it reads as evidence, not as the band's verdict."""
-    k = check.freq_hz.size
-    if check.ok:
-        return (f"check of the band as drawn: each of the {k} interior measured frequencies, left "
-                f"out in turn, fell inside its {100 * check.level:.0f} % band predicted from the "
-                "rest")  # fmt: skip
-    gaps = ", ".join(f"{lo:.4g}–{hi:.4g} Hz" for lo, hi in check.not_established_hz)
-    miss = ", ".join(f"{f:.4g}" for f in check.missed_hz)
-    mids = ", ".join(f"{f:.4g}" for f in check.suggested_hz)
-    more = f" (e.g. {mids} Hz)" if mids else " (a finer frequency grid: a longer period)"
-    return (f"check of the band as drawn: left out in turn, the measured P at {miss} Hz fell "
-            f"outside its {100 * check.level:.0f} % band predicted from the other frequencies "
-            f"(not established as drawn: {gaps}); the recalibration below carries those errors "
-            f"into the band. Measuring more frequencies there{more} would narrow it")  # fmt: skip
 
 
 def recalibration_line(rc) -> str:

@@ -265,20 +265,17 @@ def predictive_band(f, P, *, measured=None, check=None, uncalibrated=(), raw=Non
     :func:`~hapid.uncertainty.recalibration`) its band's edges are drawn as thin dashed lines
     and the check's intervals are not shaded (the recalibrated band carries those errors)."""
     f = np.asarray(f)
-    sv = np.linalg.svd(np.asarray(P), compute_uv=False)  # (S, N, n)
     lo_q, hi_q = (1 - level) / 2, 1 - (1 - level) / 2
-    lo, med, hi = (20 * np.log10(np.quantile(sv, q, axis=0)) for q in (lo_q, 0.5, hi_q))
+    lo, med, hi = _sv_db(P, (lo_q, 0.5, hi_q))
     k = 2 if check is not None else 1
     fig, axes = plt.subplots(1, k, figsize=(6.4 * k, 4.4), squeeze=False)
     ax = axes[0][0]
-    n = sv.shape[-1]
+    S, n = np.shape(P)[0], np.shape(P)[-1]
     for i, c in enumerate(_sv_colors(n)):
         ax.fill_between(f, lo[:, i], hi[:, i], color=c, alpha=0.3, lw=0)
         ax.semilogx(f, med[:, i], color=c, lw=1.0, label=f"σ_{i + 1}(P)" if n <= 6 else None)
     if raw is not None:
-        sv_raw = np.linalg.svd(np.asarray(raw), compute_uv=False)
-        for q in (lo_q, hi_q):
-            edge = 20 * np.log10(np.quantile(sv_raw, q, axis=0))
+        for edge in _sv_db(raw, (lo_q, hi_q)):
             for i, c in enumerate(_sv_colors(n)):
                 ax.semilogx(f, edge[:, i], color=c, lw=0.6, ls="--")
         ax.plot([], [], color="0.4", lw=0.6, ls="--", label="band as drawn")
@@ -289,7 +286,7 @@ def predictive_band(f, P, *, measured=None, check=None, uncalibrated=(), raw=Non
         ax.semilogx(fm[keep], svm, "k.", ms=4)
         ax.plot([], [], "k.", label="measured P")
     ax.set_ylabel(f"singular values of P (dB), {100 * level:.0f} % band")
-    ax.set_title(f"{sv.shape[0]} draws of P", fontsize=9)
+    ax.set_title(f"{S} draws of P", fontsize=9)
     if check is not None:
         bx = axes[0][1]
         ratio = np.asarray(check.error) / np.maximum(np.asarray(check.radius), 1e-300)
@@ -321,6 +318,13 @@ def predictive_band(f, P, *, measured=None, check=None, uncalibrated=(), raw=Non
         fig.suptitle(title)
     fig.tight_layout()
     return fig, axes
+
+
+def _sv_db(P, qs):
+    """The quantiles ``qs`` over the draws of the singular values of ``P (S, N, n, n)``, in
+    dB: one ``(N, n)`` array per level."""
+    sv = np.linalg.svd(np.asarray(P), compute_uv=False)  # (S, N, n)
+    return [20 * np.log10(np.quantile(sv, q, axis=0)) for q in qs]
 
 
 def loci(reports: dict, *, title: str = "", f_range=(0.1, 500.0)):

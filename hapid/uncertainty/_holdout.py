@@ -150,9 +150,7 @@ class HoldoutCheck:
                     f"{k} interior ones ({span}), left out in turn, fell inside its {pct} band "
                     "predicted from the rest (a misfit that peaks between two measured "
                     "frequencies and is small at both is not seen: docs/conventions.md)")  # fmt: skip
-        gaps = ", ".join(f"{lo:.4g}–{hi:.4g} Hz" for lo, hi in self.not_established_hz)
-        miss = ", ".join(f"{f:.4g}" for f in self.missed_hz)
-        mids = ", ".join(f"{f:.4g}" for f in self.suggested_hz)
+        gaps, miss, mids = self._listed()
         more = (f"measure more frequencies there (e.g. {mids} Hz)" if mids else
                 "measure there on a finer frequency grid (a longer period: the measured "
                 "frequencies are adjacent on theirs)")  # fmt: skip
@@ -161,6 +159,30 @@ class HoldoutCheck:
                 f"({k - m} of {k} interior ones inside): there the band is an interpolation the "
                 f"data contradict, not a bound. To establish it, {more} and rerun hapid "
                 "posterior")  # fmt: skip
+
+    def evidence_message(self) -> str:
+        """One line for the CLI when the band is recalibrated on this check
+        (:func:`~hapid.uncertainty.recalibration`): the verdict is of the band as drawn, which
+        the draws file no longer holds, so the line reads as evidence, not as a verdict."""
+        pct = f"{100 * self.level:.0f} %"
+        if self.ok:
+            return (f"check of the band as drawn: each of the {self.freq_hz.size} interior "
+                    f"measured frequencies, left out in turn, fell inside its {pct} band "
+                    "predicted from the rest")  # fmt: skip
+        gaps, miss, mids = self._listed()
+        more = f" (e.g. {mids} Hz)" if mids else " (a finer frequency grid: a longer period)"
+        return (f"check of the band as drawn: left out in turn, the measured P at {miss} Hz fell "
+                f"outside its {pct} band predicted from the other frequencies (not established "
+                f"as drawn: {gaps}); the recalibration below carries those errors into the "
+                f"band. Measuring more frequencies there{more} would narrow it")  # fmt: skip
+
+    def _listed(self) -> tuple[str, str, str]:
+        """The not-established intervals, the missed and the suggested frequencies as
+        comma-separated text (Hz)."""
+        gaps = ", ".join(f"{lo:.4g}–{hi:.4g} Hz" for lo, hi in self.not_established_hz)
+        miss = ", ".join(f"{f:.4g}" for f in self.missed_hz)
+        mids = ", ".join(f"{f:.4g}" for f in self.suggested_hz)
+        return gaps, miss, mids
 
     @property
     def suggested_hz(self) -> list[float]:
@@ -260,16 +282,28 @@ def direction_split(draws, truth, median=None) -> np.ndarray:
     |E₁₁|², mean_s (‖X_s‖² − |X_s,₁₁|²)]``). The plant's misfit concentrates in the leading
     direction (docs/conventions.md, "Where the 6-rod miss lies"); an error model the same
     size in every entry spreads its variance over all ``n²``."""
-    X = np.asarray(draws)
-    M = credible_ball(X, 0.5)[0] if median is None else np.asarray(median)
-    U, _, Vh = np.linalg.svd(M)
-    Uh, V = U.conj().swapaxes(-1, -2), Vh.conj().swapaxes(-1, -2)
-    E = Uh @ (np.asarray(truth) - M) @ V  # (N, n, n)
-    D = Uh[None] @ (X - M[None]) @ V[None]  # (S, N, n, n)
+    M, U, Vh, D = median_frame(draws, median)  # D: (S, N, n, n)
+    E = _rotated(np.asarray(truth)[None], M, U, Vh)[0]  # (N, n, n)
     e1, et = np.abs(E[..., 0, 0]) ** 2, np.sum(np.abs(E) ** 2, axis=(-2, -1))
     v1 = np.mean(np.abs(D[..., 0, 0]) ** 2, axis=0)
     vt = np.mean(np.sum(np.abs(D) ** 2, axis=(-2, -1)), axis=0)
     return np.stack([np.stack([e1, v1], -1), np.stack([et - e1, vt - v1], -1)])
+
+
+def median_frame(draws, median=None):
+    """``(M, U, Vh, D)``: the draws' elementwise re/im median ``M (N, n, n)`` (or ``median``),
+    its singular basis ``M = U Σ Vh`` and each draw's deviation in that basis,
+    ``D = Uᴴ (draws − M) V`` ``(S, N, n, n)``, for draws ``(S, N, n, n)`` (complex);
+    ``M + U D Vh`` gives the draws back."""
+    X = np.asarray(draws)
+    M = credible_ball(X, 0.5)[0] if median is None else np.asarray(median)
+    U, _, Vh = np.linalg.svd(M)
+    return M, U, Vh, _rotated(X, M, U, Vh)
+
+
+def _rotated(X, M, U, Vh):
+    """``Uᴴ (X − M) V`` for ``X (S, N, n, n)``."""
+    return U.conj().swapaxes(-1, -2)[None] @ (X - M[None]) @ Vh.conj().swapaxes(-1, -2)[None]
 
 
 def _circular(rng, shape):

@@ -55,10 +55,15 @@ class PlantDraws:
     info: dict = dataclasses.field(default_factory=dict)
 
     @property
+    def nonfinite_draws(self) -> int:
+        """The draws with a non-finite value in any of :attr:`arrays`."""
+        finite = [np.all(np.isfinite(a), axis=(1, 2, 3)) for a in self.arrays.values()]
+        return int(np.sum(~np.logical_and.reduce(finite)))
+
+    @property
     def ok(self) -> bool:
         """Every draw finite."""
-        arrays = [a for a in (self.P, self.Z_H, self.Z_T) if a is not None]
-        return all(bool(np.all(np.isfinite(a))) for a in arrays)
+        return self.nonfinite_draws == 0
 
     @property
     def status(self) -> DrawsStatus:

@@ -44,8 +44,7 @@ import dataclasses
 
 import numpy as np
 
-from ._holdout import HoldoutCheck
-from ._predictive import credible_ball
+from ._holdout import HoldoutCheck, _circular, median_frame
 
 EXCESS_FRACTION = 0.5
 """``c``: the added term's standard deviation as a fraction of the left-out excess error."""
@@ -83,18 +82,14 @@ class Recalibration:
         if not np.all(np.isfinite(X)):
             raise ValueError("Recalibration.apply: the draws hold non-finite values")
         n = X.shape[-1]
-        M = credible_ball(X, 0.5)[0]
-        U, _, Vh = np.linalg.svd(M)
-        Uh, V = U.conj().swapaxes(-1, -2), Vh.conj().swapaxes(-1, -2)
-        D = Uh[None] @ (X - M[None]) @ V[None]
+        M, U, Vh, D = median_frame(X)
         scale = np.broadcast_to(self.shrink[:, 1, None, None], (X.shape[1], n, n)).copy()
         scale[:, 0, 0] = self.shrink[:, 0]
         sd = np.broadcast_to(np.sqrt(self.add[:, 1] / max(n * n - 1, 1))[:, None, None],
                              scale.shape).copy()  # fmt: skip
         sd[:, 0, 0] = np.sqrt(self.add[:, 0])
         rng = np.random.default_rng([seed, 1])  # a stream of its own, not the draws' seed
-        Z = (rng.standard_normal(D.shape) + 1j * rng.standard_normal(D.shape)) * np.sqrt(0.5)
-        D = D * scale[None] + Z * sd[None]
+        D = D * scale[None] + _circular(rng, D.shape) * sd[None]
         return M[None] + U[None] @ D @ Vh[None]
 
     def summary(self) -> dict:
