@@ -41,6 +41,12 @@ def cmd_predict(a):
     if a.draws == "loop_gp" and ps.measured is None:
         raise CommandError(f"--draws loop_gp needs the measured FRF, and {a.samples} stores none "
                            "(write it with hapid posterior, or use --draws params)")  # fmt: skip
+    print(
+        f"predict: drawing up to {a.max_samples} draws of P on {len(f)} frequencies (~2–5 s; "
+        "the first run on a machine also compiles, ~10–20 s, cached after)",
+        file=sys.stderr,
+        flush=True,
+    )  # fmt: skip  (measured on a 6-rod model, 500 × 200: benchmarks/README.md)
     d = plant_draws(ps, TWO_PI * f, draws=a.draws, max_samples=a.max_samples, seed=a.seed,
                     include_error=not a.no_model_error)  # fmt: skip
     if not d.ok:

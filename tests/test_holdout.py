@@ -142,6 +142,7 @@ def test_predict_prints_the_verdict(samples, tmp_path, capsys):
     assert "Measuring more frequencies there (e.g. " in lines[1]
     assert lines[2].startswith("recalibrated on those left-out errors")
     assert "10 measured frequencies left out in turn" in cap.err  # progress: 12 fit frequencies
+    assert "drawing up to 50 draws of P on 5 frequencies" in cap.err
     assert main([*args, "--no-recalibrate", "--out", str(tmp_path / "r.npz")]) == 0
     line = capsys.readouterr().out.splitlines()[1]
     assert line.startswith("check: band NOT ESTABLISHED at ") and " 20, " in line
