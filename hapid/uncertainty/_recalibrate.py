@@ -4,8 +4,7 @@ the recalibrated draws.
 
 Why: the band of :func:`~hapid.uncertainty.predictive_plants` puts the same model-error
 variance in every element of ``Z_H`` and ``Z_M``, while the plant's misfit concentrates along
-the leading singular pair of ``P`` (on 6-rod devices 64–89 % of the error at 16–40 Hz, where
-the draws' spread was 3.9–9.1× too small) and the band is too wide where the misfit is small
+the leading singular pair of ``P``, and the band is too wide where the misfit is small
 (docs/conventions.md, "Where the 6-rod miss lies"). The leave-one-frequency-out check
 (:func:`~hapid.uncertainty.holdout_check`) measures both at every interior measured
 frequency ``f_k``, split by direction (:attr:`HoldoutCheck.lead`, :attr:`HoldoutCheck.rest`):
@@ -20,22 +19,18 @@ draws' median, and the other ``n² − 1`` entries of that basis), about the dra
   shrinks: where the band holds its left-out errors with room to spare it is narrowed;
 - **add** an independent circular term of variance ``c² max(e − v, 0) · 4t(1 − t)``
   (``c =`` :data:`EXCESS_FRACTION`; ``e − v`` the larger of the two left-out frequencies
-  around ``f``): the part of the left-out error the band did not carry, shaped over each
-  gap between measured frequencies (``t ∈ [0, 1]`` the position of ``f`` in its gap, in
-  ``ln f``): an interpolation error is 0 at the measured ends (there the band carries the
-  measurement's own error) and largest midway. Beyond the measured frequencies the shape is
-  1. Spread over the ``n² − 1`` entries evenly for ``rest``. Not a multiplicative widening:
-  between measured frequencies the GP's variance falls faster than the error does (widening
-  by the left-out ratio reached 52 % coverage at 16–40 Hz where this reached 100 %), so the
-  added size is the error's own. ``c = 1/2`` because a left-out frequency sits twice as far
-  from its neighbours as a band frequency from its nearest measurement.
+  around ``f``, the end one beyond them): the part of the left-out error the band did not
+  carry, shaped over each gap between measured frequencies (``t ∈ [0, 1]`` the position of
+  ``f`` in its gap, in ``ln f``; the shape is 1 outside the measured frequencies): an
+  interpolation error is 0 at the measured ends (there the band carries the measurement's
+  own error) and largest midway. Spread over the ``n² − 1`` entries evenly for ``rest``.
+  Added, not a multiplicative widening: between measured frequencies the GP's variance falls
+  faster than the error does, so the added size is the error's own. ``c = 1/2`` because a
+  left-out frequency sits twice as far from its neighbours as a band frequency from its
+  nearest measurement.
 
-The four constants were chosen on the fourth and fifth held-out families of
-``benchmarks/calibrate_predictive.py`` (36 runs) and judged on the sixth and the first three;
-the gap shape was added after that (no constant: the band's width ÷ error went from up to
-3.08 to up to 2.9 on those 96 runs) and judged on the seventh (figures:
-docs/conventions.md, "Recalibrated band"). Beyond the measured frequencies the end values
-hold for the added term (there no left-out frequency tests the band).
+How the constants were chosen and on which devices the result was judged:
+docs/conventions.md, "Recalibrated band"; the figures: benchmarks/README.md.
 """
 
 from __future__ import annotations
